@@ -1,0 +1,1 @@
+# Rules of the collision stage (not yet written).

@@ -1,0 +1,29 @@
+# Helpers shared by the rules files. Logic lives in src/sim2real; this only maps
+# config and wildcards onto paths.
+
+ROBOTS = list(config["robots"])
+
+
+wildcard_constraints:
+    robot="|".join(ROBOTS) if ROBOTS else "[^/]+",
+
+
+def robot_dir(robot):
+    return f"robots/{robot}"
+
+
+def robot_config(robot):
+    return f"configs/{robot}/robot.yaml"
+
+
+def all_targets():
+    """Every output `snakemake all` builds, stage by stage, for every configured robot."""
+    targets = []
+    for robot in ROBOTS:
+        for stage_targets in STAGE_TARGETS:
+            targets.extend(stage_targets(robot))
+    return targets
+
+
+# Each rules file appends a function robot -> list of its final outputs.
+STAGE_TARGETS = []

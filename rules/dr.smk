@@ -1,0 +1,1 @@
+# Rules of the dr stage (not yet written).

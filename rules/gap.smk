@@ -1,0 +1,1 @@
+# Rules of the gap stage (not yet written).

@@ -1,0 +1,1 @@
+# Rules of the lab stage (not yet written).

@@ -1,0 +1,1 @@
+# Rules of the meshes stage (not yet written).

@@ -1,0 +1,1 @@
+# Rules of the mjcf stage (not yet written).

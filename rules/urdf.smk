@@ -1,0 +1,1 @@
+# Rules of the urdf stage (not yet written).

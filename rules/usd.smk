@@ -1,0 +1,1 @@
+# Rules of the usd stage (not yet written).

@@ -1,0 +1,111 @@
+"""Atomic, deterministic file output and validated YAML/JSON input.
+
+Outputs are written to a temporary file beside the target and renamed into place, so a
+failure never leaves a partial output behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import yaml
+
+from sim2real.errors import InputError
+
+SCHEMA_DIR = Path(__file__).resolve().parents[2] / "schemas"
+
+
+@contextlib.contextmanager
+def atomic_path(target: str | Path) -> Iterator[Path]:
+    """Yield a temporary path; move it onto ``target`` only if the block succeeds."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        os.replace(tmp, target)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+@contextlib.contextmanager
+def atomic_dir(target: str | Path) -> Iterator[Path]:
+    """Yield a temporary directory; it replaces ``target`` only if the block succeeds."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    try:
+        yield tmp
+        if target.exists():
+            shutil.rmtree(target)
+        os.replace(tmp, target)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+
+
+def write_text(target: str | Path, text: str) -> None:
+    with atomic_path(target) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def write_json(target: str | Path, data: Any) -> None:
+    """Deterministic JSON: sorted keys, fixed indentation, trailing newline."""
+    write_text(target, json.dumps(data, indent=2, sort_keys=True, allow_nan=False) + "\n")
+
+
+def write_yaml(target: str | Path, data: Any) -> None:
+    write_text(target, yaml.safe_dump(data, sort_keys=True, default_flow_style=False))
+
+
+def read_yaml(path: str | Path) -> Any:
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, None, "file does not exist", "create it or correct the path")
+    try:
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else None
+        raise InputError(path, where, f"is not valid YAML ({getattr(exc, 'problem', exc)})", "fix the YAML syntax") from exc
+
+
+@cache
+def load_schema(name: str) -> dict[str, Any]:
+    """Load ``schemas/<name>`` (YAML or JSON)."""
+    path = SCHEMA_DIR / name
+    return yaml.safe_load(path.read_text(encoding="utf-8"))
+
+
+def validate(data: Any, schema_name: str, path: str | Path | None = None) -> Any:
+    """Validate ``data`` against ``schemas/<schema_name>``; the error names the key path."""
+    schema = load_schema(schema_name)
+    validator = jsonschema.Draft202012Validator(schema)
+    errors = sorted(validator.iter_errors(data), key=lambda e: list(map(str, e.absolute_path)))
+    if errors:
+        err = errors[0]
+        key_path = "/".join(str(p) for p in err.absolute_path) or "<top level>"
+        raise InputError(
+            path,
+            f"key '{key_path}'",
+            f"{err.message} (schema {schema_name})",
+            f"make '{key_path}' match schemas/{schema_name}",
+        )
+    return data
+
+
+def read_validated_yaml(path: str | Path, schema_name: str) -> Any:
+    data = read_yaml(path)
+    return validate(data, schema_name, path)
