@@ -1,0 +1,124 @@
+"""Rigid-body dynamics of a robot description with Pinocchio, batched over samples.
+
+The one place that turns a URDF into inverse dynamics and regressors; the gap report,
+the fits and the diagnosis all go through it so that they judge the same model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from sim2real.errors import InputError
+
+INERTIAL_PARAMS_PER_BODY = 10  # m, m*c (3), I at joint frame (6): Pinocchio's dynamic parameter order
+
+
+class RigidBodyModel:
+    """Pinocchio model of the measured joints; every other joint is locked.
+
+    ``joint_names`` orders all arrays (columns of q, qd, qdd, tau). Joints of the URDF that are
+    not measured (a gripper, a mimic joint) are locked at ``locked`` (default: 0 clipped into
+    their limits), which is what an arm log implies: they did not move.
+    URDF ``<dynamics damping friction>`` and ``armature`` enter the joint torque, as in the MJCF.
+    """
+
+    def __init__(
+        self,
+        urdf_path: str | Path,
+        joint_names: Sequence[str] | None = None,
+        locked: Mapping[str, float] | None = None,
+        armature: Mapping[str, float] | None = None,
+    ) -> None:
+        urdf_path = Path(urdf_path)
+        try:
+            full = pin.buildModelFromUrdf(str(urdf_path))
+        except Exception as exc:  # Pinocchio raises bare RuntimeError/ValueError
+            raise InputError(urdf_path, None, f"Pinocchio cannot parse it ({exc})", "check the URDF") from exc
+        names = [full.names[i] for i in range(1, full.njoints)]
+        if joint_names is None:
+            joint_names = names
+        unknown = [j for j in joint_names if j not in names]
+        if unknown:
+            raise InputError(
+                urdf_path, f"joint(s) {', '.join(unknown)}", "not in the robot description",
+                f"use joint names of the URDF: {', '.join(names)}",
+            )
+        for j in joint_names:
+            jmodel = full.joints[full.getJointId(j)]
+            if jmodel.nq != 1 or jmodel.nv != 1:
+                raise InputError(urdf_path, f"joint {j}", "is not a 1-DoF joint", "measure only revolute/prismatic joints")
+        locked = dict(locked or {})
+        q_lock = pin.neutral(full)
+        lock_ids = []
+        for name in names:
+            if name in joint_names:
+                continue
+            jid = full.getJointId(name)
+            idx = full.joints[jid].idx_q
+            value = locked.get(name, 0.0)
+            lo, hi = full.lowerPositionLimit[idx], full.upperPositionLimit[idx]
+            q_lock[idx] = float(np.clip(value, lo, hi)) if np.isfinite(lo) and np.isfinite(hi) else value
+            lock_ids.append(jid)
+        self.model = pin.buildReducedModel(full, lock_ids, q_lock) if lock_ids else full
+        self.data = self.model.createData()
+        self.urdf_path = urdf_path
+        self.joint_names = list(joint_names)
+        # Reduced-model joint order follows the URDF tree; map it to the caller's order.
+        reduced_names = [self.model.names[i] for i in range(1, self.model.njoints)]
+        self._perm = np.array([reduced_names.index(j) for j in self.joint_names])
+        self.n = len(self.joint_names)
+        if armature:
+            for name, value in armature.items():
+                if name in reduced_names:
+                    self.model.armature[self.model.joints[self.model.getJointId(name)].idx_v] = value
+        self.damping = self._in_order(self.model.damping)
+        self.friction = self._in_order(self.model.friction)
+        self.armature = self._in_order(self.model.armature)
+        self.effort_limit = self._in_order(self.model.effortLimit)
+        self.lower = self._in_order(self.model.lowerPositionLimit)
+        self.upper = self._in_order(self.model.upperPositionLimit)
+        self.velocity_limit = self._in_order(self.model.velocityLimit)
+        self.body_names = reduced_names  # one moving body per joint, in tree order
+
+    def _in_order(self, vec: np.ndarray) -> np.ndarray:
+        return np.asarray(vec, dtype=float)[self._perm].copy()
+
+    def _to_pin(self, x: np.ndarray) -> np.ndarray:
+        out = np.empty(self.n)
+        out[self._perm] = x
+        return out
+
+    def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """Joint torques (N, n) of the nominal model: RNEA with armature, plus URDF damping and friction."""
+        q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, qd, qdd))
+        tau = np.empty_like(q)
+        for k in range(q.shape[0]):
+            t = pin.rnea(self.model, self.data, self._to_pin(q[k]), self._to_pin(qd[k]), self._to_pin(qdd[k]))
+            tau[k] = np.asarray(t)[self._perm]
+        return tau + self.damping * qd + self.friction * np.sign(qd)
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        out = np.empty_like(q)
+        for k in range(q.shape[0]):
+            out[k] = np.asarray(pin.computeGeneralizedGravity(self.model, self.data, self._to_pin(q[k])))[self._perm]
+        return out
+
+    def inertial_parameters(self) -> np.ndarray:
+        """Dynamic parameters (10 per body, Pinocchio order) of the moving bodies, shape (n_bodies*10,)."""
+        return np.concatenate([self.model.inertias[i].toDynamicParameters() for i in range(1, self.model.njoints)])
+
+    def regressor(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """Joint-torque regressor, shape (N, n, 10*n_bodies): rnea (without armature) = Y @ params."""
+        q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, qd, qdd))
+        out = np.empty((q.shape[0], self.n, INERTIAL_PARAMS_PER_BODY * (self.model.njoints - 1)))
+        for k in range(q.shape[0]):
+            y = pin.computeJointTorqueRegressor(
+                self.model, self.data, self._to_pin(q[k]), self._to_pin(qd[k]), self._to_pin(qdd[k])
+            )
+            out[k] = np.asarray(y)[self._perm]
+        return out

@@ -1,0 +1,17 @@
+"""Error measures in the shape every report uses: {"overall": x, "per_joint": {joint: x}}."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+
+def rmse(error: np.ndarray, joint_names: Sequence[str]) -> dict[str, object]:
+    """Root-mean-square of an (N, n_joints) error: over all samples and joints, and per joint."""
+    error = np.asarray(error, dtype=float)
+    per_joint = np.sqrt(np.mean(error**2, axis=0))
+    return {
+        "overall": float(np.sqrt(np.mean(error**2))),
+        "per_joint": {name: float(v) for name, v in zip(joint_names, per_joint, strict=True)},
+    }
