@@ -1,0 +1,399 @@
+"""URDF -> MJCF (MuJoCo 4) following the mujoco_menagerie conventions, by MjSpec edits only.
+
+MuJoCo's URDF importer builds bodies, joints (limits, damping, actuator force range), inertials
+and mimic equalities. It cannot read DAE meshes or ``package://`` URIs, so the URDF given to it has
+its geometry removed and every geom is added back through ``mujoco.MjSpec``: visual meshes as one
+geom per material part (class ``visual``), collision meshes/primitives (class ``collision``).
+Actuators, armature, the ``home`` keyframe and the ``attachment_site`` come from
+``configs/{robot}/robot.yaml``.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+import os
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from sim2real.errors import InputError
+from sim2real.io import atomic_path, read_validated_yaml, write_text
+from sim2real.meshes import read_parts
+from sim2real.urdf import mesh_name
+
+ROBOT_SCHEMA = "robot.schema.yaml"
+VISUAL_CLASS = "visual"
+COLLISION_CLASS = "collision"
+INTEGRATORS = {
+    "Euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "RK4": mujoco.mjtIntegrator.mjINT_RK4,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+}
+
+
+@dataclass(frozen=True)
+class UrdfGeometry:
+    link: str
+    kind: str  # "visual" | "collision"
+    element: ET.Element  # the <geometry> child: mesh, box, cylinder, sphere
+    pos: tuple[float, float, float]
+    quat: tuple[float, float, float, float]
+
+
+def _floats(text: str | None, default: Sequence[float]) -> tuple[float, ...]:
+    return tuple(float(v) for v in text.split()) if text else tuple(default)
+
+
+def rpy_to_quat(rpy: Sequence[float]) -> tuple[float, float, float, float]:
+    """URDF roll-pitch-yaw (fixed axes X, Y, Z) -> MuJoCo quaternion (w, x, y, z)."""
+    roll, pitch, yaw = rpy
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+def urdf_geometries(root: ET.Element) -> list[UrdfGeometry]:
+    out = []
+    for link in root.findall("link"):
+        for kind in ("visual", "collision"):
+            for element in link.findall(kind):
+                geometry = element.find("geometry")
+                if geometry is None or len(geometry) == 0:
+                    continue
+                origin = element.find("origin")
+                xyz = _floats(origin.get("xyz") if origin is not None else None, (0, 0, 0))
+                rpy = _floats(origin.get("rpy") if origin is not None else None, (0, 0, 0))
+                out.append(UrdfGeometry(link.get("name", ""), kind, geometry[0], xyz, rpy_to_quat(rpy)))  # type: ignore[arg-type]
+    return out
+
+
+def _import_urdf_without_geometry(urdf_path: Path) -> tuple[mujoco.MjSpec, ET.Element]:
+    """MuJoCo's URDF importer on the kinematic tree only (geoms are added through MjSpec)."""
+    root = ET.parse(urdf_path).getroot()
+    stripped = ET.fromstring(ET.tostring(root))
+    for link in stripped.findall("link"):
+        for kind in ("visual", "collision"):
+            for element in link.findall(kind):
+                link.remove(element)
+    try:
+        spec = mujoco.MjSpec.from_string(ET.tostring(stripped, encoding="unicode"))
+    except Exception as exc:
+        raise InputError(urdf_path, None, f"MuJoCo's URDF importer rejects it ({exc})", "fix the URDF") from exc
+    spec.compiler.fusestatic = False  # keep every URDF link (flange, TCP) as a body
+    spec.compiler.discardvisual = False
+    return spec, root
+
+
+def _matching(name: str, patterns: Mapping[str, object]) -> object | None:
+    for pattern, value in patterns.items():
+        if fnmatch.fnmatchcase(name, pattern):
+            return value
+    return None
+
+
+def _relative(path: str | Path, start: Path) -> str:
+    return Path(os.path.relpath(Path(path).resolve(), start.resolve())).as_posix()
+
+
+def build_mjcf(
+    urdf_path: str | Path,
+    robot_config_path: str | Path,
+    visual_dirs: Mapping[str, str | Path] | Sequence[str | Path],
+    collision_meshes: Mapping[str, Sequence[str | Path]],
+    out_xml: str | Path,
+    out_scene: str | Path,
+    *,
+    spec_edit: Callable[[mujoco.MjSpec], None] | None = None,
+) -> None:
+    """Build ``out_xml`` (robot) and ``out_scene`` (floor, light, ``<include>`` of the robot).
+
+    ``visual_dirs``: converted visual mesh directories (``parts.json`` inside), either a list (the
+    directory name is the mesh name = URI file stem) or a mapping URI -> directory.
+    ``collision_meshes``: URDF collision mesh URI -> list of mesh files (one STL, or several convex
+    parts); each file becomes one collision geom. ``spec_edit`` is applied last, before saving.
+    Both files are written atomically and only after the model compiles.
+    """
+    urdf_path, out_xml, out_scene = Path(urdf_path), Path(out_xml), Path(out_scene)
+    config = read_validated_yaml(robot_config_path, ROBOT_SCHEMA)
+    out_dir = out_xml.parent
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    if isinstance(visual_dirs, Mapping):
+        visual_by_name = {mesh_name(uri): Path(d) for uri, d in visual_dirs.items()}
+    else:
+        visual_by_name = {Path(d).name: Path(d) for d in visual_dirs}
+
+    spec, root = _import_urdf_without_geometry(urdf_path)
+    spec.modelname = root.get("name", spec.modelname)
+    spec.modelfiledir = str(out_dir.resolve())  # relative mesh paths resolve against the output
+    _set_options(spec, config)
+    visual_class, collision_class = _add_default_classes(spec)
+    _add_geometry(spec, root, urdf_path, visual_by_name, collision_meshes, out_dir, visual_class, collision_class)
+    _set_joint_dynamics(spec, root, config, robot_config_path)
+    _add_actuators(spec, root, config, robot_config_path)
+    _add_attachment_site(spec, config, robot_config_path)
+    _add_home_keyframe(spec, config, robot_config_path)
+    if spec_edit is not None:
+        spec_edit(spec)
+
+    try:
+        spec.compile()
+    except Exception as exc:
+        raise InputError(urdf_path, None, f"MuJoCo cannot compile the model ({exc})", "fix the URDF or robot.yaml") from exc
+    xml = spec.to_xml()
+    with atomic_path(out_xml) as tmp:
+        tmp.write_text(xml, encoding="utf-8")
+        mujoco.MjModel.from_xml_path(str(tmp))  # the saved file itself loads (relative paths resolve)
+        scene_check = out_dir / f".{out_scene.name}.{os.getpid()}.check.xml"
+        try:  # the scene around the new robot loads too, before anything is replaced
+            scene_check.write_text(scene_text(tmp.name), encoding="utf-8")
+            mujoco.MjModel.from_xml_path(str(scene_check))
+        finally:
+            scene_check.unlink(missing_ok=True)
+    write_text(out_scene, scene_text(out_xml.name))
+
+
+def _set_options(spec: mujoco.MjSpec, config: Mapping) -> None:
+    options = config.get("mjcf") or {}
+    if "timestep" in options:
+        spec.option.timestep = float(options["timestep"])
+    if "integrator" in options:
+        spec.option.integrator = INTEGRATORS[options["integrator"]]
+
+
+def _add_default_classes(spec: mujoco.MjSpec) -> tuple[mujoco.MjsDefault, mujoco.MjsDefault]:
+    """Menagerie classes: visual (no contacts, group 2) and collision (group 3)."""
+    visual = spec.add_default(VISUAL_CLASS, spec.default)
+    visual.geom.type = mujoco.mjtGeom.mjGEOM_MESH
+    visual.geom.contype = 0
+    visual.geom.conaffinity = 0
+    visual.geom.group = 2
+    visual.geom.density = 0
+    collision = spec.add_default(COLLISION_CLASS, spec.default)
+    collision.geom.group = 3
+    return visual, collision
+
+
+def _add_geometry(
+    spec: mujoco.MjSpec,
+    root: ET.Element,
+    urdf_path: Path,
+    visual_by_name: Mapping[str, Path],
+    collision_meshes: Mapping[str, Sequence[str | Path]],
+    out_dir: Path,
+    visual_class: mujoco.MjsDefault,
+    collision_class: mujoco.MjsDefault,
+) -> None:
+    meshes_added: set[str] = set()
+    materials_added: set[str] = set()
+    counters: dict[tuple[str, str], int] = {}
+
+    def geom_name(link: str, kind: str) -> str:
+        index = counters.get((link, kind), 0)
+        counters[(link, kind)] = index + 1
+        return f"{link}_{kind}" if index == 0 else f"{link}_{kind}_{index}"
+
+    for geometry in urdf_geometries(root):
+        body = spec.body(geometry.link)
+        if body is None:
+            continue
+        element = geometry.element
+        where = f"link '{geometry.link}' <{geometry.kind}>"
+        if element.tag == "mesh":
+            uri = element.get("filename", "")
+            scale = _floats(element.get("scale"), (1, 1, 1))
+            suffix = "" if scale == (1.0, 1.0, 1.0) else "_s" + "_".join(f"{s:g}" for s in scale)
+            name = mesh_name(uri)
+            if geometry.kind == "visual":
+                directory = visual_by_name.get(name)
+                if directory is None:
+                    raise InputError(urdf_path, where, f"no converted visual mesh for '{uri}'", "build the visual meshes first")
+                record = read_parts(directory)
+                for index, part in enumerate(record["parts"]):
+                    mesh_id = f"{name}_{index}{suffix}"
+                    if mesh_id not in meshes_added:
+                        spec.add_mesh(name=mesh_id, file=_relative(directory / part["file"], out_dir), scale=list(scale))
+                        meshes_added.add(mesh_id)
+                    material_id = f"{name}_{index}"
+                    if material_id not in materials_added:
+                        spec.add_material(name=material_id, rgba=list(part["rgba"]))
+                        materials_added.add(material_id)
+                    body.add_geom(
+                        visual_class, name=geom_name(geometry.link, "visual"), type=mujoco.mjtGeom.mjGEOM_MESH,
+                        meshname=mesh_id, material=material_id, pos=list(geometry.pos), quat=list(geometry.quat),
+                    )
+            else:
+                files = collision_meshes.get(uri)
+                if not files:
+                    raise InputError(urdf_path, where, f"no collision mesh file given for '{uri}'", "build the collision meshes first")
+                for index, file in enumerate(files):
+                    mesh_id = f"{name}_collision{'' if len(files) == 1 else f'_{index}'}{suffix}"
+                    if mesh_id not in meshes_added:
+                        spec.add_mesh(name=mesh_id, file=_relative(file, out_dir), scale=list(scale))
+                        meshes_added.add(mesh_id)
+                    body.add_geom(
+                        collision_class, name=geom_name(geometry.link, "collision"), type=mujoco.mjtGeom.mjGEOM_MESH,
+                        meshname=mesh_id, pos=list(geometry.pos), quat=list(geometry.quat),
+                    )
+        else:
+            geom_type, size = _primitive(element, urdf_path, where)
+            is_visual = geometry.kind == "visual"
+            body.add_geom(
+                visual_class if is_visual else collision_class,
+                name=geom_name(geometry.link, geometry.kind), type=geom_type, size=size,
+                pos=list(geometry.pos), quat=list(geometry.quat),
+            )
+
+
+def _primitive(element: ET.Element, urdf_path: Path, where: str) -> tuple[mujoco.mjtGeom, list[float]]:
+    if element.tag == "box":
+        return mujoco.mjtGeom.mjGEOM_BOX, [s / 2 for s in _floats(element.get("size"), (0, 0, 0))]
+    if element.tag == "cylinder":
+        return mujoco.mjtGeom.mjGEOM_CYLINDER, [float(element.get("radius", 0)), float(element.get("length", 0)) / 2, 0]
+    if element.tag == "sphere":
+        return mujoco.mjtGeom.mjGEOM_SPHERE, [float(element.get("radius", 0)), 0, 0]
+    raise InputError(urdf_path, where, f"unsupported geometry <{element.tag}>", "use mesh, box, cylinder or sphere")
+
+
+def _urdf_joints(root: ET.Element) -> dict[str, ET.Element]:
+    return {j.get("name", ""): j for j in root.findall("joint")}
+
+
+def _set_joint_dynamics(spec: mujoco.MjSpec, root: ET.Element, config: Mapping, config_path: str | Path) -> None:
+    """URDF damping -> damping, friction -> frictionloss (explicitly, whatever the importer did); armature."""
+    armature = config.get("armature") or {}
+    for name, joint in _urdf_joints(root).items():
+        mj_joint = spec.joint(name)
+        if mj_joint is None:
+            continue
+        dynamics = joint.find("dynamics")
+        damping = float(dynamics.get("damping", 0)) if dynamics is not None else 0.0
+        friction = float(dynamics.get("friction", 0)) if dynamics is not None else 0.0
+        mj_joint.damping = [damping, 0.0, 0.0]  # MuJoCo 4: polynomial damping, linear term first
+        mj_joint.frictionloss = friction
+        value = _matching(name, armature)
+        if value is not None:
+            mj_joint.armature = float(value)  # type: ignore[arg-type]
+
+
+def actuated_joints(root: ET.Element) -> list[str]:
+    """Non-fixed joints that are not mimic joints, in URDF order."""
+    return [
+        j.get("name", "")
+        for j in root.findall("joint")
+        if j.get("type") in ("revolute", "prismatic", "continuous") and j.find("mimic") is None
+    ]
+
+
+def _add_actuators(spec: mujoco.MjSpec, root: ET.Element, config: Mapping, config_path: str | Path) -> None:
+    joints = _urdf_joints(root)
+    assigned: dict[str, Mapping] = {}
+    for index, entry in enumerate(config.get("actuators") or []):
+        matched = [j for j in actuated_joints(root) if fnmatch.fnmatchcase(j, entry["joints"])]
+        if not matched:
+            raise InputError(
+                config_path, f"actuators[{index}].joints '{entry['joints']}'",
+                "matches no actuated joint of the URDF", f"use one of: {', '.join(actuated_joints(root))}",
+            )
+        for j in matched:
+            assigned.setdefault(j, entry)
+    for name in actuated_joints(root):  # URDF order
+        entry = assigned.get(name)
+        if entry is None:
+            continue
+        limit = joints[name].find("limit")
+        effort = float(limit.get("effort")) if limit is not None else 0.0  # validated in the URDF stage
+        actuator = spec.add_actuator(name=name, target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        kind = entry["type"]
+        if kind == "position":
+            actuator.set_to_position(kp=float(entry["kp"]), kv=float(entry.get("kv", 0.0)))
+            lower, upper = float(limit.get("lower")), float(limit.get("upper"))  # type: ignore[arg-type,union-attr]
+            actuator.ctrlrange = [lower, upper]
+        elif kind == "velocity":
+            actuator.set_to_velocity(kv=float(entry["kv"]))
+            velocity = float(limit.get("velocity", 0.0)) if limit is not None else 0.0
+            actuator.ctrlrange = [-velocity, velocity]
+        else:
+            actuator.set_to_motor()
+            gear = float(entry.get("gear", 1.0))
+            actuator.gear = [gear, 0, 0, 0, 0, 0]
+            actuator.ctrlrange = [-effort / abs(gear), effort / abs(gear)]
+        actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        actuator.forcerange = [-effort, effort]
+        actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+
+
+def _add_attachment_site(spec: mujoco.MjSpec, config: Mapping, config_path: str | Path) -> None:
+    flange = config["flange"]
+    body = spec.body(flange)
+    if body is None:
+        raise InputError(config_path, f"flange '{flange}'", "is not a link of the URDF", "name the tool flange link")
+    body.add_site(name="attachment_site", pos=[0, 0, 0], quat=[1, 0, 0, 0], group=5)
+
+
+def _add_home_keyframe(spec: mujoco.MjSpec, config: Mapping, config_path: str | Path) -> None:
+    """``home``: qpos from config (unlisted joints: 0 clipped into range); ctrl holds that pose."""
+    home = dict(config.get("home") or {})
+    model = spec.compile()
+    names = [model.joint(i).name for i in range(model.njnt)]
+    unknown = sorted(set(home) - set(names))
+    if unknown:
+        raise InputError(config_path, f"home: {', '.join(unknown)}", "not joints of the model", f"use: {', '.join(names)}")
+    qpos = np.array(model.qpos0, dtype=float)
+    for i, name in enumerate(names):
+        adr = model.jnt_qposadr[i]
+        value = float(home.get(name, 0.0))
+        if model.jnt_limited[i]:
+            lower, upper = model.jnt_range[i]
+            if name in home and not lower <= value <= upper:
+                raise InputError(
+                    config_path, f"home: {name}", f"{value} is outside the joint range [{lower}, {upper}]",
+                    "give a home position inside the limits",
+                )
+            value = float(np.clip(value, lower, upper))
+        qpos[adr] = value
+    ctrl = np.zeros(model.nu)
+    for a in range(model.nu):
+        if model.actuator_biastype[a] != mujoco.mjtBias.mjBIAS_NONE and model.actuator_gainprm[a, 0] > 0:
+            ctrl[a] = qpos[model.jnt_qposadr[model.actuator_trnid[a, 0]]]  # position servo: hold the pose
+    spec.add_key(name="home", qpos=qpos.tolist(), ctrl=ctrl.tolist())
+
+
+def scene_text(robot_file: str) -> str:
+    """scene.xml: the menagerie scene (sky, checker floor, light) including ``robot_file``."""
+    return f"""<mujoco model="scene">
+  <include file="{robot_file}"/>
+
+  <statistic center="0.3 0 0.4" extent="1"/>
+
+  <visual>
+    <headlight diffuse="0.6 0.6 0.6" ambient="0.3 0.3 0.3" specular="0 0 0"/>
+    <rgba haze="0.15 0.25 0.35 1"/>
+    <global azimuth="120" elevation="-20"/>
+  </visual>
+
+  <asset>
+    <texture type="skybox" builtin="gradient" rgb1="0.3 0.5 0.7" rgb2="0 0 0" width="512" height="3072"/>
+    <texture type="2d" name="groundplane" builtin="checker" mark="edge" rgb1="0.2 0.3 0.4" rgb2="0.1 0.2 0.3"
+      markrgb="0.8 0.8 0.8" width="300" height="300"/>
+    <material name="groundplane" texture="groundplane" texuniform="true" texrepeat="5 5" reflectance="0.2"/>
+  </asset>
+
+  <worldbody>
+    <light pos="0 0 1.5" dir="0 0 -1" directional="true"/>
+    <geom name="floor" size="0 0 0.05" type="plane" material="groundplane"/>
+  </worldbody>
+</mujoco>
+"""
