@@ -1,0 +1,460 @@
+"""The gap report: how far the model is from the measurements, and where it fails.
+
+* Torque domain: inverse dynamics of the URDF model (Pinocchio, ``RigidBodyModel``) on the prepared
+  q, qd, qdd against the prepared torque (measured ``tau``, else ``tau_cmd``): RMSE per joint and
+  overall, RMSE relative to the torque's RMS, R^2.
+* State domain, where commands exist: the commanded torques are replayed in MuJoCo (the built MJCF
+  driven by joint torques, see ``sim2real.lab.arm_spec``) with multiple shooting: every ``horizon_s``
+  the simulation restarts from the measured state (``mujoco.rollout``, one segment per batch row).
+  Position/velocity RMSE, correlation, spectral divergence and the reality-gap metric of the source
+  chapter (P02.5): score = 0.3 min(pos/0.1,1) + 0.2 min(vel/1,1) + 0.15 min(tau/5,1) + 0.15 (1-corr)
+  + 0.1 min(spec/1,1) + 0.1 (1-contact F1). ``tau`` is the torque-domain RMSE. Without contact flags
+  the contact term is not applicable and the other weights are renormalised to sum to 1 (an arm in
+  free space would otherwise be charged 0.1 for contacts that do not exist).
+* Where it fails: per joint and regime (slow motion and velocity reversals, hard accelerations,
+  gravity-loaded poses, near the limits), and the worst time windows with their stamps.
+* The noise floor: the torque RMS that no model can explain (``estimate_noise_floor``).
+
+``compute_gap`` returns the gap.json content; ``build_gap_report`` writes gap.json, gap.md and the
+figures. An optional precomputed section (``ladder``, ``diagnosis``, from the sysid rule) is merged in.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from sim2real.dynamics import RigidBodyModel
+from sim2real.errors import InputError
+from sim2real.io import validate, write_json
+from sim2real.measurements import (
+    MeasurementEntry,
+    PreparedRun,
+    estimate_noise_floor,
+    load_measurement_list,
+    load_run,
+    measurement_settings,
+    prepare_run,
+)
+from sim2real.metrics import rmse
+
+REGIMES = ("slow_reversal", "hard_acceleration", "gravity_loaded", "near_limit")
+REGIME_LABELS = {
+    "slow_reversal": "slow motion and velocity reversals",
+    "hard_acceleration": "hard accelerations",
+    "gravity_loaded": "gravity-loaded poses",
+    "near_limit": "near the position limits",
+}
+GAP_WEIGHTS = {"position": 0.3, "velocity": 0.2, "torque": 0.15, "correlation": 0.15, "spectral": 0.1, "contact": 0.1}
+WINDOW_S = 0.5
+N_WORST_WINDOWS = 5
+
+
+@dataclass(frozen=True)
+class TorqueComparison:
+    run: PreparedRun
+    role: str
+    model_tau: np.ndarray
+    residual: np.ndarray  # measured - model
+    gravity: np.ndarray
+
+
+def _per_joint_dict(values: np.ndarray, joints: Sequence[str], overall: float) -> dict[str, Any]:
+    return {"overall": float(overall), "per_joint": {j: float(v) for j, v in zip(joints, values)}}
+
+
+def torque_metrics(measured: np.ndarray, residual: np.ndarray, joints: Sequence[str]) -> dict[str, Any]:
+    """RMSE, relative RMSE (to the measured RMS) and R^2, each {overall, per_joint}."""
+    err = rmse(residual, joints)
+    rms = np.sqrt(np.mean(measured**2, axis=0))
+    rms_all = float(np.sqrt(np.mean(measured**2)))
+    rel = np.asarray([err["per_joint"][j] for j in joints]) / np.maximum(rms, 1e-12)
+    ss_res = np.sum(residual**2, axis=0)
+    ss_tot = np.sum((measured - measured.mean(axis=0)) ** 2, axis=0)
+    r2 = 1.0 - ss_res / np.maximum(ss_tot, 1e-12)
+    r2_all = 1.0 - ss_res.sum() / max(float(ss_tot.sum()), 1e-12)
+    return {
+        "torque_rmse": err,
+        "torque_relative_rmse": _per_joint_dict(rel, joints, err["overall"] / max(rms_all, 1e-12)),
+        "torque_r2": _per_joint_dict(r2, joints, r2_all),
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# state domain
+
+
+def replay(
+    mjcf_path: str | Path, prepared: PreparedRun, horizon_s: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Multiple-shooting replay of tau_cmd: (simulated q, simulated qd, index of the compared samples)."""
+    from sim2real.lab import arm_spec, compile_arm
+
+    assert prepared.tau_cmd is not None
+    joints = prepared.joint_names
+    model, qadr, dadr = compile_arm(arm_spec(mjcf_path, joints), joints)
+    model.opt.timestep = prepared.dt
+    seg = max(2, int(round(horizon_s / prepared.dt)))
+    n_seg = (prepared.time.size - 1) // seg
+    if n_seg < 1:
+        raise ValueError("run shorter than one replay horizon")
+    data = mujoco.MjData(model)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    nstate = mujoco.mj_stateSize(model, spec)
+    initial = np.empty((n_seg, nstate))
+    control = np.zeros((n_seg, seg, model.nu))
+    ctrl_cols = np.array([model.actuator(f"motor_{j}").id for j in joints])
+    starts = np.arange(n_seg) * seg
+    for b, start in enumerate(starts):
+        mujoco.mj_resetData(model, data)
+        data.qpos[qadr] = prepared.q[start]
+        data.qvel[dadr] = prepared.qd[start]
+        mujoco.mj_getState(model, data, initial[b], spec)
+        control[b][:, ctrl_cols] = prepared.tau_cmd[start:start + seg]
+    state, _ = rollout.rollout(model, [mujoco.MjData(model) for _ in range(2)], initial, control)
+    # state[b, i] is the state after step i, i.e. at sample start + i + 1
+    qpos_off = 1  # FULLPHYSICS state = [time, qpos, qvel, act, ...]
+    q_sim = state[:, :, qpos_off + qadr].reshape(-1, len(joints))
+    qd_sim = state[:, :, qpos_off + model.nq + dadr].reshape(-1, len(joints))
+    index = (starts[:, None] + 1 + np.arange(seg)[None, :]).reshape(-1)
+    return q_sim, qd_sim, index
+
+
+def spectral_divergence(sim: np.ndarray, real: np.ndarray) -> float:
+    """KL divergence of normalised magnitude spectra of the positions (source chapter P02.5), mean over joints."""
+    divs = []
+    for j in range(min(sim.shape[1], 7)):
+        s = np.abs(np.fft.rfft(sim[:, j]))
+        r = np.abs(np.fft.rfft(real[:, j]))
+        s = s / (s.sum() + 1e-10)
+        r = r / (r.sum() + 1e-10)
+        divs.append(float(np.sum(r * np.log((r + 1e-10) / (s + 1e-10)))))
+    return float(np.mean(divs))
+
+
+def reality_gap(pos_rmse: float, vel_rmse: float, tau_rmse: float, corr: float, spectral: float,
+                contact_f1: float | None) -> dict[str, Any]:
+    """Overall gap score, grade and recommendation of the source chapter's reality-gap metric."""
+    terms = {
+        "position": min(pos_rmse / 0.1, 1.0),
+        "velocity": min(vel_rmse / 1.0, 1.0),
+        "torque": min(tau_rmse / 5.0, 1.0),
+        "correlation": 1.0 - corr,
+        "spectral": min(spectral / 1.0, 1.0),
+    }
+    weights = dict(GAP_WEIGHTS)
+    if contact_f1 is None:
+        weights.pop("contact")
+        total = sum(weights.values())
+        weights = {k: v / total for k, v in weights.items()}
+    else:
+        terms["contact"] = 1.0 - contact_f1
+    score = float(sum(weights[k] * terms[k] for k in weights))
+    if score < 0.15:
+        grade, rec = "low", "low gap: transfer directly, light domain randomization is enough"
+    elif score < 0.35:
+        grade, rec = "medium", "medium gap: calibrate with system identification, then moderate domain randomization"
+    elif score < 0.6:
+        grade, rec = "high", "high gap: re-identify the physical parameters and check the contact model"
+    else:
+        grade, rec = "very_high", "very high gap: the model is probably fundamentally wrong; re-check the URDF"
+    return {"score": score, "grade": grade, "recommendation": rec,
+            "weights": {k: float(v) for k, v in weights.items()}, "terms": {k: float(v) for k, v in terms.items()}}
+
+
+def fidelity_grade(mean_abs_position_error: float) -> str:
+    if mean_abs_position_error < 0.02:
+        return "high"
+    if mean_abs_position_error <= 0.1:
+        return "medium"
+    return "low"
+
+
+def state_domain(mjcf_path: str | Path, runs: Sequence[TorqueComparison], horizon_s: float,
+                 tau_rmse: float) -> dict[str, Any]:
+    """State-domain metrics over all runs with commands, or a plain 'skipped' with the reason."""
+    usable = [c for c in runs if c.run.tau_cmd is not None]
+    if not usable:
+        return {"status": "skipped",
+                "reason": "no run logs commanded torques (tau_cmd.<joint>), so there is nothing to replay"}
+    joints = usable[0].run.joint_names
+    sims, reals, simv, realv, contacts = [], [], [], [], []
+    for c in usable:
+        try:
+            q_sim, qd_sim, idx = replay(mjcf_path, c.run, horizon_s)
+        except ValueError as exc:
+            return {"status": "skipped", "reason": f"run '{c.run.name}': {exc} (horizon {horizon_s} s)"}
+        sims.append(q_sim)
+        reals.append(c.run.q[idx])
+        simv.append(qd_sim)
+        realv.append(c.run.qd[idx])
+        contacts.append(c.run.contact)
+    q_sim, q_real = np.concatenate(sims), np.concatenate(reals)
+    qd_sim, qd_real = np.concatenate(simv), np.concatenate(realv)
+    finite = np.all(np.isfinite(q_sim), axis=1) & np.all(np.isfinite(qd_sim), axis=1)
+    q_sim, q_real, qd_sim, qd_real = q_sim[finite], q_real[finite], qd_sim[finite], qd_real[finite]
+    pos = rmse(q_sim - q_real, joints)
+    vel = rmse(qd_sim - qd_real, joints)
+    corr = np.array([np.corrcoef(q_sim[:, j], q_real[:, j])[0, 1] for j in range(len(joints))])
+    corr = np.nan_to_num(corr, nan=0.0)
+    spectral = spectral_divergence(q_sim, q_real)
+    mean_abs = float(np.mean(np.abs(q_sim - q_real)))
+    contact_f1 = None  # the replay model has contacts disabled; flags alone cannot be compared
+    gap = reality_gap(pos["overall"], vel["overall"], tau_rmse, float(corr.mean()), spectral, contact_f1)
+    return {
+        "status": "computed",
+        "horizon_s": float(horizon_s),
+        "runs": [c.run.name for c in usable],
+        "position_rmse": pos,
+        "velocity_rmse": vel,
+        "correlation": _per_joint_dict(corr, joints, float(corr.mean())),
+        "spectral_divergence": spectral,
+        "contact_f1": None,
+        "contact_note": "no contact flags compared (free-space motion); the contact term is left out of the score",
+        "mean_abs_position_error": mean_abs,
+        "fidelity": fidelity_grade(mean_abs),
+        "reality_gap": gap,
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# where it fails
+
+
+def regime_masks(c: TorqueComparison, lower: np.ndarray, upper: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per regime: (in-regime mask (N, n), side (N, n) = +1/-1 splitting the regime in two).
+
+    The side is the sign of the regime's variable: velocity, acceleration, gravity torque, which limit.
+    A model error that lives in the regime shows as a step of the residual between the two sides.
+    """
+    run = c.run
+    speed = np.abs(run.qd)
+    v_slow = 0.15 * np.percentile(speed, 99, axis=0)
+    acc = np.abs(run.qdd)
+    a_hard = np.percentile(acc, 80, axis=0)
+    g_abs = np.abs(c.gravity)
+    g_max = g_abs.max(axis=0)
+    rng_ = np.where(np.isfinite(upper - lower), upper - lower, np.inf)
+    dist_lo = run.q - lower
+    dist_hi = upper - run.q
+    near = np.minimum(dist_lo, dist_hi) < 0.1 * rng_
+    return {
+        "slow_reversal": (speed < v_slow, np.sign(run.qd)),
+        "hard_acceleration": (acc > a_hard, np.sign(run.qdd)),
+        "gravity_loaded": ((g_abs > 0.7 * g_max) & (g_max > 0.5), np.sign(c.gravity)),
+        "near_limit": (near, np.where(dist_hi < dist_lo, 1.0, -1.0)),
+    }
+
+
+def where_it_fails(
+    comparisons: Sequence[TorqueComparison], lower: np.ndarray, upper: np.ndarray, noise_floor: np.ndarray,
+) -> dict[str, Any]:
+    joints = comparisons[0].run.joint_names
+    masks = [regime_masks(c, lower, upper) for c in comparisons]
+    residual = np.concatenate([c.residual for c in comparisons])
+    overall = np.sqrt(np.mean(residual**2, axis=0))
+    per_joint: dict[str, Any] = {}
+    findings = []
+    for jj, joint in enumerate(joints):
+        entry: dict[str, Any] = {"rmse": float(overall[jj]), "noise_floor": float(noise_floor[jj]), "regimes": {}}
+        for regime in REGIMES:
+            inside = np.concatenate([m[regime][0][:, jj] for m in masks])
+            side = np.concatenate([m[regime][1][:, jj] for m in masks])
+            r = residual[:, jj]
+            n_in = int(inside.sum())
+            if n_in < 20 or n_in == inside.size:
+                entry["regimes"][regime] = {"fraction": n_in / inside.size, "applicable": False}
+                continue
+            rin = r[inside]
+            pos, neg = inside & (side > 0), inside & (side < 0)
+            step = float(abs(r[pos].mean() - r[neg].mean())) if pos.sum() > 10 and neg.sum() > 10 else 0.0
+            p = pos.sum() / max(n_in, 1)
+            # share of the in-regime residual power that the two-sided step explains
+            explained = float(min(1.0, step**2 * p * (1 - p) / max(np.mean(rin**2), 1e-18)))
+            rmse_in = float(np.sqrt(np.mean(rin**2)))
+            rmse_out = float(np.sqrt(np.mean(r[~inside] ** 2)))
+            entry["regimes"][regime] = {
+                "applicable": True, "fraction": float(n_in / inside.size), "rmse": rmse_in, "rmse_outside": rmse_out,
+                "step": step, "explained": explained,
+            }
+            systematic = step > 3.0 * noise_floor[jj] and step > 0.5 * overall[jj]
+            if systematic and explained > 0.2:
+                findings.append({"joint": joint, "regime": regime, "step": step, "explained": explained,
+                                 "rmse_in_regime": rmse_in, "label": REGIME_LABELS[regime]})
+        per_joint[joint] = entry
+    # keep, per joint, the regimes whose step is comparable to that joint's strongest one
+    strongest = {}
+    for f in findings:
+        strongest[f["joint"]] = max(strongest.get(f["joint"], 0.0), f["step"] * f["explained"])
+    findings = [f for f in findings if f["step"] * f["explained"] >= 0.5 * strongest[f["joint"]]]
+    findings.sort(key=lambda f: (-f["step"] * f["explained"], f["joint"], f["regime"]))
+    regime_counts: dict[str, int] = {}
+    for f in findings:
+        regime_counts[f["regime"]] = regime_counts.get(f["regime"], 0) + 1
+    return {
+        "per_joint": per_joint,
+        "findings": findings,
+        "summary": {
+            "joints": sorted({f["joint"] for f in findings}, key=joints.index),
+            "regimes": sorted(regime_counts, key=lambda r: (-regime_counts[r], r)),
+        },
+        "worst_windows": worst_windows(comparisons, masks),
+        "definitions": {
+            "slow_reversal": "|qd| below 15% of the joint's 99th-percentile speed; sides: sign of qd",
+            "hard_acceleration": "|qdd| above the joint's 80th percentile; sides: sign of qdd",
+            "gravity_loaded": "|gravity torque| above 70% of its maximum (joints with > 0.5 N*m); sides: its sign",
+            "near_limit": "within 10% of the range of a position limit; sides: which limit",
+            "step": "|mean residual on one side - on the other| in N*m: an error that lives in the regime",
+            "explained": "share of the in-regime residual power explained by that step (0..1)",
+            "finding": "step > 3x noise floor and > 0.5x the joint RMSE and explained > 0.2",
+        },
+    }
+
+
+def worst_windows(comparisons: Sequence[TorqueComparison], masks: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The N worst non-overlapping windows (by residual RMSE over all joints), with stamps."""
+    candidates = []
+    for c, m in zip(comparisons, masks):
+        w = max(1, int(round(WINDOW_S / c.run.dt)))
+        n_win = c.residual.shape[0] // w
+        for k in range(n_win):
+            block = c.residual[k * w:(k + 1) * w]
+            per_joint = np.sqrt(np.mean(block**2, axis=0))
+            jj = int(np.argmax(per_joint))
+            shares = {r: float(m[r][0][k * w:(k + 1) * w, jj].mean()) for r in REGIMES}
+            candidates.append({
+                "run": c.run.name,
+                "t_start": float(c.run.time[k * w]),
+                "t_end": float(c.run.time[min((k + 1) * w, c.run.time.size - 1)]),
+                "rmse": float(np.sqrt(np.mean(block**2))),
+                "worst_joint": c.run.joint_names[jj],
+                "worst_joint_rmse": float(per_joint[jj]),
+                "regime_share": shares,
+            })
+    candidates.sort(key=lambda x: (-x["rmse"], x["run"], x["t_start"]))
+    return candidates[:N_WORST_WINDOWS]
+
+
+# ---------------------------------------------------------------------------------------------
+# assembly
+
+
+def load_prepared_runs(
+    measurement_list: str | Path, known_joints: Sequence[str] | None = None, root: str | Path = ".",
+    limits: Mapping[str, tuple[float, float]] | None = None,
+) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
+    entries = load_measurement_list(measurement_list)
+    settings = measurement_settings(measurement_list)
+    prepared = []
+    for e in entries:
+        run = load_run(Path(root) / e.path, known_joints, limits)
+        prepared.append(prepare_run(run, cutoff_hz=settings["cutoff_hz"], order=settings["order"]))
+    joints = prepared[0].joint_names
+    for e, p in zip(entries, prepared):
+        if p.joint_names != joints:
+            raise InputError(Path(root) / e.path, "columns q.<joint>", "joints differ from the first run's",
+                             f"log the same joints in every run: {', '.join(joints)}")
+    return entries, prepared, settings
+
+
+def compute_gap(
+    robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
+    root: str | Path = ".", precomputed: Mapping[str, Any] | None = None,
+) -> tuple[dict[str, Any], list[TorqueComparison]]:
+    """The gap.json content (validated) and the per-run comparisons (for figures)."""
+    # joints come from the first run; the model locks everything else
+    entries = load_measurement_list(measurement_list)
+    first = load_run(Path(root) / entries[0].path)
+    model = RigidBodyModel(urdf_path, first.joint_names)
+    limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(model.joint_names, model.lower, model.upper)}
+    entries, prepared, settings = load_prepared_runs(measurement_list, model.joint_names, root, limits)
+    joints = model.joint_names
+
+    comparisons = []
+    for e, p in zip(entries, prepared):
+        model_tau = model.inverse_dynamics(p.q, p.qd, p.qdd)
+        comparisons.append(TorqueComparison(run=p, role=e.role, model_tau=model_tau, residual=p.tau - model_tau,
+                                            gravity=model.gravity(p.q)))
+    measured = np.concatenate([c.run.tau for c in comparisons])
+    residual = np.concatenate([c.residual for c in comparisons])
+    metrics = torque_metrics(measured, residual, joints)
+
+    floors = np.array([estimate_noise_floor(p) for p in prepared])
+    weights = np.array([p.time.size for p in prepared], dtype=float)
+    floor = np.sqrt(np.average(floors**2, axis=0, weights=weights))
+    noise_floor = {"torque_rmse": _per_joint_dict(floor, joints, float(np.sqrt(np.mean(floor**2)))),
+                   "method": "white part of the raw torque from second differences (MAD), per joint; "
+                             "a model that explains everything else has about this RMSE"}
+
+    if mjcf_path is None:
+        metrics["state_domain"] = {"status": "skipped", "reason": "no MJCF given to replay the commands in"}
+    else:
+        metrics["state_domain"] = state_domain(mjcf_path, comparisons, settings["horizon_s"],
+                                               metrics["torque_rmse"]["overall"])
+    if metrics["state_domain"]["status"] == "computed":
+        metrics["position_rmse"] = metrics["state_domain"]["position_rmse"]
+        metrics["velocity_rmse"] = metrics["state_domain"]["velocity_rmse"]
+
+    runs_out = []
+    for e, c in zip(entries, comparisons):
+        p = c.run
+        per_run = torque_metrics(p.tau, c.residual, joints)
+        runs_out.append({
+            "name": e.name, "path": Path(e.path).as_posix(), "role": e.role, "torque_source": p.torque_source,
+            "samples": int(p.time.size), "duration_s": float(p.time[-1] - p.time[0]),
+            "has_commands": p.tau_cmd is not None, "filter": p.filter,
+            "torque_rmse": per_run["torque_rmse"],
+            "noise_floor": _per_joint_dict(estimate_noise_floor(p), joints,
+                                           float(np.sqrt(np.mean(estimate_noise_floor(p) ** 2)))),
+        })
+
+    gap = {
+        "robot": robot,
+        "joints": joints,
+        "runs": runs_out,
+        "metrics": metrics,
+        "where": where_it_fails(comparisons, model.lower, model.upper, floor),
+        "noise_floor": noise_floor,
+    }
+    if precomputed:
+        for key in ("ladder", "diagnosis"):
+            if key in precomputed:
+                gap[key] = precomputed[key]
+    gap = json.loads(json.dumps(gap))  # plain JSON types only
+    validate(gap, "gap.schema.json", "gap.json")
+    return gap, comparisons
+
+
+def build_gap_report(
+    robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
+    gap_json: str | Path, gap_md: str | Path, figures: Mapping[str, str | Path],
+    precomputed_path: str | Path | None = None, root: str | Path = ".",
+) -> dict[str, Any]:
+    """Write gap.json, gap.md and the figures (keys: torque, residual_velocity, regimes)."""
+    from sim2real.report import render_gap_markdown, write_gap_figures
+
+    precomputed = None
+    if precomputed_path is not None and Path(precomputed_path).exists():
+        precomputed = json.loads(Path(precomputed_path).read_text(encoding="utf-8"))
+    gap, comparisons = compute_gap(robot, urdf_path, mjcf_path, measurement_list, root, precomputed)
+    write_gap_figures(gap, comparisons, figures)
+    md_dir = Path(gap_md).parent
+    rel = {k: Path(os_relpath(v, md_dir)).as_posix() for k, v in figures.items()}
+    from sim2real.io import write_text
+
+    write_text(gap_md, render_gap_markdown(gap, rel))
+    write_json(gap_json, gap)
+    return gap
+
+
+def os_relpath(path: str | Path, start: str | Path) -> str:
+    import os
+
+    return os.path.relpath(Path(path), Path(start))

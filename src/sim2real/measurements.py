@@ -1,0 +1,394 @@
+"""Measurement runs: loading, validation and preparation for comparison with a model.
+
+Format (a contract shared with real robot logs and the virtual lab):
+
+* A table, CSV or Parquet: ``time`` in seconds and, per joint named as in the URDF, ``q.<joint>``
+  (rad or m), optionally ``qd.<joint>``, ``tau.<joint>`` (torque measured at the joint),
+  ``tau_cmd.<joint>`` (torque the controller commanded at that stamp), ``q_cmd.<joint>``.
+  ``q`` and at least one of ``tau`` / ``tau_cmd`` are required; a signal kind is given for all
+  joints or for none.
+* Beside it ``<stem>.yaml`` validated by ``schemas/measurement.schema.yaml``.
+
+Preparation (``prepare_run``) for the comparisons:
+
+1. Consecutive samples with identical positions (a logger faster than the state) are dropped:
+   they carry a stale state, and keeping them would put steps into the differentiated signals.
+2. Everything is linearly interpolated onto a uniform grid (median time step, or ``sample_rate_hz``).
+3. Positions are low-pass filtered with a zero-phase Butterworth filter (``scipy.signal.sosfiltfilt``),
+   velocities and accelerations are obtained by central differences of the filtered positions
+   (a logged ``qd`` is noisy or missing on real arms, so it is not trusted unless asked for).
+4. Both ends are trimmed by the filter's settling time.
+5. Torques are NOT filtered. The model is judged on the raw torque: what remains for a perfect model
+   is the torque's own high-frequency noise, which is exactly what ``estimate_noise_floor`` measures,
+   so RMSE and noise floor are directly comparable (a perfect model lands at about the noise floor).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import signal
+
+from sim2real.errors import InputError
+from sim2real.io import read_validated_yaml
+
+SIGNAL_KINDS = ("q", "qd", "tau", "tau_cmd", "q_cmd")
+MIN_DURATION_S = 1.0
+MIN_SAMPLES = 100
+# More than a turn plus a margin: no revolute joint angle in rad, but common in degrees.
+DEGREES_THRESHOLD_RAD = 2 * np.pi + 0.5
+DEFAULT_CUTOFF_HZ = 10.0
+DEFAULT_FILTER_ORDER = 4
+
+
+@dataclass(frozen=True)
+class Run:
+    """A measurement run as loaded and validated (original, possibly irregular stamps)."""
+
+    name: str
+    path: Path
+    joint_names: list[str]
+    time: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray | None
+    tau: np.ndarray | None
+    tau_cmd: np.ndarray | None
+    q_cmd: np.ndarray | None
+    meta: dict
+    contact: np.ndarray | None = None  # (N,) bool contact flag when the log has a `contact` column
+
+
+@dataclass(frozen=True)
+class PreparedRun:
+    """A run cleaned and put on a uniform time grid: what fits and comparisons use."""
+
+    name: str
+    joint_names: list[str]
+    time: np.ndarray
+    dt: float
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau: np.ndarray
+    torque_source: str
+    tau_cmd: np.ndarray | None
+    q_cmd: np.ndarray | None
+    filter: dict
+    qd_measured: np.ndarray | None = None  # logged velocity on the grid (unfiltered), if any
+    contact: np.ndarray | None = None
+    raw_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per-joint white-noise std
+
+
+@dataclass(frozen=True)
+class MeasurementEntry:
+    name: str
+    path: Path
+    role: str  # "fit" | "holdout"
+
+
+def _read_table(path: Path) -> pd.DataFrame:
+    if not path.exists():
+        raise InputError(path, None, "file does not exist", "create it or correct the path in measurements.yaml")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".csv":
+            return pd.read_csv(path)
+        if suffix == ".parquet":
+            return pd.read_parquet(path)
+    except Exception as exc:  # pandas/pyarrow raise many types
+        raise InputError(path, None, f"cannot be read as a table ({exc})", "write a valid CSV or Parquet file") from exc
+    raise InputError(path, None, f"unsupported extension '{suffix}'", "use .csv or .parquet")
+
+
+def _row_label(path: Path, index: int) -> str:
+    """Data row index -> a location a user finds in the file (CSV line numbers count the header)."""
+    if path.suffix.lower() == ".csv":
+        return f"row {index} (line {index + 2})"
+    return f"row {index}"
+
+
+def load_run(
+    path: str | Path,
+    known_joints: Sequence[str] | None = None,
+    position_limits: Mapping[str, tuple[float, float]] | None = None,
+) -> Run:
+    """Load a CSV/Parquet run and its metadata; ``InputError`` (file, column, row) on bad input."""
+    path = Path(path)
+    meta_path = path.with_suffix(".yaml")
+    if not meta_path.exists():
+        raise InputError(
+            meta_path, None, "metadata file beside the run does not exist",
+            "write <stem>.yaml with robot, source (real|synthetic) and control_mode (torque|position)",
+        )
+    meta = read_validated_yaml(meta_path, "measurement.schema.yaml")
+    table = _read_table(path)
+    columns = [str(c) for c in table.columns]
+    if "time" not in columns:
+        raise InputError(path, "column 'time'", "is missing", "add a column 'time' in seconds")
+
+    by_kind: dict[str, list[str]] = {kind: [] for kind in SIGNAL_KINDS}
+    has_contact = False
+    for col in columns:
+        if col == "time":
+            continue
+        if col == "contact":
+            has_contact = True
+            continue
+        kind, _, joint = col.rpartition(".")
+        if kind not in by_kind or not joint:
+            raise InputError(
+                path, f"column '{col}'", "is not part of the measurement format",
+                "name columns time, q.<joint>, qd.<joint>, tau.<joint>, tau_cmd.<joint>, q_cmd.<joint> (or contact)",
+            )
+        by_kind[kind].append(joint)
+
+    joints = by_kind["q"]
+    if not joints:
+        raise InputError(path, "columns q.<joint>", "no joint positions", "add one column q.<joint> per joint")
+    if known_joints is not None:
+        unknown = [j for j in joints if j not in known_joints]
+        for kind in SIGNAL_KINDS:
+            unknown += [j for j in by_kind[kind] if j not in known_joints and j not in unknown]
+        if unknown:
+            raise InputError(
+                path, f"column(s) {', '.join(f'q.{j}' for j in unknown)}", f"unknown joint(s) {', '.join(unknown)}",
+                f"use joint names of the robot description: {', '.join(known_joints)}",
+            )
+    for kind in SIGNAL_KINDS[1:]:
+        present = by_kind[kind]
+        if present and sorted(present) != sorted(joints):
+            missing = sorted(set(joints) - set(present))
+            extra = sorted(set(present) - set(joints))
+            detail = f"missing for {', '.join(missing)}" if missing else f"without q for {', '.join(extra)}"
+            raise InputError(
+                path, f"columns {kind}.<joint>", f"given for some joints only ({detail})",
+                f"give {kind}.<joint> for every joint of q.<joint>, or for none",
+            )
+    if not by_kind["tau"] and not by_kind["tau_cmd"]:
+        raise InputError(
+            path, "columns tau.<joint> / tau_cmd.<joint>", "no torque at all",
+            "log the measured joint torque (tau.<joint>) or the commanded torque (tau_cmd.<joint>)",
+        )
+
+    numeric_cols = [c for c in columns if c != "contact"]
+    values = table[numeric_cols]
+    for col in numeric_cols:
+        try:
+            column = pd.to_numeric(values[col], errors="raise").to_numpy(dtype=float)
+        except (ValueError, TypeError) as exc:
+            bad = pd.to_numeric(values[col], errors="coerce").isna() & values[col].notna()
+            row = int(np.flatnonzero(bad.to_numpy())[0]) if bad.any() else 0
+            raise InputError(path, f"column '{col}', {_row_label(path, row)}", f"not a number ({exc})",
+                             "write plain decimal numbers") from exc
+        bad_rows = np.flatnonzero(~np.isfinite(column))
+        if bad_rows.size:
+            raise InputError(
+                path, f"column '{col}', {_row_label(path, int(bad_rows[0]))}",
+                f"NaN or infinite value ({bad_rows.size} such row(s))",
+                "remove or fill these rows (e.g. drop incomplete samples) before loading",
+            )
+
+    time = table["time"].to_numpy(dtype=float)
+    steps = np.diff(time)
+    bad = np.flatnonzero(steps <= 0)
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise InputError(
+            path, f"column 'time', {_row_label(path, k)}",
+            f"time does not increase ({time[k - 1]!r} then {time[k]!r}; {bad.size} such step(s))",
+            "sort the samples by time and drop duplicated stamps",
+        )
+    if time.size < MIN_SAMPLES or time[-1] - time[0] < MIN_DURATION_S:
+        raise InputError(
+            path, "column 'time'",
+            f"run too short to judge ({time.size} samples over {time[-1] - time[0]:.3f} s)",
+            f"log at least {MIN_DURATION_S:g} s and {MIN_SAMPLES} samples of motion",
+        )
+
+    def block(kind: str) -> np.ndarray | None:
+        if not by_kind[kind]:
+            return None
+        return table[[f"{kind}.{j}" for j in joints]].to_numpy(dtype=float)
+
+    q = block("q")
+    assert q is not None
+    for i, joint in enumerate(joints):
+        col = q[:, i]
+        worst = int(np.argmax(np.abs(col)))
+        looks_deg = abs(col[worst]) > DEGREES_THRESHOLD_RAD
+        if position_limits and joint in position_limits and not looks_deg:
+            lo, hi = position_limits[joint]
+            margin = 0.1 * (hi - lo) + 0.05
+            outside = (col < lo - margin) | (col > hi + margin)
+            in_limits_as_deg = np.all((np.deg2rad(col) >= lo - margin) & (np.deg2rad(col) <= hi + margin))
+            if outside.any() and in_limits_as_deg:
+                looks_deg = True
+                worst = int(np.flatnonzero(outside)[0])
+        if looks_deg:
+            raise InputError(
+                path, f"column 'q.{joint}', {_row_label(path, worst)}",
+                f"value {col[worst]:.4g} looks like degrees (outside the joint's range in radians)",
+                "log angles in radians (multiply degrees by pi/180)",
+            )
+
+    contact = None
+    if has_contact:
+        contact = table["contact"].astype(bool).to_numpy()
+    return Run(
+        name=path.stem, path=path, joint_names=list(joints), time=time, q=q, qd=block("qd"),
+        tau=block("tau"), tau_cmd=block("tau_cmd"), q_cmd=block("q_cmd"), meta=dict(meta), contact=contact,
+    )
+
+
+def _robust_white_sigma(x: np.ndarray) -> np.ndarray:
+    """Per-column std of the white part of x from second differences (MAD-based, robust to the signal)."""
+    d2 = x[2:] - 2 * x[1:-1] + x[:-2]
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return 1.4826 * mad / np.sqrt(6.0)
+
+
+def prepare_run(
+    run: Run,
+    cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+    order: int = DEFAULT_FILTER_ORDER,
+    sample_rate_hz: float | None = None,
+    use_measured_qd: bool = False,
+) -> PreparedRun:
+    """Dedup, resample to a uniform grid, zero-phase filter q, differentiate: see the module docstring."""
+    # 1. drop stale repeats: a row whose positions equal the previous row's
+    same = np.all(run.q[1:] == run.q[:-1], axis=1)
+    keep = np.concatenate([[True], ~same])
+    n_repeats = int(np.count_nonzero(~keep))
+    t_raw = run.time[keep]
+    raw_steps = np.diff(run.time)
+
+    # 2. uniform grid
+    rate = sample_rate_hz or run.meta.get("sample_rate_hz") or 1.0 / float(np.median(raw_steps))
+    dt = 1.0 / float(rate)
+    n = int(np.floor((run.time[-1] - run.time[0]) / dt)) + 1
+    grid = run.time[0] + dt * np.arange(n)
+
+    def resample(x: np.ndarray | None, t_src: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray | None:
+        if x is None:
+            return None
+        x = x if rows is None else x[rows]
+        return np.column_stack([np.interp(grid, t_src, x[:, j]) for j in range(x.shape[1])])
+
+    q_grid = resample(run.q, t_raw, keep)
+    nyquist = 0.5 * rate
+    if cutoff_hz >= nyquist:
+        raise InputError(run.path, "filter cutoff", f"{cutoff_hz} Hz is not below the Nyquist frequency {nyquist} Hz",
+                         "lower filter.cutoff_hz in measurements.yaml")
+    sos = signal.butter(order, cutoff_hz, btype="low", fs=rate, output="sos")
+    q_f = signal.sosfiltfilt(sos, q_grid, axis=0)
+    if use_measured_qd and run.qd is not None:
+        qd_f = signal.sosfiltfilt(sos, resample(run.qd, run.time), axis=0)
+        velocity_source = "logged qd, filtered"
+    else:
+        qd_f = np.gradient(q_f, dt, axis=0)
+        velocity_source = "central differences of filtered q"
+    qdd_f = np.gradient(qd_f, dt, axis=0)
+
+    # 4. trim the filter's transient at both ends (a few time constants of the cutoff)
+    trim = int(np.ceil(max(0.05, 3.0 / cutoff_hz) / dt))
+    if n - 2 * trim < MIN_SAMPLES:
+        raise InputError(run.path, "column 'time'", "run too short once the filter's edges are trimmed",
+                         f"log a longer run (at least {2 * trim * dt + MIN_SAMPLES * dt:.2f} s)")
+    sl = slice(trim, n - trim)
+
+    torque_source = "tau" if run.tau is not None else "tau_cmd"
+    raw_torque = run.tau if run.tau is not None else run.tau_cmd
+    assert raw_torque is not None
+    tau = resample(raw_torque, run.time)
+    tau_cmd = resample(run.tau_cmd, run.time)
+    q_cmd = resample(run.q_cmd, run.time)
+    qd_measured = resample(run.qd, run.time)
+    contact = None
+    if run.contact is not None:
+        idx = np.clip(np.searchsorted(run.time, grid, side="right") - 1, 0, run.time.size - 1)
+        contact = run.contact[idx][sl]
+
+    filter_info: dict[str, Any] = {
+        "type": "butterworth low-pass, zero-phase (scipy.signal.sosfiltfilt)",
+        "order": int(order),
+        "cutoff_hz": float(cutoff_hz),
+        "applied_to": "q (torque is not filtered)",
+        "velocity": velocity_source,
+        "acceleration": "central differences of the velocity",
+        "resampled_to_hz": float(rate),
+        "resampling": "linear interpolation onto a uniform grid",
+        "raw_step_ms": {"min": float(raw_steps.min() * 1e3), "median": float(np.median(raw_steps) * 1e3),
+                        "max": float(raw_steps.max() * 1e3)},
+        "repeated_samples_dropped": n_repeats,
+        "trimmed_s_each_end": float(trim * dt),
+    }
+    keep_raw = np.concatenate([[True], np.any(raw_torque[1:] != raw_torque[:-1], axis=1)])
+    return PreparedRun(
+        name=run.name, joint_names=list(run.joint_names), time=grid[sl], dt=dt, q=q_f[sl], qd=qd_f[sl],
+        qdd=qdd_f[sl], tau=tau[sl], torque_source=torque_source,
+        tau_cmd=None if tau_cmd is None else tau_cmd[sl], q_cmd=None if q_cmd is None else q_cmd[sl],
+        filter=filter_info, qd_measured=None if qd_measured is None else qd_measured[sl], contact=contact,
+        raw_torque_sigma=_robust_white_sigma(raw_torque[keep_raw]),
+    )
+
+
+def estimate_noise_floor(prepared: PreparedRun) -> np.ndarray:
+    """Per-joint torque RMS that no model can explain: the white part of the raw torque.
+
+    Estimated from second differences of the raw (unfiltered, de-duplicated) torque, robustly (MAD),
+    so smooth motion does not count as noise. Because the comparison uses the unfiltered torque, a
+    model that explains everything else has a residual RMS of about this value.
+    """
+    return np.asarray(prepared.raw_torque_sigma, dtype=float).copy()
+
+
+def load_measurement_list(path: str | Path) -> list[MeasurementEntry]:
+    """``configs/{robot}/measurements.yaml`` -> entries (name, path, role), names unique."""
+    path = Path(path)
+    data = read_validated_yaml(path, "measurements.schema.yaml")
+    entries: list[MeasurementEntry] = []
+    seen: set[str] = set()
+    for i, item in enumerate(data["runs"]):
+        if item["name"] in seen:
+            raise InputError(path, f"runs/{i}/name", f"duplicate run name '{item['name']}'", "give each run a unique name")
+        seen.add(item["name"])
+        entries.append(MeasurementEntry(name=item["name"], path=Path(item["path"]), role=item["role"]))
+    return entries
+
+
+def measurement_settings(path: str | Path) -> dict[str, Any]:
+    """Filter and replay settings of measurements.yaml, with defaults filled in."""
+    data = read_validated_yaml(path, "measurements.schema.yaml")
+    return {
+        "cutoff_hz": float(data.get("filter", {}).get("cutoff_hz", DEFAULT_CUTOFF_HZ)),
+        "order": int(data.get("filter", {}).get("order", DEFAULT_FILTER_ORDER)),
+        "horizon_s": float(data.get("replay", {}).get("horizon_s", 0.5)),
+    }
+
+
+def write_run(
+    path: str | Path, time: np.ndarray, joint_names: Sequence[str], signals: Mapping[str, np.ndarray],
+    meta: Mapping[str, Any],
+) -> None:
+    """Write a run (CSV or Parquet by extension) plus its metadata YAML, atomically and deterministically."""
+    from sim2real.io import atomic_path, validate, write_yaml
+
+    path = Path(path)
+    columns: dict[str, np.ndarray] = {"time": np.asarray(time, dtype=float)}
+    for kind in SIGNAL_KINDS:
+        if kind in signals and signals[kind] is not None:
+            for i, joint in enumerate(joint_names):
+                columns[f"{kind}.{joint}"] = np.asarray(signals[kind], dtype=float)[:, i]
+    frame = pd.DataFrame(columns)
+    validate(dict(meta), "measurement.schema.yaml", path.with_suffix(".yaml"))
+    with atomic_path(path) as tmp:
+        if path.suffix.lower() == ".parquet":
+            frame.to_parquet(tmp, index=False)
+        else:
+            frame.to_csv(tmp, index=False, float_format="%.9g")
+    write_yaml(path.with_suffix(".yaml"), dict(meta))
