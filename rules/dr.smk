@@ -12,7 +12,9 @@ def dr_identified_params(wildcards):
     """[results/{robot}/sysid/params.yaml] when some rule produces it or it exists, else []."""
     path = f"results/{wildcards.robot}/sysid/params.yaml"
     produced = any(
-        str(out).endswith("sysid/params.yaml") for r in workflow.rules for out in r.output
+        str(out).endswith("sysid/params.yaml")
+        for r in workflow.rules
+        for out in r.output
     )
     return [path] if produced or os.path.exists(path) else []
 
@@ -24,12 +26,12 @@ rule dr_resolve:
         schema="schemas/dr.schema.json",
     output:
         "results/{robot}/dr.json",
-    params:
-        robot="{robot}",
     log:
         "results/{robot}/logs/dr_resolve.log",
     benchmark:
         "results/{robot}/benchmarks/dr_resolve.tsv"
+    params:
+        robot="{robot}",
     script:
         "../scripts/dr_resolve.py"
 
@@ -54,12 +56,12 @@ rule dr_summary:
             subcategory="{robot}",
             labels={"robot": "{robot}", "view": "figure"},
         ),
-    params:
-        strict=config.get("dr", {}).get("strict_coverage", False),
     log:
         "results/{robot}/logs/dr_summary.log",
     benchmark:
         "results/{robot}/benchmarks/dr_summary.tsv"
+    params:
+        strict=config.get("dr", {}).get("strict_coverage", False),
     script:
         "../scripts/dr_summary.py"
 
