@@ -1,1 +1,36 @@
-# Rules of the mjcf stage (not yet written).
+# URDF + converted meshes + configs/{robot}/robot.yaml -> MJCF and scene.xml (menagerie conventions).
+# Same rule for the nominal (results/{robot}/mjcf/) and calibrated (results/{robot}/calibrated/mjcf/) trees;
+# both use the meshes under results/{robot}/meshes/.
+
+
+def mjcf_collision_meshes(robot):
+    """URDF collision mesh URI -> list of mesh files; the collision stage may replace the list."""
+    return collision_mesh_files(robot)
+
+
+def mjcf_collision_inputs(wildcards):
+    return sorted(f for files in mjcf_collision_meshes(wildcards.robot).values() for f in files)
+
+
+rule mjcf:
+    input:
+        urdf="results/{robot}/{variant}{robot}.urdf",
+        config=lambda w: robot_config(w.robot),
+        visual=lambda w: visual_mesh_dirs(w.robot),
+        collision=mjcf_collision_inputs,
+    output:
+        xml="results/{robot}/{variant}mjcf/{robot}.xml",
+        scene="results/{robot}/{variant}mjcf/scene.xml",
+    params:
+        collision_meshes=lambda w: mjcf_collision_meshes(w.robot),
+    log:
+        "results/{robot}/{variant}logs/mjcf.log",
+    benchmark:
+        "results/{robot}/{variant}benchmarks/mjcf.tsv"
+    script:
+        "../scripts/build_mjcf.py"
+
+
+STAGE_TARGETS.append(
+    lambda robot: [f"results/{robot}/mjcf/{robot}.xml", f"results/{robot}/mjcf/scene.xml"]
+)

@@ -1,0 +1,8 @@
+"""Snakemake script: visual DAE -> one OBJ per material + parts.json (sim2real.meshes)."""
+
+import logging
+
+from sim2real.meshes import convert_visual_mesh
+
+logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
+convert_visual_mesh(snakemake.input[0], snakemake.output[0], snakemake.params.uri)
