@@ -1,0 +1,167 @@
+"""The shape every effect module shares.
+
+An effect is a physical phenomenon the nominal rigid-body model lacks. Each one says
+- its ``name`` (the vocabulary of configs/{robot}/model.yaml and of the lab),
+- its parameters (:class:`ParameterSpec`: per joint or global, unit, bounds),
+- how it enters inverse dynamics: regressor columns that are linear in its parameters
+  (:meth:`Effect.columns`), optionally depending on a few nonlinear parameters that the fit
+  refines (``nonlinear``), or a time shift of the whole prediction (``time_shift``),
+- how it is written into MJCF (:meth:`Effect.apply_to_spec`, MjSpec edits) and into the
+  calibration YAML the Xacro reads (:meth:`Effect.calibration`),
+- its residual signature (:meth:`Effect.evidence`): per-joint statistics of a residual that
+  show the effect is there.
+
+Fitted values always live in one structure, ``{param_name: {joint: value}}`` for per-joint
+parameters and ``{param_name: value}`` for global ones, in SI units, as *total* values (the
+nominal URDF value plus what the fit added), so they can be written into assets directly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    per_joint: bool = True
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class ColumnLabel:
+    """What one regressor column estimates: a parameter, on a joint (None: global)."""
+
+    param: str
+    joint: str | None = None
+
+
+@dataclass
+class Signals:
+    """Samples and nominal-model quantities an effect needs (all arrays are (N, n) unless noted).
+
+    ``segments`` are the run boundaries (a time shift never crosses them).
+    ``regressor`` is Pinocchio's joint-torque regressor (N, n, 10*bodies), computed on demand.
+    """
+
+    joint_names: list[str]
+    time: np.ndarray  # (N,)
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau_nominal: np.ndarray  # nominal model prediction of the judged torque
+    segments: list[slice]
+    tau: np.ndarray | None = None  # the judged torque (measured, else commanded)
+    regressor_fn: Any = None  # callable () -> (N, n, P)
+    nominal: dict[str, Any] = field(default_factory=dict)  # damping, friction, armature, inertial, bodies, ...
+    _regressor: np.ndarray | None = None
+
+    @property
+    def n(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def regressor(self) -> np.ndarray:
+        if self._regressor is None:
+            self._regressor = np.asarray(self.regressor_fn())
+        return self._regressor
+
+
+def diagonal_columns(values: np.ndarray) -> np.ndarray:
+    """(N, n) per-joint feature -> (N, n, n) columns: column j acts only on joint j."""
+    n_samples, n = values.shape
+    cols = np.zeros((n_samples, n, n))
+    idx = np.arange(n)
+    cols[:, idx, idx] = values
+    return cols
+
+
+def correlation_per_joint(residual: np.ndarray, feature: np.ndarray) -> np.ndarray:
+    """Pearson correlation of residual and feature, per joint (0 where either is constant)."""
+    r = residual - residual.mean(axis=0)
+    f = feature - feature.mean(axis=0)
+    denom = np.sqrt((r**2).sum(axis=0) * (f**2).sum(axis=0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(denom > 0, (r * f).sum(axis=0) / denom, 0.0)
+    return out
+
+
+def explained_per_joint(residual: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """Fraction of each joint's residual energy that a least-squares fit on ``columns`` removes.
+
+    ``columns`` is (N, n, k); only joint j's rows are used for joint j (a per-joint R^2).
+    """
+    out = np.zeros(residual.shape[1])
+    for j in range(residual.shape[1]):
+        a = columns[:, j, :]
+        keep = np.abs(a).sum(axis=0) > 0
+        if not keep.any():
+            continue
+        a = a[:, keep]
+        y = residual[:, j]
+        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+        sse0 = float(y @ y)
+        if sse0 > 0:
+            out[j] = max(0.0, 1.0 - float(np.sum((y - a @ coef) ** 2)) / sse0)
+    return out
+
+
+def per_joint_dict(joint_names: list[str], values: np.ndarray, digits: int = 4) -> dict[str, float]:
+    return {j: round(float(v), digits) for j, v in zip(joint_names, values, strict=True)}
+
+
+class Effect:
+    """Base class; one subclass per module in this package."""
+
+    name: ClassVar[str]
+    summary: ClassVar[str]
+    signature: ClassVar[str]  # in words: what the residual looks like when this effect is missing
+    parameters: ClassVar[tuple[ParameterSpec, ...]] = ()
+    nonlinear: ClassVar[tuple[ParameterSpec, ...]] = ()  # refined by nonlinear least squares
+    time_shift: ClassVar[bool] = False  # a delay of the whole prediction instead of columns
+    needs_commands: ClassVar[bool] = False  # only observable when the judged torque is the command
+    joint_local: ClassVar[bool] = True  # each parameter acts on its own joint only
+
+    # --- inverse dynamics -------------------------------------------------------------------
+    def prepare(self, signals: Signals) -> dict[str, Any]:
+        """Data-dependent state computed once on the fit data (e.g. an identifiable basis)."""
+        return {}
+
+    def nonlinear_init(self, signals: Signals) -> np.ndarray:
+        return np.array([])
+
+    def nonlinear_bounds(self, signals: Signals) -> tuple[np.ndarray, np.ndarray]:
+        return np.array([]), np.array([])
+
+    def columns(
+        self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray
+    ) -> tuple[np.ndarray, list[ColumnLabel]]:
+        """Regressor columns (N, n, k), linear in this effect's parameters, and their labels."""
+        return np.zeros((len(signals.time), signals.n, 0)), []
+
+    def offset(self, signals: Signals, state: dict[str, Any], theta: np.ndarray) -> np.ndarray | None:
+        """Torque term not linear in the parameters, evaluated at the current estimate (or None)."""
+        return None
+
+    def values(
+        self, theta: np.ndarray, nonlinear: np.ndarray, signals: Signals, state: dict[str, Any]
+    ) -> dict[str, Any]:
+        """Fitted parameters in the structured, total-value form described in the module docstring."""
+        raise NotImplementedError
+
+    # --- residual signature -----------------------------------------------------------------
+    def evidence(self, residual: np.ndarray, signals: Signals) -> dict[str, Any]:
+        raise NotImplementedError
+
+    # --- assets -----------------------------------------------------------------------------
+    def apply_to_spec(self, spec: Any, values: dict[str, Any], context: dict[str, Any]) -> None:
+        """Write the values into a MuJoCo MjSpec (in place)."""
+
+    def calibration(self, values: dict[str, Any], calibration: dict[str, Any]) -> None:
+        """Write the values URDF can hold into the calibration dict consumed by the Xacro (in place)."""

@@ -1,0 +1,132 @@
+"""Link inertial parameters: corrections to mass, first moment and inertia of every moving body.
+
+Only the identifiable combinations (base parameters) are fitted: the stacked regressor of the
+fit data is reduced by SVD to the directions it excites, and the correction is the minimum-norm
+one in those directions, so unexcited directions keep their nominal (URDF) values. The fit then
+keeps the result physically consistent (every body's 4x4 pseudo-inertia positive definite) by
+shrinking the correction towards the nominal model when it is not.
+Pinocchio's dynamic parameter order per body: m, m*c (3), I about the joint frame
+(xx, xy, yy, xz, yz, zz).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from sim2real.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, explained_per_joint, per_joint_dict
+
+RELATIVE_SINGULAR_TOL = 1e-3  # directions excited 1000x less than the best are left at nominal
+MAX_SVD_ROWS = 60000
+
+
+def pseudo_inertia(params: np.ndarray) -> np.ndarray:
+    """4x4 pseudo-inertia matrix of one body's 10 dynamic parameters (PD iff physically consistent)."""
+    m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz = params
+    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    sigma = 0.5 * np.trace(inertia) * np.eye(3) - inertia
+    h = np.array([hx, hy, hz])
+    out = np.zeros((4, 4))
+    out[:3, :3] = sigma
+    out[:3, 3] = h
+    out[3, :3] = h
+    out[3, 3] = m
+    return out
+
+
+def physically_consistent(params: np.ndarray, n_bodies: int) -> bool:
+    return all(
+        np.linalg.eigvalsh(pseudo_inertia(params[10 * b : 10 * b + 10])).min() > 0 for b in range(n_bodies)
+    )
+
+
+def to_mass_com_inertia(params: np.ndarray) -> dict[str, Any]:
+    """One body's dynamic parameters -> mass, center of mass, inertia about the COM (xx, xy, xz, yy, yz, zz)."""
+    m = float(params[0])
+    c = np.asarray(params[1:4]) / m if abs(m) > 1e-12 else np.zeros(3)
+    ixx, ixy, iyy, ixz, iyz, izz = params[4:10]
+    origin = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    com_inertia = origin - m * (float(c @ c) * np.eye(3) - np.outer(c, c))
+    return {
+        "mass": round(m, 6),
+        "com": [round(float(v), 6) for v in c],
+        "inertia": [round(float(com_inertia[i, k]), 8) for i, k in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))],
+    }
+
+
+def consistent_shrink(nominal: np.ndarray, delta: np.ndarray, n_bodies: int) -> float:
+    """Largest alpha in [0, 1] with nominal + alpha*delta physically consistent (bisection)."""
+    if physically_consistent(nominal + delta, n_bodies):
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        if physically_consistent(nominal + mid * delta, n_bodies):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+class LinkInertia(Effect):
+    name = "link_inertia"
+    summary = "wrong link masses, centers of mass or inertias in the robot description"
+    signature = "residual explained by the rigid-body regressor (gravity- and acceleration-shaped)"
+    parameters = (
+        ParameterSpec("mass", "kg", 0.0, 100.0, True, "mass of the body moved by each joint (total)"),
+        ParameterSpec("com", "m", -2.0, 2.0, True, "center of mass in the joint frame"),
+        ParameterSpec("inertia", "kg*m^2", -10.0, 10.0, True, "inertia about the COM (xx, xy, xz, yy, yz, zz)"),
+    )
+    joint_local = False
+
+    def prepare(self, signals: Signals) -> dict[str, Any]:
+        y = signals.regressor.reshape(-1, signals.regressor.shape[2])
+        if y.shape[0] > MAX_SVD_ROWS:
+            y = y[:: int(np.ceil(y.shape[0] / MAX_SVD_ROWS))]
+        scale = np.linalg.norm(y, axis=0)
+        scale[scale == 0] = 1.0
+        _, s, vt = np.linalg.svd(y / scale, full_matrices=False)
+        rank = int(np.sum(s > RELATIVE_SINGULAR_TOL * s[0]))
+        # Basis in the original parameter units: delta = basis @ beta.
+        basis = (vt[:rank].T) / scale[:, None]
+        return {"basis": basis, "rank": rank}
+
+    def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
+        basis = state["basis"]
+        return signals.regressor @ basis, [ColumnLabel(f"base_{i}") for i in range(basis.shape[1])]
+
+    def values(self, theta, nonlinear, signals, state):
+        delta = state["basis"] @ theta
+        nominal = np.asarray(signals.nominal["inertial"])
+        total = nominal + delta
+        bodies = signals.nominal["body_links"]
+        # The URDF link alone (without the fixed links Pinocchio merged into its body) plus the
+        # correction: what the calibrated URDF's <inertial> must say.
+        own = signals.nominal.get("link_own_inertial", {})
+        urdf_links = {
+            link: to_mass_com_inertia(np.asarray(own[link]) + delta[10 * b : 10 * b + 10])
+            for b, link in enumerate(bodies)
+            if link in own
+        }
+        return {
+            "links": {link: to_mass_com_inertia(total[10 * b : 10 * b + 10]) for b, link in enumerate(bodies)},
+            "urdf_links": urdf_links,
+            "base_parameters": int(state["rank"]),
+            "physically_consistent": bool(physically_consistent(total, len(bodies))),
+        }
+
+    def evidence(self, residual, signals):
+        return {
+            "signature": self.signature,
+            "statistic": "per-joint R^2 of residual on the rigid-body regressor",
+            "per_joint": per_joint_dict(signals.joint_names, explained_per_joint(residual, signals.regressor), 3),
+        }
+
+    def apply_to_spec(self, spec, values, context):
+        # The MJCF is built from the calibrated URDF, which already carries these values.
+        return
+
+    def calibration(self, values, calibration):
+        for link, inertial in values.get("urdf_links", {}).items():
+            calibration.setdefault("links", {})[link] = dict(inertial)
