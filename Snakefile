@@ -17,6 +17,7 @@ include: "rules/mjcf.smk"
 include: "rules/collision.smk"
 include: "rules/usd.smk"
 include: "rules/lab.smk"
+include: "rules/sysid.smk"
 include: "rules/gap.smk"
 include: "rules/dr.smk"
 

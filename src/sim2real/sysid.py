@@ -328,13 +328,18 @@ def _split_theta(effects: list[Effect], flat: np.ndarray, sizes: list[int]) -> d
 
 
 def _solve_linear(design: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Minimum-norm least squares on unit-norm columns (collinear columns share, never blow up)."""
+    """Minimum-norm least squares on unit-norm columns (collinear columns share, never blow up).
+
+    Solved through the p x p Gram matrix (pseudo-inverse by SVD): the designs are tall
+    (samples x joints rows, tens of columns), so this is many times faster than a QR of the design.
+    """
     if design.shape[2] == 0:
         return np.zeros(0)
     a = design.reshape(-1, design.shape[2])
     scale = np.linalg.norm(a, axis=0)
     scale[scale == 0] = 1.0
-    coef, *_ = np.linalg.lstsq(a / scale, target.reshape(-1), rcond=1e-9)
+    a = a / scale
+    coef = np.linalg.lstsq(a.T @ a, a.T @ target.reshape(-1), rcond=1e-12)[0]
     return coef / scale
 
 

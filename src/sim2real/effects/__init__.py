@@ -11,6 +11,8 @@ registry maps the vocabulary of configs/{robot}/model.yaml and of the lab to eff
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from sim2real.effects.actuation_delay import ActuationDelay
@@ -40,7 +42,7 @@ EFFECTS: dict[str, Effect] = {
 
 __all__ = [
     "EFFECTS", "ColumnLabel", "Effect", "ParameterSpec", "Signals",
-    "apply_to_spec", "calibration_from_params", "get_effect",
+    "apply_to_spec", "calibration_from_params", "get_effect", "spec_edit_from_params",
 ]
 
 
@@ -66,16 +68,31 @@ def _mjcf_context(spec: Any, params: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def apply_to_spec(spec: Any, params: dict[str, Any]) -> Any:
+def apply_to_spec(spec: Any, params: dict[str, Any], include_urdf_effects: bool = False) -> Any:
     """Write the fitted effects of ``params`` (the content of params.yaml) into ``spec``; returns it.
 
-    Effects URDF cannot hold (armature, actuation delay, actuator gain) land here; writing the
-    others again is harmless (same values as the calibrated URDF).
+    By default only the effects the URDF cannot hold (armature, actuation delay, actuator gain):
+    the calibrated MJCF is built from the calibrated URDF, which already carries friction, payload
+    and link inertias. ``include_urdf_effects=True`` writes everything (to calibrate a nominal MJCF).
     """
     context = _mjcf_context(spec, params)
     for name, values in params.get("effects", {}).items():
-        get_effect(name).apply_to_spec(spec, values, context)
+        effect = get_effect(name)
+        if include_urdf_effects or not effect.in_urdf:
+            effect.apply_to_spec(spec, values, context)
     return spec
+
+
+def spec_edit_from_params(params_path: str | Path, include_urdf_effects: bool = False) -> Callable[[Any], None]:
+    """``spec_edit`` for ``sim2real.mjcf.build_mjcf``: apply results/{robot}/sysid/params.yaml."""
+    from sim2real.io import read_yaml
+
+    params = read_yaml(params_path) or {}
+
+    def edit(spec: Any) -> None:
+        apply_to_spec(spec, params, include_urdf_effects)
+
+    return edit
 
 
 def calibration_from_params(params: dict[str, Any]) -> dict[str, Any]:

@@ -105,7 +105,7 @@ def explained_per_joint(residual: np.ndarray, columns: np.ndarray) -> np.ndarray
             continue
         a = a[:, keep]
         y = residual[:, j]
-        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+        coef = np.linalg.lstsq(a.T @ a, a.T @ y, rcond=1e-12)[0]
         sse0 = float(y @ y)
         if sse0 > 0:
             out[j] = max(0.0, 1.0 - float(np.sum((y - a @ coef) ** 2)) / sse0)
@@ -127,6 +127,7 @@ class Effect:
     time_shift: ClassVar[bool] = False  # a delay of the whole prediction instead of columns
     needs_commands: ClassVar[bool] = False  # only observable when the judged torque is the command
     joint_local: ClassVar[bool] = True  # each parameter acts on its own joint only
+    in_urdf: ClassVar[bool] = False  # the calibrated URDF holds it (so the MJCF built from it does too)
 
     # --- inverse dynamics -------------------------------------------------------------------
     def prepare(self, signals: Signals) -> dict[str, Any]:

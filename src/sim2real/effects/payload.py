@@ -30,6 +30,7 @@ def _last_body_columns(signals: Signals) -> np.ndarray:
 
 
 class Payload(Effect):
+    in_urdf = True
     name = "payload"
     summary = "an unmodelled mass carried by the last link"
     signature = "residual explained by the gravity columns (m, m*c) of the last link"
@@ -89,8 +90,11 @@ class Payload(Effect):
         body.inertia = [1e-6, 1e-6, 1e-6]  # a point mass; MuJoCo needs a positive inertia
 
     def calibration(self, values, calibration):
+        if float(values["mass"]) <= 0:
+            return
+        point = 1e-6  # kg m^2: a point mass; URDF and MuJoCo need a positive inertia
         calibration["payload"] = {
-            "link": values.get("link"),
             "mass": float(values["mass"]),
             "com": [float(c) for c in values["com"]],
+            "inertia": {"ixx": point, "ixy": 0.0, "ixz": 0.0, "iyy": point, "iyz": 0.0, "izz": point},
         }
