@@ -30,7 +30,10 @@ def mesh_source(kind):
 
 
 def visual_mesh_dirs(robot):
-    return [f"results/{robot}/meshes/visual/{name}" for name in sorted(robot_meshes(robot)["visual"])]
+    return [
+        f"results/{robot}/meshes/visual/{name}"
+        for name in sorted(robot_meshes(robot)["visual"])
+    ]
 
 
 def collision_mesh_files(robot):
@@ -46,14 +49,14 @@ rule visual_mesh:
         mesh_source("visual"),
     output:
         directory("results/{robot}/meshes/visual/{name}"),
-    params:
-        uri=mesh_uri("visual"),
-    wildcard_constraints:
-        name="[^/]+",
     log:
         "results/{robot}/logs/visual_mesh/{name}.log",
     benchmark:
         "results/{robot}/benchmarks/visual_mesh/{name}.tsv"
+    wildcard_constraints:
+        name="[^/]+",
+    params:
+        uri=mesh_uri("visual"),
     script:
         "../scripts/convert_visual_mesh.py"
 
@@ -63,13 +66,13 @@ rule collision_mesh:
         mesh_source("collision"),
     output:
         "results/{robot}/meshes/collision/{name}.stl",
-    params:
-        uri=mesh_uri("collision"),
-    wildcard_constraints:
-        name="[^/]+",
     log:
         "results/{robot}/logs/collision_mesh/{name}.log",
     benchmark:
         "results/{robot}/benchmarks/collision_mesh/{name}.tsv"
+    wildcard_constraints:
+        name="[^/]+",
+    params:
+        uri=mesh_uri("collision"),
     script:
         "../scripts/convert_collision_mesh.py"

@@ -9,7 +9,9 @@ def mjcf_collision_meshes(robot):
 
 
 def mjcf_collision_inputs(wildcards):
-    return sorted(f for files in mjcf_collision_meshes(wildcards.robot).values() for f in files)
+    return sorted(
+        f for files in mjcf_collision_meshes(wildcards.robot).values() for f in files
+    )
 
 
 rule mjcf:
@@ -21,16 +23,19 @@ rule mjcf:
     output:
         xml="results/{robot}/{variant}mjcf/{robot}.xml",
         scene="results/{robot}/{variant}mjcf/scene.xml",
-    params:
-        collision_meshes=lambda w: mjcf_collision_meshes(w.robot),
     log:
         "results/{robot}/{variant}logs/mjcf.log",
     benchmark:
         "results/{robot}/{variant}benchmarks/mjcf.tsv"
+    params:
+        collision_meshes=lambda w: mjcf_collision_meshes(w.robot),
     script:
         "../scripts/build_mjcf.py"
 
 
 STAGE_TARGETS.append(
-    lambda robot: [f"results/{robot}/mjcf/{robot}.xml", f"results/{robot}/mjcf/scene.xml"]
+    lambda robot: [
+        f"results/{robot}/mjcf/{robot}.xml",
+        f"results/{robot}/mjcf/scene.xml",
+    ]
 )

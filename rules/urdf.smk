@@ -31,11 +31,18 @@ def xacro_includes(wildcards):
 
 
 def calibration_file(wildcards):
-    return [f"results/{wildcards.robot}/sysid/calibration.yaml"] if wildcards.variant else []
+    return (
+        [f"results/{wildcards.robot}/sysid/calibration.yaml"]
+        if wildcards.variant
+        else []
+    )
 
 
 def urdf_xacro_args(wildcards):
-    args = {k: v for k, v in (robot_settings(wildcards.robot).get("xacro_args") or {}).items()}
+    args = {
+        k: v
+        for k, v in (robot_settings(wildcards.robot).get("xacro_args") or {}).items()
+    }
     args["calibration"] = calibration_file(wildcards)[0] if wildcards.variant else ""
     return args
 
@@ -51,12 +58,12 @@ checkpoint urdf:
         calibration=calibration_file,
     output:
         "results/{robot}/{variant}{robot}.urdf",
-    params:
-        args=urdf_xacro_args,
     log:
         "results/{robot}/{variant}logs/urdf.log",
     benchmark:
         "results/{robot}/{variant}benchmarks/urdf.tsv"
+    params:
+        args=urdf_xacro_args,
     script:
         "../scripts/build_urdf.py"
 

@@ -11,7 +11,6 @@ Outputs are deterministic (fixed number format, sorted vertex table) and written
 from __future__ import annotations
 
 import logging
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -152,24 +151,46 @@ def read_parts(visual_dir: str | Path) -> dict:
     return json.loads(path.read_text(encoding="utf-8"))
 
 
-def convert_collision_mesh(stl_path: str | Path, out_path: str | Path, source_uri: str | None = None) -> None:
-    """Copy a collision STL (binary STL as is; ASCII STL is rewritten as binary)."""
-    import trimesh
+def _ascii_stl_triangles(data: bytes) -> np.ndarray:
+    """Triangles (T, 3, 3) of an ASCII STL."""
+    words = data.decode("ascii", errors="replace").split()
+    values = [
+        (float(words[i + 1]), float(words[i + 2]), float(words[i + 3]))
+        for i in range(len(words) - 3)
+        if words[i] == "vertex"
+    ]
+    return np.asarray(values, dtype=np.float32).reshape(-1, 3, 3)
 
+
+def _binary_stl(triangles: np.ndarray) -> bytes:
+    """Binary STL with a fixed header, normals from the winding (deterministic)."""
+    triangles = triangles.astype(np.float32)
+    normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    lengths = np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = np.divide(normals, lengths, out=np.zeros_like(normals), where=lengths > 0).astype(np.float32)
+    record = np.zeros(len(triangles), dtype=[("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attr", "<u2")])
+    record["normal"] = normals
+    record["vertices"] = triangles
+    header = b"binary STL written by sim2real".ljust(80, b" ")
+    return header + np.uint32(len(triangles)).tobytes() + record.tobytes()
+
+
+def convert_collision_mesh(stl_path: str | Path, out_path: str | Path, source_uri: str | None = None) -> None:
+    """Copy a collision STL: binary STL byte for byte; ASCII STL rewritten as binary."""
     stl_path = Path(stl_path)
     label = source_uri or str(stl_path)
     if not stl_path.is_file():
         raise InputError(label, None, f"collision mesh does not exist ({stl_path})", "correct the URI or add the file")
-    head = stl_path.read_bytes()[:512]
-    is_ascii = head.lstrip().startswith(b"solid") and b"facet" in head
-    try:
-        mesh = trimesh.load(str(stl_path), file_type="stl", force="mesh", process=False)
-    except Exception as exc:
-        raise InputError(label, None, f"cannot read the STL ({exc})", "re-export the mesh as STL") from exc
-    if len(mesh.faces) == 0:
-        raise InputError(label, None, "the STL has no triangles", "re-export the mesh")
+    data = stl_path.read_bytes()
+    count = int(np.frombuffer(data[80:84], dtype="<u4")[0]) if len(data) >= 84 else -1
+    if count > 0 and len(data) == 84 + 50 * count:
+        payload = data  # binary STL, consistent size
+    elif data.lstrip().startswith(b"solid") and b"vertex" in data:
+        triangles = _ascii_stl_triangles(data)
+        if len(triangles) == 0:
+            raise InputError(label, None, "the ASCII STL has no triangles", "re-export the mesh")
+        payload = _binary_stl(triangles)
+    else:
+        raise InputError(label, None, "is neither a binary nor an ASCII STL (or has no triangles)", "re-export the mesh as STL")
     with atomic_path(out_path) as tmp:
-        if is_ascii:
-            tmp.write_bytes(trimesh.exchange.stl.export_stl(mesh))
-        else:
-            shutil.copyfile(stl_path, tmp)
+        tmp.write_bytes(payload)

@@ -139,25 +139,23 @@ def build_mjcf(
     spec.modelname = root.get("name", spec.modelname)
     spec.modelfiledir = str(out_dir.resolve())  # relative mesh paths resolve against the output
     _set_options(spec, config)
-    visual_class, collision_class = _add_default_classes(spec)
-    _add_geometry(spec, root, urdf_path, visual_by_name, collision_meshes, out_dir, visual_class, collision_class)
     _set_joint_dynamics(spec, root, config, robot_config_path)
     _add_actuators(spec, root, config, robot_config_path)
     _add_attachment_site(spec, config, robot_config_path)
-    _add_home_keyframe(spec, config, robot_config_path)
+    _add_home_keyframe(spec, config, robot_config_path)  # compiles the geometry-free tree: cheap
+    visual_class, collision_class = _add_default_classes(spec)
+    _add_geometry(spec, root, urdf_path, visual_by_name, collision_meshes, out_dir, visual_class, collision_class)
     if spec_edit is not None:
         spec_edit(spec)
 
     try:
-        spec.compile()
+        xml = spec.to_xml()  # compiles the model
     except Exception as exc:
         raise InputError(urdf_path, None, f"MuJoCo cannot compile the model ({exc})", "fix the URDF or robot.yaml") from exc
-    xml = spec.to_xml()
     with atomic_path(out_xml) as tmp:
         tmp.write_text(xml, encoding="utf-8")
-        mujoco.MjModel.from_xml_path(str(tmp))  # the saved file itself loads (relative paths resolve)
         scene_check = out_dir / f".{out_scene.name}.{os.getpid()}.check.xml"
-        try:  # the scene around the new robot loads too, before anything is replaced
+        try:  # the saved files load (relative mesh paths resolve) before anything is replaced
             scene_check.write_text(scene_text(tmp.name), encoding="utf-8")
             mujoco.MjModel.from_xml_path(str(scene_check))
         finally:
@@ -232,7 +230,7 @@ def _add_geometry(
                         materials_added.add(material_id)
                     body.add_geom(
                         visual_class, name=geom_name(geometry.link, "visual"), type=mujoco.mjtGeom.mjGEOM_MESH,
-                        meshname=mesh_id, material=material_id, pos=list(geometry.pos), quat=list(geometry.quat),
+                        meshname=mesh_id, material=material_id, **_placement(geometry),
                     )
             else:
                 files = collision_meshes.get(uri)
@@ -245,7 +243,7 @@ def _add_geometry(
                         meshes_added.add(mesh_id)
                     body.add_geom(
                         collision_class, name=geom_name(geometry.link, "collision"), type=mujoco.mjtGeom.mjGEOM_MESH,
-                        meshname=mesh_id, pos=list(geometry.pos), quat=list(geometry.quat),
+                        meshname=mesh_id, **_placement(geometry),
                     )
         else:
             geom_type, size = _primitive(element, urdf_path, where)
@@ -253,8 +251,18 @@ def _add_geometry(
             body.add_geom(
                 visual_class if is_visual else collision_class,
                 name=geom_name(geometry.link, geometry.kind), type=geom_type, size=size,
-                pos=list(geometry.pos), quat=list(geometry.quat),
+                **_placement(geometry),
             )
+
+
+def _placement(geometry: UrdfGeometry) -> dict[str, list[float]]:
+    """pos/quat keyword arguments, omitted when identity (keeps the MJCF minimal)."""
+    out = {}
+    if any(v != 0 for v in geometry.pos):
+        out["pos"] = list(geometry.pos)
+    if geometry.quat != (1.0, 0.0, 0.0, 0.0):
+        out["quat"] = list(geometry.quat)
+    return out
 
 
 def _primitive(element: ET.Element, urdf_path: Path, where: str) -> tuple[mujoco.mjtGeom, list[float]]:
