@@ -1,1 +1,58 @@
-# Rules of the lab stage (not yet written).
+# Virtual lab: configs/{robot}/lab.yaml scenarios simulated in the built MJCF -> measurement runs.
+# truth.yaml holds the hidden values; no rule that compares, fits or diagnoses may take it as input.
+
+
+wildcard_constraints:
+    scenario="[A-Za-z0-9_-]+",
+    run="(?!truth$)[A-Za-z0-9_-]+",
+
+
+def lab_config(robot):
+    return f"configs/{robot}/lab.yaml"
+
+
+def lab_demo_targets(robot):
+    """The demo scenario's runs and truth, when the robot has a lab."""
+    import os
+
+    from sim2real.lab import scenario_runs
+
+    if not os.path.exists(lab_config(robot)):
+        return []
+    runs = scenario_runs(lab_config(robot), "demo")
+    return [f"results/{robot}/lab/demo/{r['name']}.parquet" for r in runs] + [f"results/{robot}/lab/demo/truth.yaml"]
+
+
+rule lab_run:
+    input:
+        mjcf="results/{robot}/mjcf/{robot}.xml",
+        config="configs/{robot}/lab.yaml",
+    output:
+        run="results/{robot}/lab/{scenario}/{run}.parquet",
+        meta="results/{robot}/lab/{scenario}/{run}.yaml",
+    log:
+        "results/{robot}/logs/lab_run/{scenario}/{run}.log",
+    benchmark:
+        "results/{robot}/benchmarks/lab_run/{scenario}/{run}.tsv"
+    script:
+        "../scripts/lab_run.py"
+
+
+rule lab_truth:
+    input:
+        mjcf="results/{robot}/mjcf/{robot}.xml",
+        config="configs/{robot}/lab.yaml",
+    output:
+        truth="results/{robot}/lab/{scenario}/truth.yaml",
+    log:
+        "results/{robot}/logs/lab_truth/{scenario}.log",
+    benchmark:
+        "results/{robot}/benchmarks/lab_truth/{scenario}.tsv"
+    script:
+        "../scripts/lab_truth.py"
+
+
+ruleorder: lab_truth > lab_run
+
+
+STAGE_TARGETS.append(lab_demo_targets)

@@ -346,6 +346,18 @@ def worst_windows(comparisons: Sequence[TorqueComparison], masks: Sequence[Mappi
 # assembly
 
 
+def model_armature(mjcf_path: str | Path, joints: Sequence[str]) -> dict[str, float]:
+    """Rotor inertia (armature) of the measured joints as the built MJCF has it.
+
+    The URDF cannot hold armature; the MJCF gets it from configs/{robot}/robot.yaml. Reading it back
+    from the MJCF keeps the Pinocchio model and the MuJoCo replay the same model.
+    """
+    from sim2real.lab import arm_spec, compile_arm
+
+    model, _, dadr = compile_arm(arm_spec(mjcf_path, joints), joints)
+    return {j: float(model.dof_armature[d]) for j, d in zip(joints, dadr)}
+
+
 def load_prepared_runs(
     measurement_list: str | Path, known_joints: Sequence[str] | None = None, root: str | Path = ".",
     limits: Mapping[str, tuple[float, float]] | None = None,
@@ -372,7 +384,8 @@ def compute_gap(
     # joints come from the first run; the model locks everything else
     entries = load_measurement_list(measurement_list)
     first = load_run(Path(root) / entries[0].path)
-    model = RigidBodyModel(urdf_path, first.joint_names)
+    armature = model_armature(mjcf_path, first.joint_names) if mjcf_path is not None else None
+    model = RigidBodyModel(urdf_path, first.joint_names, armature=armature)
     limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(model.joint_names, model.lower, model.upper)}
     entries, prepared, settings = load_prepared_runs(measurement_list, model.joint_names, root, limits)
     joints = model.joint_names

@@ -1,0 +1,192 @@
+"""Figures and Markdown of the gap report (results/{robot}/gap.md), reproducible byte for byte."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from sim2real.io import atomic_path  # noqa: E402
+
+PNG_METADATA = {"Software": None}
+MAX_PLOT_S = 10.0
+SCATTER_POINTS = 2500
+
+
+def _save(fig: plt.Figure, target: str | Path) -> None:
+    with atomic_path(target) as tmp:
+        fig.savefig(tmp, format="png", dpi=90, metadata=PNG_METADATA)
+    plt.close(fig)
+
+
+def _grid(n: int) -> tuple[plt.Figure, np.ndarray]:
+    cols = min(n, 4)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.6 * rows), squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.set_visible(False)
+    return fig, axes.flat
+
+
+def _pick_run(comparisons: Sequence[Any]) -> Any:
+    holdout = [c for c in comparisons if c.role == "holdout"]
+    return (holdout or list(comparisons))[0]
+
+
+def figure_torque(comparisons: Sequence[Any], target: str | Path) -> None:
+    """Measured vs model torque per joint (first holdout run, first seconds)."""
+    c = _pick_run(comparisons)
+    run = c.run
+    n_show = min(run.time.size, int(MAX_PLOT_S / run.dt))
+    stride = max(1, n_show // 2000)  # a line of 2000 points per joint reads the same and draws fast
+    t = run.time[:n_show:stride]
+    fig, axes = _grid(len(run.joint_names))
+    for j, (ax, joint) in enumerate(zip(axes, run.joint_names)):
+        ax.plot(t, run.tau[:n_show:stride, j], lw=0.6, color="0.35", label=f"measured ({run.torque_source})")
+        ax.plot(t, c.model_tau[:n_show:stride, j], lw=0.9, color="C3", label="model")
+        ax.set_title(joint, fontsize=9)
+        ax.set_xlabel("time [s]", fontsize=8)
+        ax.set_ylabel("torque [N m]", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"Measured vs model torque, run '{run.name}'", fontsize=10)
+    fig.tight_layout()
+    _save(fig, target)
+
+
+def figure_residual_velocity(comparisons: Sequence[Any], target: str | Path) -> None:
+    """Torque residual against joint velocity: friction shows as a step at zero velocity."""
+    qd = np.concatenate([c.run.qd for c in comparisons])
+    res = np.concatenate([c.residual for c in comparisons])
+    step = max(1, qd.shape[0] // SCATTER_POINTS)
+    joints = comparisons[0].run.joint_names
+    fig, axes = _grid(len(joints))
+    for j, (ax, joint) in enumerate(zip(axes, joints)):
+        ax.scatter(qd[::step, j], res[::step, j], s=1.5, color="C0", alpha=0.5, rasterized=True)
+        ax.axhline(0, color="0.5", lw=0.5)
+        ax.axvline(0, color="0.5", lw=0.5)
+        ax.set_title(joint, fontsize=9)
+        ax.set_xlabel("velocity [rad/s]", fontsize=8)
+        ax.set_ylabel("residual [N m]", fontsize=8)
+        ax.tick_params(labelsize=7)
+    fig.suptitle("Torque residual (measured - model) vs velocity", fontsize=10)
+    fig.tight_layout()
+    _save(fig, target)
+
+
+def figure_regimes(gap: Mapping[str, Any], target: str | Path) -> None:
+    """Per joint and regime: the residual step between the regime's two sides, against the noise floor."""
+    from sim2real.gap import REGIME_LABELS, REGIMES
+
+    joints = gap["joints"]
+    per_joint = gap["where"]["per_joint"]
+    x = np.arange(len(joints))
+    width = 0.8 / (len(REGIMES) + 1)
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(joints)), 3.4))
+    rmse = [per_joint[j]["rmse"] for j in joints]
+    ax.bar(x - 0.4 + width / 2, rmse, width, color="0.6", label="overall RMSE")
+    for k, regime in enumerate(REGIMES):
+        steps = [per_joint[j]["regimes"][regime].get("step", 0.0) for j in joints]
+        ax.bar(x - 0.4 + width * (k + 1.5), steps, width, label=f"step: {REGIME_LABELS[regime]}", color=f"C{k}")
+    floor = [per_joint[j]["noise_floor"] for j in joints]
+    ax.scatter(x, floor, marker="_", s=300, color="k", label="noise floor", zorder=3)
+    ax.set_xticks(x, [j.replace("_joint", "\n") for j in joints], fontsize=7)
+    ax.set_ylabel("N m", fontsize=8)
+    ax.legend(fontsize=6, ncol=2)
+    ax.set_title("Error by regime: residual step between the regime's two sides", fontsize=10)
+    fig.tight_layout()
+    _save(fig, target)
+
+
+def write_gap_figures(gap: Mapping[str, Any], comparisons: Sequence[Any], figures: Mapping[str, str | Path]) -> None:
+    figure_torque(comparisons, figures["torque"])
+    figure_residual_velocity(comparisons, figures["residual_velocity"])
+    figure_regimes(gap, figures["regimes"])
+
+
+def _fmt(x: float | None, digits: int = 3) -> str:
+    return "n/a" if x is None else f"{x:.{digits}g}"
+
+
+def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> str:
+    """gap.md: numbers a reviewer reads in a pull request, then the figures."""
+    from sim2real.gap import REGIME_LABELS
+
+    joints = gap["joints"]
+    m = gap["metrics"]
+    floor = gap["noise_floor"]["torque_rmse"]
+    lines = [f"# Reality gap: {gap['robot']}", ""]
+    lines += ["## Runs", "", "| run | role | torque judged | samples | duration [s] | commands |",
+              "|---|---|---|---|---|---|"]
+    for r in gap["runs"]:
+        lines.append(f"| {r['name']} | {r['role']} | `{r['torque_source']}` | {r['samples']} | "
+                     f"{r['duration_s']:.2f} | {'yes' if r['has_commands'] else 'no'} |")
+    f = gap["runs"][0]["filter"]
+    lines += ["", f"Preparation: {f['resampling']} at {f['resampled_to_hz']:g} Hz "
+              f"(raw steps {f['raw_step_ms']['min']:.2f}-{f['raw_step_ms']['max']:.2f} ms, "
+              f"{f['repeated_samples_dropped']} repeated samples dropped); q filtered by a {f['type']}, "
+              f"order {f['order']}, cutoff {f['cutoff_hz']:g} Hz; velocity: {f['velocity']}; "
+              f"acceleration: {f['acceleration']}; {f['applied_to']}; "
+              f"{f['trimmed_s_each_end']:g} s trimmed at each end.", ""]
+    lines += ["## Torque domain (inverse dynamics on measured motion)", "",
+              f"Overall RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
+              f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
+              f"R^2 {m['torque_r2']['overall']:.4g}.", "",
+              "| joint | RMSE [N m] | noise floor [N m] | relative RMSE | R^2 |", "|---|---|---|---|---|"]
+    for j in joints:
+        lines.append(f"| {j} | {m['torque_rmse']['per_joint'][j]:.3g} | {floor['per_joint'][j]:.3g} | "
+                     f"{m['torque_relative_rmse']['per_joint'][j]:.3g} | {m['torque_r2']['per_joint'][j]:.4g} |")
+    sd = m["state_domain"]
+    lines += ["", "## State domain (replay of the commanded torques)", ""]
+    if sd["status"] == "skipped":
+        lines.append(f"Skipped: {sd['reason']}.")
+    else:
+        g = sd["reality_gap"]
+        lines += [f"Multiple shooting, reset to the measured state every {sd['horizon_s']:g} s. "
+                  f"Position RMSE {sd['position_rmse']['overall']:.3g} rad, velocity RMSE "
+                  f"{sd['velocity_rmse']['overall']:.3g} rad/s, correlation {sd['correlation']['overall']:.4g}, "
+                  f"spectral divergence {sd['spectral_divergence']:.3g}; {sd['contact_note']}.", "",
+                  f"Reality-gap score **{g['score']:.3f}** ({g['grade'].replace('_', ' ')} gap), "
+                  f"fidelity **{sd['fidelity']}** (mean joint error {sd['mean_abs_position_error']:.3g} rad). "
+                  f"Recommendation: {g['recommendation']}.", "",
+                  "| joint | position RMSE [rad] | velocity RMSE [rad/s] | correlation |", "|---|---|---|---|"]
+        for j in joints:
+            lines.append(f"| {j} | {sd['position_rmse']['per_joint'][j]:.3g} | "
+                         f"{sd['velocity_rmse']['per_joint'][j]:.3g} | {sd['correlation']['per_joint'][j]:.4g} |")
+    w = gap["where"]
+    lines += ["", "## Where the model fails", ""]
+    if w["findings"]:
+        lines.append(f"The error concentrates in **{', '.join(REGIME_LABELS[r] for r in w['summary']['regimes'])}** "
+                     f"on **{', '.join(w['summary']['joints'])}**:")
+        lines += ["", "| joint | regime | step [N m] | explained |", "|---|---|---|---|"]
+        for fnd in w["findings"]:
+            lines.append(f"| {fnd['joint']} | {fnd['label']} | {fnd['step']:.3g} | {fnd['explained']:.2f} |")
+    else:
+        lines.append("No regime stands out: the residual is not concentrated in slow motion, hard accelerations, "
+                     "gravity-loaded poses or near the limits.")
+    lines += ["", "Worst time windows:", "", "| run | from [s] | to [s] | RMSE [N m] | worst joint |",
+              "|---|---|---|---|---|"]
+    for win in w["worst_windows"]:
+        lines.append(f"| {win['run']} | {win['t_start']:.2f} | {win['t_end']:.2f} | {win['rmse']:.3g} | "
+                     f"{win['worst_joint']} ({win['worst_joint_rmse']:.3g}) |")
+    if "ladder" in gap:
+        lines += ["", "## Model ladder", "", "| rung | effects | holdout torque RMSE [N m] |", "|---|---|---|"]
+        for k, rung in enumerate(gap["ladder"]):
+            lines.append(f"| {k} | {', '.join(rung['effects']) or 'nominal'} | "
+                         f"{rung['metrics']['torque_rmse']['overall']:.3g} |")
+    if "diagnosis" in gap:
+        lines += ["", "## Diagnosis", "", gap["diagnosis"]["verdict"], ""]
+        for cand in gap["diagnosis"]["candidates"][:3]:
+            lines.append(f"- `{cand['effect']}` on {', '.join(cand['joints'])}: explains "
+                         f"{100 * cand['explained']:.0f}% of the residual; add `{cand['add']}`")
+    lines += ["", "## Figures", "",
+              f"![Measured vs model torque]({figures['torque']})", "",
+              f"![Residual vs velocity]({figures['residual_velocity']})", "",
+              f"![Error by regime]({figures['regimes']})", ""]
+    return "\n".join(lines)
