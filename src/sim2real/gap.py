@@ -21,6 +21,7 @@ figures. An optional precomputed section (``ladder``, ``diagnosis``, from the sy
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -366,7 +367,7 @@ def load_prepared_runs(
     settings = measurement_settings(measurement_list)
     prepared = []
     for e in entries:
-        run = load_run(Path(root) / e.path, known_joints, limits)
+        run = dataclasses.replace(load_run(Path(root) / e.path, known_joints, limits), name=e.name)
         prepared.append(prepare_run(run, cutoff_hz=settings["cutoff_hz"], order=settings["order"]))
     joints = prepared[0].joint_names
     for e, p in zip(entries, prepared):

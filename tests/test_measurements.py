@@ -1,0 +1,201 @@
+"""Measurement format: loading, validation errors, messy real logs, MCAP conversion, noise floor."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from sim2real.errors import InputError
+from sim2real.measurements import (
+    estimate_noise_floor,
+    load_measurement_list,
+    load_run,
+    mcap_to_run,
+    prepare_run,
+    write_run,
+)
+
+JOINTS = ["panda_joint1", "panda_joint2"]
+META = {"robot": "panda", "source": "real", "control_mode": "torque"}
+
+
+def motion(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    q = np.column_stack([0.5 * np.sin(1.3 * t), -0.3 + 0.4 * np.cos(0.9 * t)])
+    qd = np.column_stack([0.65 * np.cos(1.3 * t), -0.36 * np.sin(0.9 * t)])
+    qdd = np.column_stack([-0.845 * np.sin(1.3 * t), -0.324 * np.cos(0.9 * t)])
+    return q, qd, qdd
+
+
+def write_csv(path: Path, header: list[str], rows: list[list[float]], meta: dict | None = None) -> Path:
+    """A run written by hand: plain text lines, the way a user exports a log."""
+    lines = [",".join(header)] + [",".join(repr(float(v)) for v in row) for row in rows]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    path.with_suffix(".yaml").write_text(yaml.safe_dump(meta or META), encoding="utf-8")
+    return path
+
+
+def good_rows(n: int = 3000, dt: float = 0.001) -> tuple[list[str], list[list[float]]]:
+    t = np.arange(n) * dt
+    q, _, qdd = motion(t)
+    tau = 2.0 * qdd + 0.1
+    header = ["time"] + [f"q.{j}" for j in JOINTS] + [f"tau.{j}" for j in JOINTS]
+    return header, [[t[k], *q[k], *tau[k]] for k in range(n)]
+
+
+def test_hand_written_csv_run_loads_and_prepares(tmp_path):
+    header, rows = good_rows()
+    run = load_run(write_csv(tmp_path / "log.csv", header, rows), known_joints=JOINTS + ["panda_joint3"])
+    assert run.joint_names == JOINTS and run.qd is None and run.tau_cmd is None
+    prepared = prepare_run(run)
+    assert prepared.torque_source == "tau"
+    _, qd, qdd = motion(prepared.time)
+    assert np.max(np.abs(prepared.qd - qd)) < 1e-3
+    assert np.max(np.abs(prepared.qdd - qdd)) < 0.03  # filter edges: ~1% of the peak
+    assert prepared.filter["cutoff_hz"] == 10.0 and "sosfiltfilt" in prepared.filter["type"]
+
+
+def test_messy_real_log_irregular_stamps_repeats_no_commands_no_qd(tmp_path):
+    rng = np.random.default_rng(0)
+    steps = rng.uniform(0.0007, 0.009, size=1500)
+    steps[::50] = 0.009
+    t = np.concatenate([[0.0], np.cumsum(steps)])
+    q, _, qdd = motion(t)
+    repeat = rng.random(t.size) < 0.2  # logger faster than the state: positions repeat
+    for k in np.flatnonzero(repeat):
+        if k > 0:
+            q[k] = q[k - 1]
+    tau = 2.0 * qdd + 0.01 * rng.standard_normal(qdd.shape)
+    header = ["time"] + [f"q.{j}" for j in JOINTS] + [f"tau.{j}" for j in JOINTS]
+    path = write_csv(tmp_path / "messy.csv", header, [[t[k], *q[k], *tau[k]] for k in range(t.size)])
+    prepared = prepare_run(load_run(path), sample_rate_hz=1000.0)
+    assert prepared.filter["repeated_samples_dropped"] > 100
+    assert prepared.filter["raw_step_ms"]["max"] == pytest.approx(9.0, rel=1e-6)
+    assert np.allclose(np.diff(prepared.time), 1e-3)
+    _, qd_true, _ = motion(prepared.time)
+    assert np.sqrt(np.mean((prepared.qd - qd_true) ** 2)) < 0.02
+    assert prepared.tau_cmd is None
+
+
+@pytest.mark.parametrize(
+    ("mutate", "expected"),
+    [
+        (lambda h, r: r[37].__setitem__(1, float("nan")), ["q.panda_joint1", "row 37", "line 39", "NaN"]),
+        (lambda h, r: r[100].__setitem__(0, r[99][0]), ["column 'time'", "row 100", "does not increase"]),
+        (lambda h, r: h.__setitem__(1, "q.elbow"), ["elbow", "unknown joint"]),
+        (lambda h, r: [row.__setitem__(1, row[1] * 180 / np.pi + 90.0) for row in r], ["q.panda_joint1", "degrees"]),
+        (lambda h, r: r.__delitem__(slice(500, None)), ["too short"]),
+        (lambda h, r: h.__setitem__(4, "velocity.panda_joint2"), ["velocity.panda_joint2", "not part of"]),
+    ],
+    ids=["nan", "time_not_increasing", "unknown_joint", "degrees", "too_short", "bad_column"],
+)
+def test_bad_input_names_file_column_row(tmp_path, mutate, expected):
+    header, rows = good_rows()
+    mutate(header, rows)
+    path = write_csv(tmp_path / "bad.csv", header, rows)
+    with pytest.raises(InputError) as info:
+        load_run(path, known_joints=JOINTS)
+    message = str(info.value)
+    assert "bad.csv" in message and "Fix:" in message
+    for part in expected:
+        assert part in message
+
+
+def test_degrees_detected_from_limits_for_small_motions(tmp_path):
+    header, rows = good_rows()
+    for row in rows:
+        row[2] = np.rad2deg(row[2]) / 10  # within +-7 "rad" but outside joint 2's range
+    path = write_csv(tmp_path / "deg.csv", header, rows)
+    with pytest.raises(InputError, match="looks like degrees"):
+        load_run(path, JOINTS, position_limits={"panda_joint1": (-2.9, 2.9), "panda_joint2": (-1.76, 1.76)})
+
+
+def test_missing_metadata_partial_signals_and_no_torque(tmp_path):
+    header, rows = good_rows()
+    path = write_csv(tmp_path / "a.csv", header, rows)
+    path.with_suffix(".yaml").unlink()
+    with pytest.raises(InputError, match="metadata"):
+        load_run(path)
+    path = write_csv(tmp_path / "b.csv", header[:4], [r[:4] for r in rows])
+    with pytest.raises(InputError, match="some joints only"):
+        load_run(path)
+    path = write_csv(tmp_path / "c.csv", header[:3], [r[:3] for r in rows])
+    with pytest.raises(InputError, match="no torque"):
+        load_run(path)
+    path = write_csv(tmp_path / "d.csv", header, rows, meta={**META, "source": "lab"})
+    with pytest.raises(InputError, match="source"):
+        load_run(path)
+
+
+def test_parquet_roundtrip_and_tau_cmd_fallback(tmp_path):
+    t = np.arange(2000) * 0.001
+    q, _, qdd = motion(t)
+    write_run(tmp_path / "r.parquet", t, JOINTS, {"q": q, "tau_cmd": qdd}, META)
+    run = load_run(tmp_path / "r.parquet")
+    assert run.tau is None and np.array_equal(run.tau_cmd, qdd)
+    assert prepare_run(run).torque_source == "tau_cmd"
+
+
+def test_noise_floor_matches_white_torque_noise(tmp_path):
+    rng = np.random.default_rng(3)
+    t = np.arange(8000) * 0.001
+    q, _, qdd = motion(t)
+    sigma = np.array([0.05, 0.2])
+    tau = 3.0 * qdd + sigma * rng.standard_normal(qdd.shape)
+    write_run(tmp_path / "n.parquet", t, JOINTS, {"q": q, "tau": tau}, META)
+    floor = estimate_noise_floor(prepare_run(load_run(tmp_path / "n.parquet")))
+    assert np.allclose(floor, sigma, rtol=0.1)
+
+
+def test_measurement_list_roles_and_duplicates(tmp_path):
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump({"runs": [{"name": "a", "path": "x.csv", "role": "fit"},
+                                             {"name": "b", "path": "y.parquet", "role": "holdout"}]}))
+    entries = load_measurement_list(path)
+    assert [(e.name, e.role) for e in entries] == [("a", "fit"), ("b", "holdout")]
+    path.write_text(yaml.safe_dump({"runs": [{"name": "a", "path": "x.csv", "role": "fit"},
+                                             {"name": "a", "path": "y.csv", "role": "test"}]}))
+    with pytest.raises(InputError, match="role"):
+        load_measurement_list(path)
+
+
+def test_mcap_bag_converts_to_run(tmp_path):
+    from mcap_ros2.writer import Writer
+
+    joint_state = (
+        "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n"
+        "================================================================================\n"
+        "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
+        "================================================================================\n"
+        "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
+    )
+    array = (
+        "MultiArrayLayout layout\nfloat64[] data\n"
+        "================================================================================\n"
+        "MSG: std_msgs/MultiArrayLayout\nMultiArrayDimension[] dim\nuint32 data_offset\n"
+        "================================================================================\n"
+        "MSG: std_msgs/MultiArrayDimension\nstring label\nuint32 size\nuint32 stride\n"
+    )
+    bag = tmp_path / "arm.mcap"
+    t = np.arange(1500) * 0.002
+    q, qd, qdd = motion(t)
+    with bag.open("wb") as stream:
+        writer = Writer(stream)
+        js = writer.register_msgdef("sensor_msgs/msg/JointState", joint_state)
+        cmd = writer.register_msgdef("std_msgs/msg/Float64MultiArray", array)
+        for k, stamp in enumerate(t):
+            ns = int(round((100.0 + stamp) * 1e9))
+            writer.write_message("/effort_controller/commands", cmd,
+                                 {"layout": {"dim": [], "data_offset": 0}, "data": list(2.0 * qdd[k])}, log_time=ns - 1)
+            writer.write_message("/joint_states", js, {
+                "header": {"stamp": {"sec": ns // 10**9, "nanosec": ns % 10**9}, "frame_id": ""},
+                "name": JOINTS, "position": list(q[k]), "velocity": list(qd[k]), "effort": list(2.0 * qdd[k] + 0.1),
+            }, log_time=ns)
+        writer.finish()
+    out = mcap_to_run(bag, tmp_path / "arm.parquet", robot="panda", command_topic="/effort_controller/commands")
+    run = load_run(out, known_joints=JOINTS)
+    assert run.meta["source"] == "real" and run.meta["control_mode"] == "torque"
+    assert run.time[0] == 0.0 and run.time.size == t.size
+    assert np.allclose(run.q, q) and np.allclose(run.tau_cmd, 2.0 * qdd) and np.allclose(run.tau, 2.0 * qdd + 0.1)
