@@ -313,6 +313,8 @@ def _apply_operation(operation: str, nominal: np.ndarray, declared: np.ndarray) 
     if operation == "add":
         return nominal + declared
     if operation == "abs":
+        if np.shape(declared) == nominal.shape:
+            return np.array(declared, dtype=float)
         return np.broadcast_to(declared, np.broadcast_shapes(nominal.shape, np.shape(declared))).copy()
     raise KeyError(operation)
 
