@@ -229,11 +229,14 @@ def state_domain(mjcf_path: str | Path, runs: Sequence[TorqueComparison], horizo
 # where it fails
 
 
-def regime_masks(c: TorqueComparison, lower: np.ndarray, upper: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Per regime: (in-regime mask (N, n), side (N, n) = +1/-1 splitting the regime in two).
+def regime_masks(c: TorqueComparison, lower: np.ndarray, upper: np.ndarray) -> dict[str, tuple[np.ndarray, ...]]:
+    """Per regime: (in-regime mask, side = +1/-1 splitting the regime in two, stratum), each (N, n).
 
     The side is the sign of the regime's variable: velocity, acceleration, gravity torque, which limit.
     A model error that lives in the regime shows as a step of the residual between the two sides.
+    The stratum is the sign of the variable most likely to confound it (velocity, whose friction
+    error would otherwise leak into any regime the motion direction correlates with; acceleration for
+    the slow regime): the step is measured within each stratum and averaged.
     """
     run = c.run
     speed = np.abs(run.qd)
@@ -247,11 +250,23 @@ def regime_masks(c: TorqueComparison, lower: np.ndarray, upper: np.ndarray) -> d
     dist_hi = upper - run.q
     near = np.minimum(dist_lo, dist_hi) < 0.1 * rng_
     return {
-        "slow_reversal": (speed < v_slow, np.sign(run.qd)),
-        "hard_acceleration": (acc > a_hard, np.sign(run.qdd)),
-        "gravity_loaded": ((g_abs > 0.7 * g_max) & (g_max > 0.5), np.sign(c.gravity)),
-        "near_limit": (near, np.where(dist_hi < dist_lo, 1.0, -1.0)),
+        "slow_reversal": (speed < v_slow, np.sign(run.qd), np.sign(run.qdd)),
+        "hard_acceleration": (acc > a_hard, np.sign(run.qdd), np.sign(run.qd)),
+        "gravity_loaded": ((g_abs > 0.7 * g_max) & (g_max > 0.5), np.sign(c.gravity), np.sign(run.qd)),
+        "near_limit": (near, np.where(dist_hi < dist_lo, 1.0, -1.0), np.sign(run.qd)),
     }
+
+
+def _stratified_step(r: np.ndarray, pos: np.ndarray, neg: np.ndarray, strata: np.ndarray) -> float:
+    """|mean(r | pos) - mean(r | neg)| within each stratum, averaged with the stratum sizes."""
+    total, weight = 0.0, 0
+    for value in (-1.0, 1.0):
+        a, b = pos & (strata == value), neg & (strata == value)
+        if a.sum() > 10 and b.sum() > 10:
+            n = int(a.sum() + b.sum())
+            total += n * float(r[a].mean() - r[b].mean())
+            weight += n
+    return abs(total / weight) if weight else 0.0
 
 
 def where_it_fails(
@@ -275,7 +290,8 @@ def where_it_fails(
                 continue
             rin = r[inside]
             pos, neg = inside & (side > 0), inside & (side < 0)
-            step = float(abs(r[pos].mean() - r[neg].mean())) if pos.sum() > 10 and neg.sum() > 10 else 0.0
+            strata = np.concatenate([m[regime][2][:, jj] for m in masks])
+            step = _stratified_step(r, pos, neg, strata)
             p = pos.sum() / max(n_in, 1)
             # share of the in-regime residual power that the two-sided step explains
             explained = float(min(1.0, step**2 * p * (1 - p) / max(np.mean(rin**2), 1e-18)))

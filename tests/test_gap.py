@@ -1,0 +1,122 @@
+"""Gap report on lab data: numbers, where it fails, noise floor, skipped state domain, schema."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
+from sim2real.errors import InputError
+from sim2real.gap import build_gap_report, compute_gap, reality_gap
+from sim2real.io import validate
+from sim2real.lab import run_lab_scenario_run
+from sim2real.measurements import load_run, write_run
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("gap")
+    urdf, mjcf = build_dev_panda(directory)
+    config = short_lab_config(directory, duration_s=8.0)
+
+    def scenario(name: str, runs=("fit", "holdout")) -> Path:
+        entries = []
+        for run in runs:
+            out = directory / name / f"{run}.parquet"
+            if not out.exists():
+                run_lab_scenario_run(mjcf, config, "panda", name, run, out)
+            entries.append({"name": f"{name}_{run}", "path": out.as_posix(), "role": run})
+        listing = directory / f"{name}_measurements.yaml"
+        listing.write_text(yaml.safe_dump({"runs": entries, "replay": {"horizon_s": 0.25}}))
+        return listing
+
+    return {"urdf": urdf, "mjcf": mjcf, "scenario": scenario, "dir": directory}
+
+
+def test_demo_report_points_at_friction_in_slow_motion_and_reversals(lab):
+    listing = lab["scenario"]("demo")
+    out = lab["dir"] / "demo_report"
+    figures = {k: out / "gap" / f"{k}.png" for k in ("torque", "residual_velocity", "regimes")}
+    gap = build_gap_report("panda", lab["urdf"], lab["mjcf"], listing, out / "gap.json", out / "gap.md", figures)
+    findings = gap["where"]["findings"]
+    assert findings, "friction must show up somewhere"
+    assert {f["regime"] for f in findings} == {"slow_reversal"}
+    assert len({f["joint"] for f in findings}) >= 5  # every Panda joint has friction
+    assert gap["metrics"]["torque_rmse"]["overall"] > 4 * gap["noise_floor"]["torque_rmse"]["overall"]
+    sd = gap["metrics"]["state_domain"]
+    assert sd["status"] == "computed" and sd["reality_gap"]["grade"] in {"low", "medium", "high", "very_high"}
+    assert set(gap["metrics"]["position_rmse"]["per_joint"]) == set(PANDA_JOINTS)
+    assert gap["where"]["worst_windows"][0]["run"].startswith("demo_")
+    md = (out / "gap.md").read_text()
+    assert "slow motion and velocity reversals" in md and "gap/torque.png" in md
+    for path in figures.values():
+        assert path.stat().st_size > 1000
+    # deterministic: a rebuild is byte-identical
+    first = {p: p.read_bytes() for p in [out / "gap.json", out / "gap.md", *figures.values()]}
+    build_gap_report("panda", lab["urdf"], lab["mjcf"], listing, out / "gap.json", out / "gap.md", figures)
+    assert all(p.read_bytes() == b for p, b in first.items())
+
+
+def test_clean_lab_nominal_model_lands_at_the_noise_floor(lab):
+    gap, _ = compute_gap("panda", lab["urdf"], lab["mjcf"], lab["scenario"]("clean"))
+    floor = gap["noise_floor"]["torque_rmse"]
+    for joint in PANDA_JOINTS:
+        assert gap["metrics"]["torque_rmse"]["per_joint"][joint] < 1.5 * floor["per_joint"][joint]
+    assert gap["where"]["findings"] == []
+    assert gap["metrics"]["state_domain"]["reality_gap"]["grade"] == "low"
+
+
+def test_payload_points_at_gravity_loaded_poses(lab):
+    gap, _ = compute_gap("panda", lab["urdf"], lab["mjcf"], lab["scenario"]("payload"))
+    regimes = {f["regime"] for f in gap["where"]["findings"]}
+    assert "gravity_loaded" in regimes and "slow_reversal" not in regimes
+
+
+def test_log_without_commands_skips_state_domain_and_says_why(lab, tmp_path):
+    run = load_run(lab["dir"] / "demo" / "holdout.parquet")
+    write_run(tmp_path / "real.parquet", run.time, run.joint_names, {"q": run.q, "tau": run.tau},
+              {"robot": "panda", "source": "real", "control_mode": "torque"})
+    listing = tmp_path / "m.yaml"
+    listing.write_text(yaml.safe_dump({"runs": [{"name": "real", "path": (tmp_path / "real.parquet").as_posix(),
+                                                 "role": "holdout"}]}))
+    gap, _ = compute_gap("panda", lab["urdf"], lab["mjcf"], listing)
+    sd = gap["metrics"]["state_domain"]
+    assert sd["status"] == "skipped" and "tau_cmd" in sd["reason"]
+    assert "position_rmse" not in gap["metrics"]
+
+
+def test_unknown_joint_in_a_run_is_reported_against_the_model(lab, tmp_path):
+    t = np.arange(3000) * 0.001
+    write_run(tmp_path / "x.csv", t, ["panda_joint1", "wrist_9"], {"q": np.zeros((3000, 2)), "tau": np.zeros((3000, 2))},
+              {"robot": "panda", "source": "real", "control_mode": "torque"})
+    listing = tmp_path / "m.yaml"
+    listing.write_text(yaml.safe_dump({"runs": [{"name": "x", "path": (tmp_path / "x.csv").as_posix(), "role": "fit"}]}))
+    with pytest.raises(InputError, match="wrist_9"):
+        compute_gap("panda", lab["urdf"], lab["mjcf"], listing)
+
+
+def test_precomputed_ladder_is_merged_and_validated(lab, tmp_path):
+    ladder = {
+        "ladder": [{"effects": [], "params": {}, "metrics": {"torque_rmse": {"overall": 0.3, "per_joint": {"a": 0.3}}}}],
+        "diagnosis": {"candidates": [{"effect": "coulomb_friction", "joints": ["panda_joint7"], "explained": 0.8,
+                                      "evidence": {}, "add": "coulomb_friction"}], "verdict": "add coulomb_friction"},
+    }
+    gap, _ = compute_gap("panda", lab["urdf"], lab["mjcf"], lab["scenario"]("clean"), precomputed=ladder)
+    assert gap["ladder"] == ladder["ladder"] and gap["diagnosis"]["verdict"] == "add coulomb_friction"
+    broken = json.loads(json.dumps(gap))
+    broken["diagnosis"]["candidates"][0]["explained"] = 2.0
+    with pytest.raises(InputError, match="explained"):
+        validate(broken, "gap.schema.json")
+
+
+def test_reality_gap_metric_matches_source_chapter():
+    # all-perfect with contacts -> 0; the chapter's weights with contact F1 given
+    assert reality_gap(0.0, 0.0, 0.0, 1.0, 0.0, 1.0)["score"] == pytest.approx(0.0)
+    g = reality_gap(0.05, 0.5, 2.5, 0.9, 0.5, 0.5)
+    assert g["score"] == pytest.approx(0.3 * 0.5 + 0.2 * 0.5 + 0.15 * 0.5 + 0.15 * 0.1 + 0.1 * 0.5 + 0.1 * 0.5)
+    assert g["grade"] == "high"
+    assert reality_gap(1.0, 5.0, 50.0, 0.0, 3.0, None)["grade"] == "very_high"
