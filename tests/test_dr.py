@@ -352,6 +352,28 @@ def test_coverage_warns_lists_and_errors_when_strict(tmp_path: Path, mjcf: dict[
     assert [r["element"] for r in uncovered["records"]] == ["panda_joint3"] and uncovered["warnings"]
 
 
+def test_coverage_reads_the_sysid_params_shape(tmp_path: Path, mjcf: dict[str, Path]) -> None:
+    resolved = dr.resolve_files(REPO / "configs/panda/dr.yaml", mjcf["panda"], robot="panda")
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({
+        "robot": "panda",
+        "effects": {"coulomb_friction": {"friction": {"panda_joint1": 0.42, "panda_joint2": 1.3},
+                                         "smoothing_velocity": {"panda_joint1": 0.01}},
+                    "actuation_delay": {"delay": 0.004},
+                    "torque_gain": {"gain": {"panda_joint1": 1.02}}},
+        "intervals": {"coulomb_friction": {"friction": {"panda_joint1": [0.40, 0.44], "panda_joint2": [1.2, 1.4]}}},
+    }))
+    summary = dr.coverage_summary(resolved, params)
+    by_channel: dict[str, list[dict[str, Any]]] = {}
+    for record in summary["records"]:
+        by_channel.setdefault(record["channel"], []).append(record)
+    assert [(r["element"], r["covered"], r["interval"]) for r in by_channel["frictionloss"]] == [
+        ("panda_joint1", True, [0.40, 0.44]), ("panda_joint2", False, [1.2, 1.4])]
+    # 4 ms identified delay lies below the randomized 10-30 ms on every actuator
+    assert len(by_channel["delay"]) == 7 and not any(r["covered"] for r in by_channel["delay"])
+    assert len(summary["warnings"]) == 8
+
+
 # ---------------------------------------------------------------------------------------------
 # Snakemake: dr.json and the summary are build outputs, reproducible
 

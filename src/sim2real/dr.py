@@ -659,10 +659,45 @@ def _as_value(entry: Any) -> tuple[float, tuple[float, float]] | None:
     return None
 
 
+# sysid's params.yaml: (effect, quantity) -> randomized channel.
+SYSID_QUANTITIES: dict[tuple[str, str], str] = {
+    ("viscous_friction", "damping"): "damping",
+    ("coulomb_friction", "friction"): "frictionloss",
+    ("rotor_inertia", "armature"): "armature",
+    ("actuation_delay", "delay"): "delay",
+}
+
+
+def _read_sysid_effects(params: Mapping[str, Any]) -> list[IdentifiedValue]:
+    """The sysid stage's shape: ``effects: {effect: {quantity: {joint: value} | value}}`` with
+    ``intervals`` of the same shape holding ``[low, high]`` (absent for some quantities)."""
+    found = []
+    intervals = params.get("intervals") or {}
+    for effect, quantities in (params.get("effects") or {}).items():
+        if not isinstance(quantities, Mapping):
+            continue
+        for quantity, values in quantities.items():
+            channel = SYSID_QUANTITIES.get((str(effect), str(quantity)))
+            if channel is None:
+                continue
+            effect_intervals = intervals.get(effect) if isinstance(intervals, Mapping) else None
+            quantity_intervals = effect_intervals.get(quantity) if isinstance(effect_intervals, Mapping) else None
+            per_element = values.items() if isinstance(values, Mapping) else [(GLOBAL_ELEMENT, values)]
+            for element, value in per_element:
+                if isinstance(value, bool) or not isinstance(value, (int, float)):
+                    continue
+                ci = quantity_intervals.get(element) if isinstance(quantity_intervals, Mapping) else quantity_intervals
+                interval = (float(min(ci)), float(max(ci))) if isinstance(ci, list) and len(ci) == 2 else (float(value), float(value))
+                found.append(IdentifiedValue(f"{effect}.{quantity}", channel, str(element), float(value), interval))
+    return found
+
+
 def read_identified(params: Any) -> list[IdentifiedValue]:
     """Identified values from a parsed ``results/{robot}/sysid/params.yaml``.
 
-    The shape read (anything else is ignored, unknown parameter names too)::
+    The sysid stage's own shape (``effects`` + ``intervals``, see :func:`_read_sysid_effects`;
+    mapping in :data:`SYSID_QUANTITIES`) is read first. Otherwise this simple shape (anything
+    else is ignored, unknown parameter names too)::
 
         parameters:                      # optional wrapper
           viscous_friction:              # parameter name, see IDENTIFIED_ALIASES
@@ -673,6 +708,8 @@ def read_identified(params: Any) -> list[IdentifiedValue]:
     A list of records ``[{parameter|effect|name, element|joint|body|actuator, value, ci}]`` is also
     accepted, under ``parameters`` or at the top level.
     """
+    if isinstance(params, Mapping) and isinstance(params.get("effects"), Mapping):
+        return _read_sysid_effects(params)
     root = params.get("parameters", params) if isinstance(params, Mapping) else params
     found: list[IdentifiedValue] = []
 
@@ -994,10 +1031,14 @@ class DomainRandomizer:
         """An independent randomized model (deep copy): for keeping several models alive."""
         return copy.deepcopy(self.reset())
 
-    def reset_data(self, data: mujoco.MjData, ctrl: np.ndarray | None = None) -> None:
-        """Reset ``data`` for the current model and hold ``ctrl`` in every actuator history, so a
-        delayed actuator starts from the held command instead of replaying zeros for the delay."""
-        mujoco.mj_resetData(self.model, data)
+    def reset_data(self, data: mujoco.MjData, ctrl: np.ndarray | None = None, keyframe: int | None = None) -> None:
+        """Reset ``data`` for the current model (to ``keyframe`` when given, which also sets its
+        ctrl), optionally override ``ctrl``, and hold that command in every actuator history, so a
+        delayed actuator starts from it instead of replaying zeros for the length of the delay."""
+        if keyframe is None:
+            mujoco.mj_resetData(self.model, data)
+        else:
+            mujoco.mj_resetDataKeyframe(self.model, data, keyframe)
         if ctrl is not None:
             data.ctrl[:] = ctrl
         for actuator_id in range(self.model.nu):
@@ -1005,6 +1046,7 @@ class DomainRandomizer:
             if samples > 0:
                 value = np.full((samples, 1), float(data.ctrl[actuator_id]))
                 mujoco.mj_initCtrlHistory(self.model, data, actuator_id, None, value)
+        mujoco.mj_forward(self.model, data)
 
     # -- observation noise -------------------------------------------------------------------
 
