@@ -1151,7 +1151,7 @@ def plot_summary(rows: Sequence[Mapping[str, Any]], title: str, target: str | Pa
             ax.set_title(f"{label} [{first['unit']}]  ({first['mode']}, {first['distribution']}, {first['operation']})",
                          loc="left", fontsize=7)
         fig.suptitle(title, fontsize=8)
-        fig.tight_layout()
+        fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.25 / (sum(heights) + 0.6)))
         with atomic_path(target) as tmp:
             fig.savefig(tmp, format="svg", metadata={"Date": None, "Creator": None})
         plt.close(fig)
