@@ -5,11 +5,15 @@ import logging
 from sim2real.mjcf import build_mjcf
 
 logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
-build_mjcf(
-    snakemake.input.urdf,
-    snakemake.input.config,
-    list(snakemake.input.visual),
-    {uri: list(files) for uri, files in snakemake.params.collision_meshes.items()},
-    snakemake.output.xml,
-    snakemake.output.scene,
-)
+try:
+    build_mjcf(
+        snakemake.input.urdf,
+        snakemake.input.config,
+        list(snakemake.input.visual),
+        {uri: list(files) for uri, files in snakemake.params.collision_meshes.items()},
+        snakemake.output.xml,
+        snakemake.output.scene,
+    )
+except Exception:
+    logging.exception("failed")  # the log names the bad input too
+    raise

@@ -5,4 +5,8 @@ import logging
 from sim2real.urdf import build_urdf
 
 logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
-build_urdf(snakemake.input.xacro, snakemake.output[0], dict(snakemake.params.args))
+try:
+    build_urdf(snakemake.input.xacro, snakemake.output[0], dict(snakemake.params.args))
+except Exception:
+    logging.exception("failed")  # the log names the bad input too
+    raise

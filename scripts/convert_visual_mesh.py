@@ -5,4 +5,8 @@ import logging
 from sim2real.meshes import convert_visual_mesh
 
 logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
-convert_visual_mesh(snakemake.input[0], snakemake.output[0], snakemake.params.uri)
+try:
+    convert_visual_mesh(snakemake.input[0], snakemake.output[0], snakemake.params.uri)
+except Exception:
+    logging.exception("failed")  # the log names the bad input too
+    raise

@@ -347,6 +347,13 @@ def build_urdf(xacro_path: str | Path, out_path: str | Path, args: Mapping[str, 
     See the module docstring for the calibration YAML shape.
     """
     xacro_path = Path(xacro_path)
+    args = dict(args or {})
+    if args.get("calibration"):
+        # xacro resolves relative paths against the Xacro file; the caller means the working directory
+        calibration = Path(str(args["calibration"])).resolve()
+        if not calibration.is_file():
+            raise InputError(calibration, None, "calibration file does not exist", "run the sysid stage or correct the path")
+        args["calibration"] = str(calibration)
     text = run_xacro(xacro_path, args)
     with atomic_path(out_path) as tmp:
         tmp.write_text(text, encoding="utf-8")
