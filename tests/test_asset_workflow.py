@@ -2,46 +2,21 @@
 
 from __future__ import annotations
 
-import re
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import mujoco
 import pytest
 import yaml
 
+from buildtree import copy_repo as copy_project
+from buildtree import rules_run
+from buildtree import run_snakemake as snakemake
+
 pytestmark = pytest.mark.slow
 
 ROBOT = "ur5"  # the smaller mesh set keeps the cold build short; nothing here is robot-specific
 TARGETS = [f"results/{ROBOT}/{ROBOT}.urdf", f"results/{ROBOT}/mjcf/{ROBOT}.xml", f"results/{ROBOT}/mjcf/scene.xml"]
 MESH_RULES = {"visual_mesh", "collision_mesh"}
-
-
-def copy_project(root: Path, dest: Path) -> Path:
-    """The files a clean clone holds (tracked and untracked-unignored), without results/."""
-    listed = subprocess.run(
-        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=root, check=True, capture_output=True
-    ).stdout.decode().split("\0")
-    for rel in filter(None, listed):
-        if (root / rel).is_file() and not rel.startswith("results/"):
-            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(root / rel, dest / rel)
-    return dest
-
-
-def snakemake(tree: Path, *args: str) -> str:
-    snakemake_bin = Path(sys.executable).with_name("snakemake")
-    done = subprocess.run(
-        [str(snakemake_bin), "--cores", "2", *args], cwd=tree, capture_output=True, text=True, timeout=600
-    )
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    return done.stdout + done.stderr
-
-
-def rules_run(log: str) -> set[str]:
-    return set(re.findall(r"^\s*(?:local)?(?:rule|checkpoint) (\w+):", log, flags=re.MULTILINE))
 
 
 def mesh_outputs(tree: Path) -> dict[str, float]:

@@ -1,0 +1,60 @@
+"""Copies of the repository for tests that run Snakemake, with settings that keep them fast."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import yaml
+
+FAST_BUILD_TARGET = "all"
+
+
+def copy_repo(root: Path, dest: Path) -> Path:
+    """Copy what a clean clone holds: the files git tracks plus untracked, unignored ones (never results/)."""
+    listed = subprocess.run(
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+        cwd=root, check=True, capture_output=True,
+    ).stdout.decode().split("\0")
+    for rel in filter(None, listed):
+        src = root / rel
+        if src.is_file() and not rel.startswith("results/"):
+            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / rel)
+    return dest
+
+
+def run_snakemake(tree: Path, *args: str, timeout: float = 900) -> str:
+    """Run Snakemake in ``tree`` with the test's interpreter; fail with the tail of its log."""
+    done = subprocess.run(
+        [sys.executable, "-m", "snakemake", "--cores", "2", *args],
+        cwd=tree, capture_output=True, text=True, timeout=timeout, env={**os.environ, "PYTHONHASHSEED": "0"},
+    )
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
+    return done.stdout + done.stderr
+
+
+def rules_run(log: str) -> set[str]:
+    """Names of the rules (and checkpoints) whose jobs a Snakemake log says it ran."""
+    return set(re.findall(r"^\s*(?:local)?(?:rule|checkpoint) (\w+):", log, flags=re.MULTILINE))
+
+
+def edit_yaml(path: Path, edit: Callable[[dict], None]) -> None:
+    data = yaml.safe_load(path.read_text())
+    edit(data)
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+
+
+def make_fast(tree: Path) -> None:
+    """Settings for tests: the same DAG with cheap decomposition and short lab runs."""
+    for robot_cfg in sorted((tree / "configs").glob("*/robot.yaml")):
+        def fast_collision(data: dict) -> None:
+            collision = data.get("collision")
+            if isinstance(collision, dict) and "fast" in collision:
+                collision.update(collision["fast"])
+        edit_yaml(robot_cfg, fast_collision)

@@ -1,0 +1,78 @@
+"""CI's promises, played locally on the Panda and the UR5 at fast settings.
+
+- Two clean builds in separate directories give byte-identical outputs (logs and benchmarks aside).
+- The workflow's cache steps: build, copy results/ and .snakemake/metadata aside, make a fresh copy
+  of the repository, restore, settle mtimes as CI does: `snakemake all` runs nothing. Then an
+  edited inertial value reruns only the jobs that depend on it (no mesh, no decomposition job).
+"""
+
+from __future__ import annotations
+
+import filecmp
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from buildtree import FAST_BUILD_TARGET, copy_repo, make_fast, rules_run
+from buildtree import run_snakemake as _snakemake
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.slow
+
+
+def _jobs_run(log: str) -> list[str]:
+    return sorted(rules_run(log))
+
+
+@pytest.fixture(scope="module")
+def first_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    tree = copy_repo(ROOT, tmp_path_factory.mktemp("build_a") / "repo")
+    make_fast(tree)
+    _snakemake(tree, FAST_BUILD_TARGET)
+    return tree
+
+
+def _comparable_files(results: Path) -> list[Path]:
+    skip = {"logs", "benchmarks"}
+    return sorted(
+        p.relative_to(results)
+        for p in results.rglob("*")
+        if p.is_file() and not skip.intersection(p.relative_to(results).parts)
+    )
+
+
+def test_two_clean_builds_are_byte_identical(first_build: Path, tmp_path: Path) -> None:
+    second = copy_repo(ROOT, tmp_path / "repo")
+    make_fast(second)
+    _snakemake(second, FAST_BUILD_TARGET)
+    files_a = _comparable_files(first_build / "results")
+    files_b = _comparable_files(second / "results")
+    assert files_a == files_b
+    assert any(str(f).endswith(".xml") for f in files_a)
+    differing = [str(f) for f in files_a if not filecmp.cmp(first_build / "results" / f, second / "results" / f, shallow=False)]
+    assert differing == []
+
+
+def test_restored_cache_runs_nothing_and_an_inertial_edit_reruns_only_its_dependents(first_build: Path, tmp_path: Path) -> None:
+    fresh = copy_repo(ROOT, tmp_path / "repo")
+    make_fast(fresh)
+    # The workflow's restore step: results/ and Snakemake's metadata, file times as archived.
+    shutil.copytree(first_build / "results", fresh / "results", copy_function=shutil.copy2)
+    shutil.copytree(first_build / ".snakemake" / "metadata", fresh / ".snakemake" / "metadata", copy_function=shutil.copy2)
+    subprocess.run(["bash", str(fresh / ".ci" / "settle-mtimes")], check=True)
+
+    log = _snakemake(fresh, FAST_BUILD_TARGET)
+    assert _jobs_run(log) == [], f"restored build reran jobs: {_jobs_run(log)}"
+
+    xacro = fresh / "robots" / "panda" / "panda.urdf.xacro"
+    text = xacro.read_text()
+    edited, count = re.subn(r'(<mass value=")([0-9.]+)(")', lambda m: f"{m[1]}{float(m[2]) * 1.05:.6g}{m[3]}", text, count=1)
+    assert count == 1, "no <mass value=...> in the Panda Xacro to edit"
+    xacro.write_text(edited)
+    jobs = _jobs_run(_snakemake(fresh, FAST_BUILD_TARGET))
+    assert "urdf" in " ".join(jobs) and "mjcf" in " ".join(jobs), jobs
+    mesh_jobs = [j for j in jobs if "mesh" in j or "coacd" in j or "decompos" in j or "collision_parts" in j]
+    assert mesh_jobs == [], f"an inertial edit reran mesh jobs: {mesh_jobs}"
