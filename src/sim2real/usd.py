@@ -1,0 +1,678 @@
+"""URDF + built meshes -> a UsdPhysics articulation (pxr: UsdGeom, UsdShade, UsdPhysics).
+
+Two layers, written side by side under ``results/{robot}/usd/``:
+
+- ``{robot}.usda``: the robot. One rigid body Xform per URDF link with mass (flat under the default
+  prim, placed at its zero-configuration world pose), mass/CoM/principal inertia (MassAPI),
+  revolute/prismatic/fixed joints with limits (degrees for revolute), a drive per actuated joint
+  whose gains equal the MJCF actuator's after unit conversion (USD angular gains are per degree),
+  materials (UsdPreviewSurface) and the bindings of the visual parts.
+- ``{robot}_geometry.usda``: every mesh once (visual parts per material, CoACD convex parts as
+  colliders with ``convexHull`` approximation), referenced from the robot layer by a relative path.
+
+Links without mass joined by a fixed joint (a flange frame, a TCP) are folded into their parent
+body, as simulators require positive mass on every rigid body; their geometry moves with it.
+Output is deterministic: fixed authoring order, no timestamps, no absolute paths.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fnmatch
+import math
+import os
+import re
+import shutil
+import tempfile
+import xml.etree.ElementTree as ET
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from sim2real.collision import part_files
+from sim2real.errors import InputError
+from sim2real.io import read_validated_yaml
+from sim2real.meshes import read_parts
+from sim2real.mjcf import ROBOT_SCHEMA, actuated_joints
+from sim2real.urdf import mesh_name
+
+RAD_PER_DEG = math.pi / 180.0
+AXIS_TOKENS = ("X", "Y", "Z")
+GEOMETRY_ROOT = "/Geometry"
+
+
+# ---------------------------------------------------------------------------------------- URDF model
+
+
+def _floats(text: str | None, default: Sequence[float]) -> np.ndarray:
+    return np.array([float(v) for v in text.split()] if text else list(default), dtype=float)
+
+
+def rpy_matrix(rpy: Sequence[float]) -> np.ndarray:
+    """URDF roll-pitch-yaw (fixed axes X, then Y, then Z) -> rotation matrix."""
+    roll, pitch, yaw = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def transform(rotation: np.ndarray | None = None, translation: Sequence[float] | None = None) -> np.ndarray:
+    out = np.eye(4)
+    if rotation is not None:
+        out[:3, :3] = rotation
+    if translation is not None:
+        out[:3, 3] = translation
+    return out
+
+
+def origin_transform(element: ET.Element | None) -> np.ndarray:
+    origin = element.find("origin") if element is not None else None
+    xyz = _floats(origin.get("xyz") if origin is not None else None, (0, 0, 0))
+    rpy = _floats(origin.get("rpy") if origin is not None else None, (0, 0, 0))
+    return transform(rpy_matrix(rpy), xyz)
+
+
+@dataclass
+class Geometry:
+    kind: str  # "visual" | "collision"
+    shape: str  # "mesh" | "box" | "cylinder" | "sphere"
+    pose: np.ndarray  # in the link frame
+    uri: str = ""
+    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    size: tuple[float, ...] = ()  # box: full extents; cylinder: radius, length; sphere: radius
+
+
+@dataclass
+class Link:
+    name: str
+    mass: float = 0.0
+    com: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # about the CoM, link axes
+    geometries: list[Geometry] = field(default_factory=list)
+
+
+@dataclass
+class Joint:
+    name: str
+    type: str  # revolute | continuous | prismatic | fixed
+    parent: str
+    child: str
+    origin: np.ndarray
+    axis: np.ndarray
+    lower: float | None = None
+    upper: float | None = None
+    effort: float | None = None
+    velocity: float | None = None
+    mimic: str | None = None
+
+
+@dataclass
+class UrdfModel:
+    name: str
+    links: dict[str, Link]  # URDF order
+    joints: dict[str, Joint]  # URDF order
+    root: str
+
+
+def read_urdf(urdf_path: str | Path) -> UrdfModel:
+    """The kinematic and inertial content of a URDF that the USD and the equivalence check need."""
+    urdf_path = Path(urdf_path)
+    try:
+        root_element = ET.parse(urdf_path).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise InputError(urdf_path, None, f"cannot be read as URDF ({exc})", "rebuild the URDF") from exc
+    links: dict[str, Link] = {}
+    for element in root_element.findall("link"):
+        link = Link(element.get("name", ""))
+        inertial = element.find("inertial")
+        if inertial is not None and inertial.find("mass") is not None:
+            pose = origin_transform(inertial)
+            link.mass = float(inertial.find("mass").get("value", 0.0))  # type: ignore[union-attr]
+            link.com = pose[:3, 3].copy()
+            node = inertial.find("inertia")
+            values = {k: float(node.get(k, 0.0)) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")} if node is not None else {}
+            local = np.array([
+                [values.get("ixx", 0.0), values.get("ixy", 0.0), values.get("ixz", 0.0)],
+                [values.get("ixy", 0.0), values.get("iyy", 0.0), values.get("iyz", 0.0)],
+                [values.get("ixz", 0.0), values.get("iyz", 0.0), values.get("izz", 0.0)],
+            ])
+            rotation = pose[:3, :3]
+            link.inertia = rotation @ local @ rotation.T
+        for kind in ("visual", "collision"):
+            for item in element.findall(kind):
+                geometry = item.find("geometry")
+                if geometry is None or len(geometry) == 0:
+                    continue
+                shape = geometry[0]
+                pose = origin_transform(item)
+                if shape.tag == "mesh":
+                    scale = tuple(_floats(shape.get("scale"), (1, 1, 1)))
+                    link.geometries.append(Geometry(kind, "mesh", pose, uri=shape.get("filename", ""), scale=scale))  # type: ignore[arg-type]
+                elif shape.tag == "box":
+                    link.geometries.append(Geometry(kind, "box", pose, size=tuple(_floats(shape.get("size"), (0, 0, 0)))))
+                elif shape.tag == "cylinder":
+                    link.geometries.append(Geometry(kind, "cylinder", pose, size=(float(shape.get("radius", 0)), float(shape.get("length", 0)))))
+                elif shape.tag == "sphere":
+                    link.geometries.append(Geometry(kind, "sphere", pose, size=(float(shape.get("radius", 0)),)))
+        links[link.name] = link
+    joints: dict[str, Joint] = {}
+    for element in root_element.findall("joint"):
+        limit = element.find("limit")
+        mimic = element.find("mimic")
+
+        def limit_value(key: str, limit: ET.Element | None = limit) -> float | None:
+            return float(limit.get(key)) if limit is not None and limit.get(key) is not None else None  # type: ignore[arg-type]
+
+        axis = _floats(element.find("axis").get("xyz") if element.find("axis") is not None else None, (1, 0, 0))  # type: ignore[union-attr]
+        joint = Joint(
+            name=element.get("name", ""), type=element.get("type", ""),
+            parent=element.find("parent").get("link", ""), child=element.find("child").get("link", ""),  # type: ignore[union-attr]
+            origin=origin_transform(element), axis=axis / np.linalg.norm(axis),
+            lower=limit_value("lower"), upper=limit_value("upper"), effort=limit_value("effort"),
+            velocity=limit_value("velocity"), mimic=mimic.get("joint") if mimic is not None else None,
+        )
+        joints[joint.name] = joint
+    children = {j.child for j in joints.values()}
+    roots = [name for name in links if name not in children]
+    if len(roots) != 1:
+        raise InputError(urdf_path, "link tree", f"has {len(roots)} root links ({', '.join(roots)})", "connect every link to one root")
+    return UrdfModel(root_element.get("name", urdf_path.stem), links, joints, roots[0])
+
+
+def principal_inertia(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal moments (ascending) and the rotation whose columns are the principal axes (det +1).
+
+    Eigenvector signs are fixed (largest component positive) so the quaternion is deterministic.
+    """
+    moments, axes = np.linalg.eigh(0.5 * (inertia + inertia.T))
+    for k in range(3):
+        if axes[np.argmax(np.abs(axes[:, k])), k] < 0:
+            axes[:, k] *= -1
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] *= -1
+    return moments, axes
+
+
+def matrix_to_quat(rotation: np.ndarray) -> tuple[float, float, float, float]:
+    """Rotation matrix -> unit quaternion (w, x, y, z) with w >= 0."""
+    w, x, y, z = trimesh.transformations.quaternion_from_matrix(transform(rotation))
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    return float(w), float(x), float(y), float(z)
+
+
+def axis_frame(axis: np.ndarray) -> tuple[str, np.ndarray]:
+    """USD joint axis token and the rotation R (joint frame in link frame) with R @ e_token = axis."""
+    for k, token in enumerate(AXIS_TOKENS):
+        if abs(abs(axis[k]) - 1.0) < 1e-9:
+            if axis[k] > 0:
+                return token, np.eye(3)
+            other = np.zeros(3)
+            other[(k + 1) % 3] = 1.0  # half turn about another axis flips the joint axis
+            return token, trimesh.transformations.rotation_matrix(math.pi, other)[:3, :3]
+    unit_x = np.array([1.0, 0.0, 0.0])
+    return "X", trimesh.geometry.align_vectors(unit_x, axis)[:3, :3]
+
+
+# ----------------------------------------------------------------------------------------- bodies
+
+
+@dataclass
+class Body:
+    """A USD rigid body: a URDF link with mass plus the massless links folded into it."""
+
+    link: str
+    world: np.ndarray  # zero-configuration pose
+    members: dict[str, np.ndarray] = field(default_factory=dict)  # link -> pose in the body frame
+
+
+def fold_bodies(model: UrdfModel) -> tuple[dict[str, Body], dict[str, str | None]]:
+    """Bodies and link -> body name (None: the world, for a massless root link)."""
+    children: dict[str, list[Joint]] = {}
+    for joint in model.joints.values():
+        children.setdefault(joint.parent, []).append(joint)
+    bodies: dict[str, Body] = {}
+    body_of: dict[str, str | None] = {}
+    world_pose: dict[str, np.ndarray] = {model.root: np.eye(4)}
+    root_is_world = model.links[model.root].mass <= 0.0
+    if root_is_world:
+        body_of[model.root] = None
+    else:
+        bodies[model.root] = Body(model.root, np.eye(4), {model.root: np.eye(4)})
+        body_of[model.root] = model.root
+    stack = [model.root]
+    while stack:  # depth-first in URDF order: deterministic
+        parent = stack.pop(0)
+        for joint in children.get(parent, []):
+            child = joint.child
+            world_pose[child] = world_pose[parent] @ joint.origin
+            parent_body = body_of[parent]
+            if joint.type == "fixed" and model.links[child].mass <= 0.0 and parent_body is not None:
+                body_of[child] = parent_body
+                body = bodies[parent_body]
+                body.members[child] = body.members[parent] @ joint.origin
+            else:
+                bodies[child] = Body(child, world_pose[child], {child: np.eye(4)})
+                body_of[child] = child
+        stack[0:0] = [j.child for j in children.get(parent, [])]
+    return bodies, body_of
+
+
+# ------------------------------------------------------------------------------------------ gains
+
+
+@dataclass(frozen=True)
+class DriveGains:
+    """MJCF actuator gains in MuJoCo units (N m/rad, N m s/rad or N/m, N s/m) and the USD drive."""
+
+    kind: str  # position | velocity | motor
+    kp: float
+    kv: float
+    max_force: float | None
+
+    def usd_stiffness(self, revolute: bool) -> float:
+        return self.kp * RAD_PER_DEG if revolute else self.kp
+
+    def usd_damping(self, revolute: bool) -> float:
+        return self.kv * RAD_PER_DEG if revolute else self.kv
+
+
+def drive_gains(model: UrdfModel, robot_config: Mapping[str, Any], config_path: str | Path | None = None) -> dict[str, DriveGains]:
+    """Actuated joint -> gains, matched like the MJCF builder: first ``actuators`` entry whose glob matches."""
+    actuated = [
+        name for name, j in model.joints.items() if j.type in ("revolute", "prismatic", "continuous") and j.mimic is None
+    ]
+    out: dict[str, DriveGains] = {}
+    for index, entry in enumerate(robot_config.get("actuators") or []):
+        matched = [j for j in actuated if fnmatch.fnmatchcase(j, entry["joints"])]
+        if not matched:
+            raise InputError(config_path, f"actuators[{index}].joints '{entry['joints']}'", "matches no actuated joint",
+                             f"use one of: {', '.join(actuated)}")
+        for name in matched:
+            if name in out:
+                continue
+            kind = entry["type"]
+            kp = float(entry["kp"]) if kind == "position" else 0.0
+            kv = float(entry.get("kv", 0.0)) if kind in ("position", "velocity") else 0.0
+            out[name] = DriveGains(kind, kp, kv, model.joints[name].effort)
+    return {name: out[name] for name in actuated if name in out}  # URDF order
+
+
+# -------------------------------------------------------------------------------------- USD writing
+
+
+def prim_name(text: str) -> str:
+    """A valid USD prim name from any string."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", text)
+    return name if name and not name[0].isdigit() else f"_{name}"
+
+
+def _vec(values: Sequence[float]) -> Any:
+    from pxr import Gf
+
+    return Gf.Vec3f(*(float(v) for v in values))
+
+
+def _set_pose(xformable: Any, pose: np.ndarray, scale: Sequence[float] | None = None) -> None:
+    """translate + orient (+ scale) ops; identity parts are omitted to keep the layer minimal."""
+    from pxr import Gf, UsdGeom
+
+    translation = pose[:3, 3]
+    if np.any(np.abs(translation) > 0):
+        xformable.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Vec3d(*(float(v) for v in translation)))
+    w, x, y, z = matrix_to_quat(pose[:3, :3])
+    if abs(w - 1.0) > 1e-12:
+        xformable.AddOrientOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Quatd(w, x, y, z))
+    if scale is not None and tuple(scale) != (1.0, 1.0, 1.0):
+        xformable.AddScaleOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Vec3d(*(float(v) for v in scale)))
+
+
+def _write_mesh(stage: Any, path: str, mesh: trimesh.Trimesh) -> Any:
+    from pxr import Vt, UsdGeom
+
+    prim = UsdGeom.Mesh.Define(stage, path)
+    vertices = np.asarray(mesh.vertices, dtype=np.float32)
+    prim.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(vertices))
+    prim.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(mesh.faces), 3, dtype=np.int32)))
+    prim.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.asarray(mesh.faces, dtype=np.int32).ravel()))
+    prim.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)  # polygonal CAD meshes, not subdivision cages
+    prim.CreateExtentAttr([_vec(vertices.min(axis=0)), _vec(vertices.max(axis=0))])
+    return prim
+
+
+def _load_mesh(path: Path) -> trimesh.Trimesh:
+    loaded = trimesh.load(path, force="mesh", process=False)
+    return trimesh.Trimesh(loaded.vertices, loaded.faces, process=False)
+
+
+@dataclass
+class GeometryLayer:
+    """Meshes written once into the geometry layer, by key."""
+
+    stage: Any
+    prims: dict[str, str] = field(default_factory=dict)  # key -> prim path in the geometry layer
+    rgba: dict[str, tuple[float, ...]] = field(default_factory=dict)  # visual prim path -> color
+
+    def visual(self, name: str, directory: Path) -> str:
+        from pxr import UsdGeom
+
+        key = f"visual/{name}"
+        if key not in self.prims:
+            path = f"{GEOMETRY_ROOT}/visual/{prim_name(name)}"
+            UsdGeom.Xform.Define(self.stage, path)
+            record = read_parts(directory)
+            for index, part in enumerate(record["parts"]):
+                part_path = f"{path}/part_{index:02d}"
+                _write_mesh(self.stage, part_path, _load_mesh(directory / part["file"]))
+                self.rgba[f"{key}/part_{index:02d}"] = tuple(float(c) for c in part["rgba"])
+            self.prims[key] = path
+        return self.prims[key]
+
+    def collision(self, name: str, files: Sequence[Path]) -> str:
+        from pxr import UsdGeom, UsdPhysics
+
+        key = f"collision/{name}"
+        if key not in self.prims:
+            path = f"{GEOMETRY_ROOT}/collision/{prim_name(name)}"
+            UsdGeom.Xform.Define(self.stage, path)
+            for index, file in enumerate(files):
+                mesh = _write_mesh(self.stage, f"{path}/hull_{index:02d}", _load_mesh(Path(file)))
+                mesh.CreatePurposeAttr(UsdGeom.Tokens.guide)  # colliders are not rendered
+                UsdPhysics.CollisionAPI.Apply(mesh.GetPrim())
+                UsdPhysics.MeshCollisionAPI.Apply(mesh.GetPrim()).CreateApproximationAttr(UsdPhysics.Tokens.convexHull)
+            self.prims[key] = path
+        return self.prims[key]
+
+
+def _stage_metadata(stage: Any, default_prim: str) -> None:
+    from pxr import UsdGeom, UsdPhysics
+
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    UsdPhysics.SetStageKilogramsPerUnit(stage, 1.0)
+    stage.SetDefaultPrim(stage.GetPrimAtPath(default_prim))
+
+
+def _material(stage: Any, looks: str, rgba: tuple[float, ...], cache: dict[tuple[float, ...], Any]) -> Any:
+    from pxr import Sdf, UsdShade
+
+    key = tuple(round(c, 6) for c in rgba)
+    if key not in cache:
+        path = f"{looks}/material_{len(cache):02d}"
+        material = UsdShade.Material.Define(stage, path)
+        shader = UsdShade.Shader.Define(stage, f"{path}/PreviewSurface")
+        shader.CreateIdAttr("UsdPreviewSurface")
+        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(_vec(key[:3]))
+        shader.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(float(key[3]))
+        shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.5)
+        material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+        cache[key] = material
+    return cache[key]
+
+
+def build_usd(
+    urdf_path: str | Path,
+    robot_config_path: str | Path,
+    visual_dirs: Mapping[str, str | Path] | Sequence[str | Path],
+    collision_meshes: Mapping[str, Sequence[str | Path]],
+    out_usda: str | Path,
+    out_geometry: str | Path,
+) -> dict[str, Any]:
+    """Write the robot layer ``out_usda`` and the geometry layer ``out_geometry`` (same directory).
+
+    ``visual_dirs``: built visual mesh directories (name = URI file stem), list or URI -> directory.
+    ``collision_meshes``: URDF collision mesh URI -> convex part files (or one mesh file).
+    Returns a summary (bodies, joints, drives). Both layers pass ``UsdUtils.ComplianceChecker``
+    before they replace the outputs.
+    """
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics, UsdShade
+
+    urdf_path, out_usda, out_geometry = Path(urdf_path), Path(out_usda), Path(out_geometry)
+    if out_usda.parent.resolve() != out_geometry.parent.resolve():
+        raise InputError(out_geometry, None, "must sit beside the robot layer", f"write it into {out_usda.parent}")
+    config = read_validated_yaml(robot_config_path, ROBOT_SCHEMA)
+    model = read_urdf(urdf_path)
+    bodies, body_of = fold_bodies(model)
+    gains = drive_gains(model, config, robot_config_path)
+    home = dict(config.get("home") or {})
+    armature_patterns = dict(config.get("armature") or {})
+    if isinstance(visual_dirs, Mapping):
+        visual_by_name = {mesh_name(uri): Path(d) for uri, d in visual_dirs.items()}
+    else:
+        visual_by_name = {Path(d).name: Path(d) for d in visual_dirs}
+
+    with _staging_dir(out_usda, out_geometry) as (tmp_usda, tmp_geometry):
+        summary = _author(model, bodies, body_of, gains, home, armature_patterns, visual_by_name, collision_meshes,
+                          urdf_path, tmp_usda, tmp_geometry)
+    return summary
+
+
+def _author(
+    model: UrdfModel,
+    bodies: Mapping[str, Body],
+    body_of: Mapping[str, str | None],
+    gains: Mapping[str, DriveGains],
+    home: Mapping[str, float],
+    armature_patterns: Mapping[str, Any],
+    visual_by_name: Mapping[str, Path],
+    collision_meshes: Mapping[str, Sequence[str | Path]],
+    urdf_path: Path,
+    out_usda: Path,
+    out_geometry: Path,
+) -> dict[str, Any]:
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics, UsdShade
+
+    robot_path = f"/{prim_name(model.name)}"
+    geometry_stage = Usd.Stage.CreateNew(str(out_geometry))
+    UsdGeom.Scope.Define(geometry_stage, GEOMETRY_ROOT)
+    _stage_metadata(geometry_stage, GEOMETRY_ROOT)
+    geometry = GeometryLayer(geometry_stage)
+    geometry_ref = f"./{out_geometry.name}"
+
+    geometry_stage.GetRootLayer().Save()  # the robot layer references it: it must be on disk
+    stage = Usd.Stage.CreateNew(str(out_usda))
+    robot = UsdGeom.Xform.Define(stage, robot_path)
+    _stage_metadata(stage, robot_path)
+    UsdPhysics.ArticulationRootAPI.Apply(robot.GetPrim())
+    looks = f"{robot_path}/Looks"
+    UsdGeom.Scope.Define(stage, looks)
+    materials: dict[tuple[float, ...], Any] = {}
+
+    for body in bodies.values():
+        link = model.links[body.link]
+        body_path = f"{robot_path}/{prim_name(body.link)}"
+        xform = UsdGeom.Xform.Define(stage, body_path)
+        _set_pose(xform, body.world)
+        prim = xform.GetPrim()
+        UsdPhysics.RigidBodyAPI.Apply(prim)
+        if link.mass > 0:
+            mass_api = UsdPhysics.MassAPI.Apply(prim)
+            mass_api.CreateMassAttr(float(link.mass))
+            mass_api.CreateCenterOfMassAttr(Gf.Vec3f(*(float(v) for v in link.com)))
+            moments, axes = principal_inertia(link.inertia)
+            mass_api.CreateDiagonalInertiaAttr(Gf.Vec3f(*(float(v) for v in moments)))
+            w, x, y, z = matrix_to_quat(axes)
+            mass_api.CreatePrincipalAxesAttr(Gf.Quatf(w, x, y, z))
+        counters = {"visual": 0, "collision": 0}
+        for member, member_pose in body.members.items():
+            for item in model.links[member].geometries:
+                index = counters[item.kind]
+                counters[item.kind] += 1
+                item_path = f"{body_path}/{item.kind}_{index:02d}"
+                pose = member_pose @ item.pose
+                where = f"link '{member}' <{item.kind}>"
+                if item.shape == "mesh":
+                    name = mesh_name(item.uri)
+                    holder = UsdGeom.Xform.Define(stage, item_path)
+                    _set_pose(holder, pose, item.scale)
+                    if item.kind == "visual":
+                        if name not in visual_by_name:
+                            raise InputError(urdf_path, where, f"no built visual mesh for '{item.uri}'", "build the visual meshes first")
+                        source = geometry.visual(name, visual_by_name[name])
+                    else:
+                        files = collision_meshes.get(item.uri)
+                        if not files:
+                            raise InputError(urdf_path, where, f"no collision parts for '{item.uri}'", "build the collision parts first")
+                        source = geometry.collision(name, [Path(f) for f in files])
+                    holder.GetPrim().GetReferences().AddReference(geometry_ref, Sdf.Path(source))
+                    if item.kind == "visual":
+                        for part_key, rgba in geometry.rgba.items():
+                            if part_key.startswith(f"visual/{name}/"):
+                                part_prim = stage.OverridePrim(f"{item_path}/{part_key.rsplit('/', 1)[1]}")
+                                binding = UsdShade.MaterialBindingAPI.Apply(part_prim)
+                                binding.Bind(_material(stage, looks, rgba, materials))
+                else:
+                    shape_prim = _primitive(stage, item_path, item)
+                    _set_pose(shape_prim, pose, item.size if item.shape == "box" else None)
+                    if item.kind == "collision":
+                        shape_prim.CreatePurposeAttr(UsdGeom.Tokens.guide)
+                        UsdPhysics.CollisionAPI.Apply(shape_prim.GetPrim())
+
+    joints_path = f"{robot_path}/joints"
+    UsdGeom.Scope.Define(stage, joints_path)
+    summary_joints = []
+    if body_of[model.root] is not None:  # fixed base: weld the root body to the world
+        anchor = UsdPhysics.FixedJoint.Define(stage, f"{joints_path}/world_fixed")
+        anchor.CreateBody1Rel().SetTargets([Sdf.Path(f"{robot_path}/{prim_name(model.root)}")])
+    for joint in model.joints.values():
+        parent_body, child_body = body_of[joint.parent], body_of[joint.child]
+        if joint.type == "fixed" and parent_body == child_body:
+            continue  # folded into its parent body
+        joint_path = f"{joints_path}/{prim_name(joint.name)}"
+        revolute = joint.type in ("revolute", "continuous")
+        if revolute:
+            usd_joint = UsdPhysics.RevoluteJoint.Define(stage, joint_path)
+        elif joint.type == "prismatic":
+            usd_joint = UsdPhysics.PrismaticJoint.Define(stage, joint_path)
+        elif joint.type == "fixed":
+            usd_joint = UsdPhysics.FixedJoint.Define(stage, joint_path)
+        else:
+            raise InputError(urdf_path, f"joint '{joint.name}'", f"type '{joint.type}' has no USD counterpart here",
+                             "use revolute, continuous, prismatic or fixed")
+        token, axis_rotation = axis_frame(joint.axis)
+        parent_pose = (bodies[parent_body].members[joint.parent] if parent_body is not None else np.eye(4)) @ joint.origin
+        frame0 = parent_pose @ transform(axis_rotation)
+        frame1 = bodies[child_body].members[joint.child] @ transform(axis_rotation)  # type: ignore[index]
+        if parent_body is not None:
+            usd_joint.CreateBody0Rel().SetTargets([Sdf.Path(f"{robot_path}/{prim_name(parent_body)}")])
+        usd_joint.CreateBody1Rel().SetTargets([Sdf.Path(f"{robot_path}/{prim_name(child_body)}")])  # type: ignore[arg-type]
+        for frame, pos_attr, rot_attr in ((frame0, usd_joint.CreateLocalPos0Attr, usd_joint.CreateLocalRot0Attr),
+                                          (frame1, usd_joint.CreateLocalPos1Attr, usd_joint.CreateLocalRot1Attr)):
+            pos_attr(Gf.Vec3f(*(float(v) for v in frame[:3, 3])))
+            w, x, y, z = matrix_to_quat(frame[:3, :3])
+            rot_attr(Gf.Quatf(w, x, y, z))
+        entry: dict[str, Any] = {"name": joint.name, "type": joint.type}
+        if joint.type != "fixed":
+            usd_joint.CreateAxisAttr(token)
+            to_usd = (1.0 / RAD_PER_DEG) if revolute else 1.0
+            if joint.type != "continuous" and joint.lower is not None and joint.upper is not None:
+                usd_joint.CreateLowerLimitAttr(float(joint.lower * to_usd))
+                usd_joint.CreateUpperLimitAttr(float(joint.upper * to_usd))
+            armature = _matching(joint.name, armature_patterns)
+            if armature is not None:
+                prim = usd_joint.GetPrim()
+                for attr in ("newton:armature", "physxJoint:armature"):  # solver-specific, no core schema
+                    prim.CreateAttribute(attr, Sdf.ValueTypeNames.Float, custom=True).Set(float(armature))
+            gain = gains.get(joint.name)
+            if gain is not None:
+                drive = UsdPhysics.DriveAPI.Apply(usd_joint.GetPrim(), "angular" if revolute else "linear")
+                drive.CreateTypeAttr(UsdPhysics.Tokens.force)
+                drive.CreateStiffnessAttr(float(gain.usd_stiffness(revolute)))
+                drive.CreateDampingAttr(float(gain.usd_damping(revolute)))
+                if gain.max_force is not None:
+                    drive.CreateMaxForceAttr(float(gain.max_force))
+                if gain.kind == "position":
+                    drive.CreateTargetPositionAttr(float(home.get(joint.name, 0.0) * to_usd))
+                entry["drive"] = {"stiffness": gain.usd_stiffness(revolute), "damping": gain.usd_damping(revolute)}
+        summary_joints.append(entry)
+
+    geometry_stage.GetRootLayer().Save()
+    stage.GetRootLayer().Save()
+    return {"bodies": list(bodies), "joints": summary_joints}
+
+
+def _matching(name: str, patterns: Mapping[str, Any]) -> Any:
+    for pattern, value in patterns.items():
+        if fnmatch.fnmatchcase(name, pattern):
+            return value
+    return None
+
+
+def _primitive(stage: Any, path: str, item: Geometry) -> Any:
+    from pxr import UsdGeom
+
+    if item.shape == "box":
+        cube = UsdGeom.Cube.Define(stage, path)
+        cube.CreateSizeAttr(1.0)  # unit cube scaled to the box extents by the xform
+        cube.CreateExtentAttr([_vec((-0.5, -0.5, -0.5)), _vec((0.5, 0.5, 0.5))])
+        return cube
+    if item.shape == "cylinder":
+        radius, length = item.size
+        cylinder = UsdGeom.Cylinder.Define(stage, path)
+        cylinder.CreateRadiusAttr(float(radius))
+        cylinder.CreateHeightAttr(float(length))
+        cylinder.CreateAxisAttr(UsdGeom.Tokens.z)
+        cylinder.CreateExtentAttr([_vec((-radius, -radius, -length / 2)), _vec((radius, radius, length / 2))])
+        return cylinder
+    radius = item.size[0]
+    sphere = UsdGeom.Sphere.Define(stage, path)
+    sphere.CreateRadiusAttr(float(radius))
+    sphere.CreateExtentAttr([_vec((-radius,) * 3), _vec((radius,) * 3)])
+    return sphere
+
+
+# usdz/ARKit packaging rules: this asset is a plain .usda pair, not a package.
+PACKAGE_ONLY_VALIDATORS = {"usdUtilsValidators:UsdzPackageValidator", "usdUtilsValidators:RootPackageValidator"}
+
+
+def compliance_errors(usd_path: str | Path) -> list[str]:
+    """Errors of USD's compliance checking on a USD file and the layers it references.
+
+    ``UsdUtils.ComplianceChecker`` (usdchecker) where the installed pxr still has it; usd-core 26
+    replaced it by the UsdValidation framework, whose validators (the same checks plus
+    UsdPhysics' articulation, joint, rigid-body and collider checkers) are run here instead.
+    """
+    from pxr import Usd, UsdUtils
+
+    checker_class = getattr(UsdUtils, "ComplianceChecker", None)
+    if checker_class is not None:
+        checker = checker_class(arkit=False, skipARKitRootLayerCheck=True, rootPackageOnly=False, skipVariants=False)
+        checker.CheckCompliance(str(usd_path))
+        return list(checker.GetErrors()) + list(checker.GetFailedChecks())
+    from pxr import UsdValidation
+
+    registry = UsdValidation.ValidationRegistry()
+    names = sorted(str(m.name) for m in registry.GetAllValidatorMetadata() if str(m.name) not in PACKAGE_ONLY_VALIDATORS)
+    validators = [registry.GetOrLoadValidatorByName(name) for name in names]
+    context = UsdValidation.ValidationContext(validators)
+    stage = Usd.Stage.Open(str(usd_path))
+    errors = context.Validate(stage)
+    return sorted(
+        f"{error.GetIdentifier()}: {error.GetMessage()}"
+        for error in errors
+        if error.GetType() == UsdValidation.ValidationErrorType.Error
+    )
+
+
+@contextlib.contextmanager
+def _staging_dir(out_usda: Path, out_geometry: Path) -> Iterator[tuple[Path, Path]]:
+    """Temporary files beside the outputs: the layers are authored and checked there, then moved in."""
+    out_usda.parent.mkdir(parents=True, exist_ok=True)
+    tmp_dir = Path(tempfile.mkdtemp(prefix=".usd.", dir=out_usda.parent))
+    try:
+        tmp_usda, tmp_geometry = tmp_dir / out_usda.name, tmp_dir / out_geometry.name
+        yield tmp_usda, tmp_geometry
+        errors = compliance_errors(tmp_usda)
+        if errors:
+            raise InputError(out_usda, None, "USD compliance check failed: " + "; ".join(errors), "fix the USD writer or its inputs")
+        for tmp, target in ((tmp_geometry, out_geometry), (tmp_usda, out_usda)):
+            os.chmod(tmp, 0o644)
+            os.replace(tmp, target)
+    finally:
+        shutil.rmtree(tmp_dir, ignore_errors=True)
