@@ -1,0 +1,20 @@
+"""Snakemake script: URDF + meshes + CoACD parts -> UsdPhysics asset (sim2real.usd.build_usd)."""
+
+import logging
+
+from sim2real.usd import build_usd
+
+logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
+try:
+    summary = build_usd(
+        snakemake.input.urdf,
+        snakemake.input.config,
+        list(snakemake.input.visual),
+        {uri: list(files) for uri, files in snakemake.params.collision_meshes.items()},
+        snakemake.output.usda,
+        snakemake.output.geometry,
+    )
+    logging.info("bodies %s; joints %s", summary["bodies"], summary["joints"])
+except Exception:
+    logging.exception("failed")  # the log names the bad input too
+    raise
