@@ -4,8 +4,8 @@
 
 
 def mjcf_collision_meshes(robot):
-    """URDF collision mesh URI -> list of mesh files; the collision stage may replace the list."""
-    return collision_mesh_files(robot)
+    """URDF collision mesh URI -> list of mesh files: the CoACD convex parts (rules/collision.smk)."""
+    return coacd_collision_meshes(robot)
 
 
 def mjcf_collision_inputs(wildcards):
