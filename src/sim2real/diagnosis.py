@@ -29,6 +29,7 @@ DEFAULT_DIAGNOSIS: dict[str, float] = {
     "min_explained": 0.3,  # a candidate must remove this share of the holdout residual energy
     "joint_min_explained": 0.2,  # ... and this share of a joint's residual to name that joint
     "noise_floor_factor": 1.5,  # residual RMS within this factor of the noise floor: nothing to add
+    "parsimony": 1.05,  # a simpler candidate within this factor of the best holdout RMSE ranks first
 }
 
 
@@ -41,6 +42,21 @@ def _sse(residual: np.ndarray) -> np.ndarray:
     return np.sum(residual**2, axis=0)
 
 
+def _rank(candidates: list[dict[str, Any]], parsimony: float) -> list[dict[str, Any]]:
+    """By explained share; then the simplest candidate that does about as well as the best goes first.
+
+    Effects nest (a payload is a change of the last link's inertia; link_inertia holds it): the
+    bigger one always explains a little more, the smaller one is the better name for what is missing.
+    """
+    ranked = sorted(candidates, key=lambda c: (-c["explained"], c["effect"]))
+    if not ranked:
+        return ranked
+    limit = parsimony * ranked[0]["evidence"]["rmse_after"]
+    close = [c for c in ranked if c["evidence"]["rmse_after"] <= limit]
+    simplest = min(close, key=lambda c: (c["evidence"]["parameters"], -c["explained"], c["effect"]))
+    return [simplest] + [c for c in ranked if c is not simplest]
+
+
 def diagnose(
     model_effects: Sequence[str],
     nominal: Any,
@@ -51,11 +67,13 @@ def diagnose(
     fit_signals: Signals | None = None,
     holdout_signals: Signals | None = None,
     robot: str = "{robot}",
+    nonlinear_fixed: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, Any]:
     """Rank every effect not in ``model_effects`` by the holdout residual it removes.
 
     ``nominal``, ``fit_data``, ``holdout_data`` are :mod:`sim2real.sysid` objects; the residual is the
-    current model's holdout residual (judged minus predicted torque).
+    current model's holdout residual (judged minus predicted torque). ``nonlinear_fixed``: the
+    current model's nonlinear parameters, held while a candidate is tried (only its own are refined).
     """
     from sim2real import sysid  # the fit lives there; imported here to keep the modules acyclic
 
@@ -80,7 +98,7 @@ def diagnose(
             })
             continue
         result = sysid.fit([*model_effects, name], nominal, fit_data, settings.get("fit"), signals=fit_signals,
-                           uncertainty=False)
+                           uncertainty=False, consistency=False, nonlinear_fixed=nonlinear_fixed)
         _, residual = sysid.holdout_metrics(result, nominal, holdout_data, holdout_signals)
         sse_after = _sse(residual)
         explained = float(np.clip(1.0 - sse_after.sum() / total_now, 0.0, 1.0)) if total_now > 0 else 0.0
@@ -91,6 +109,7 @@ def diagnose(
         evidence["per_joint_explained"] = per_joint_dict(joints, per_joint, 3)
         evidence["rmse_after"] = round(float(np.sqrt(np.mean(residual**2))), 6)
         evidence["fitted"] = result.values[name]
+        evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
         candidates.append({
             "effect": name,
             "joints": acting if explained >= limits["min_explained"] else [],
@@ -98,7 +117,7 @@ def diagnose(
             "evidence": evidence,
             "add": add_line(name),
         })
-    candidates.sort(key=lambda c: (-c["explained"], c["effect"]))
+    candidates = _rank(candidates, float(limits["parsimony"]))
     best = candidates[0] if candidates else None
     ratio = rmse_now / noise if noise > 0 else float("inf")
     if best is not None and best["explained"] >= limits["min_explained"]:

@@ -359,14 +359,26 @@ def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndar
     return theta, residual, sizes
 
 
-def _refine_nonlinear(problem: _Problem, tau: np.ndarray, settings: Mapping[str, Any]) -> dict[str, np.ndarray]:
-    """Nonlinear parameters by bounded least squares, the linear ones projected out."""
+def _refine_nonlinear(
+    problem: _Problem, tau: np.ndarray, settings: Mapping[str, Any], fixed: Mapping[str, np.ndarray] | None = None
+) -> dict[str, np.ndarray]:
+    """Nonlinear parameters by bounded least squares, the linear ones projected out.
+
+    ``fixed``: nonlinear values of some effects to hold (e.g. the current model's, while the
+    diagnosis tries a candidate on top of it).
+    """
     signals = problem.signals
-    x0 = np.concatenate([e.nonlinear_init(signals) for e in problem.effects] or [np.zeros(0)])
+    fixed = dict(fixed or {})
+    x0 = np.concatenate(
+        [np.asarray(fixed.get(e.name, e.nonlinear_init(signals)), dtype=float) for e in problem.effects] or [np.zeros(0)]
+    )
     if x0.size == 0:
         return problem.split_nonlinear(x0)
     lower = np.concatenate([e.nonlinear_bounds(signals)[0] for e in problem.effects])
     upper = np.concatenate([e.nonlinear_bounds(signals)[1] for e in problem.effects])
+    held = np.concatenate([np.full(s, e.name in fixed) for e, s in zip(problem.effects, problem.nl_sizes, strict=True)])
+    if held.all():
+        return problem.split_nonlinear(x0)
     # The refinement runs on a subset of whole runs' samples (every k-th: keeps the time grid uniform).
     n_max = int(settings["refine_max_samples"])
     step = max(1, int(np.ceil(len(signals.time) / n_max)))
@@ -375,19 +387,26 @@ def _refine_nonlinear(problem: _Problem, tau: np.ndarray, settings: Mapping[str,
     sub = _Problem(problem.effects, sub_signals, problem.states)
     sub_tau = tau[rows]
 
-    def residual(x: np.ndarray) -> np.ndarray:
+    free = ~held
+
+    def residual_full(x: np.ndarray) -> np.ndarray:
         return _linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1)[1].reshape(-1)
+
+    def with_free(values: np.ndarray) -> np.ndarray:
+        x = x0.copy()
+        x[free] = values
+        return x
 
     # A delay has local minima at multiples of the signal's periods: start from a coarse grid.
     offset = 0
     for effect, size in zip(problem.effects, problem.nl_sizes, strict=True):
-        if effect.time_shift:
+        if effect.time_shift and effect.name not in fixed:
             grid = np.linspace(0.0, MAX_DELAY, 41)
             costs = []
             for d in grid:
                 x = x0.copy()
                 x[offset] = d
-                costs.append(float(np.sum(residual(x) ** 2)))
+                costs.append(float(np.sum(residual_full(x) ** 2)))
             x0[offset] = grid[int(np.argmin(costs))]
         offset += size
     # Smoothing velocities span decades: optimise their logarithm.
@@ -395,23 +414,25 @@ def _refine_nonlinear(problem: _Problem, tau: np.ndarray, settings: Mapping[str,
         [np.full(s, e.name == "coulomb_friction") for e, s in zip(problem.effects, problem.nl_sizes, strict=True)]
     )
 
-    def to_x(z: np.ndarray) -> np.ndarray:
-        x = z.copy()
-        x[log_mask] = np.exp(z[log_mask])
-        return x
-
     def to_z(x: np.ndarray) -> np.ndarray:
         z = x.copy()
         z[log_mask] = np.log(x[log_mask])
         return z
 
-    z_lower, z_upper = to_z(lower), to_z(upper)
-    z0 = np.clip(to_z(x0), z_lower, z_upper)
+    z_lower, z_upper = to_z(lower)[free], to_z(upper)[free]
+    z0 = np.clip(to_z(x0)[free], z_lower, z_upper)
+    log_free = log_mask[free]
+
+    def to_x_free(z: np.ndarray) -> np.ndarray:
+        values = z.copy()
+        values[log_free] = np.exp(z[log_free])
+        return with_free(values)
+
     result = optimize.least_squares(
-        lambda z: residual(to_x(z)), z0, bounds=(z_lower, z_upper), method="trf", x_scale="jac",
+        lambda z: residual_full(to_x_free(z)), z0, bounds=(z_lower, z_upper), method="trf", x_scale="jac",
         diff_step=1e-3, max_nfev=60, xtol=1e-4, ftol=1e-6,
     )
-    return problem.split_nonlinear(to_x(result.x))
+    return problem.split_nonlinear(to_x_free(result.x))
 
 
 def _subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
@@ -515,8 +536,14 @@ def fit(
     settings: Mapping[str, Any] | None = None,
     signals: Signals | None = None,
     uncertainty: bool = True,
+    consistency: bool = True,
+    nonlinear_fixed: Mapping[str, np.ndarray] | None = None,
 ) -> FitResult:
-    """Fit the model ``nominal + effect_names`` on ``data`` (the fit runs)."""
+    """Fit the model ``nominal + effect_names`` on ``data`` (the fit runs).
+
+    ``uncertainty``: bootstrap intervals; ``consistency``: keep link inertias physically consistent
+    (both cost time and hardly change the prediction: the diagnosis's trial fits skip them).
+    """
     settings = {**DEFAULT_SETTINGS, **(settings or {})}
     signals = signals or make_signals(nominal, data)
     effects = [get_effect(name) for name in effect_names]
@@ -529,18 +556,30 @@ def fit(
             )
     states = {e.name: e.prepare(signals) for e in effects}
     problem = _Problem(effects, signals, states)
-    nonlinear = _refine_nonlinear(problem, data.tau, settings)
+    nonlinear = _refine_nonlinear(problem, data.tau, settings, nonlinear_fixed)
     theta, residual, sizes = _linear_fit(problem, data.tau, nonlinear)
-    # Physical consistency of link inertias: shrink the correction towards nominal if needed, refit the rest.
-    if "link_inertia" in theta:
-        from sim2real.effects.link_inertia import consistent_shrink
+    # Physical consistency of link inertias: first move along the weakly identified directions
+    # (free for the fit), else shrink the correction towards nominal and refit the rest.
+    if "link_inertia" in theta and consistency:
+        from sim2real.effects.link_inertia import consistent_null_offset, consistent_shrink
 
-        delta = states["link_inertia"]["basis"] @ theta["link_inertia"]
-        alpha = consistent_shrink(np.asarray(nominal.info["inertial"]), delta, nominal.info["n_bodies"])
+        state = states["link_inertia"]
+        inertial = np.asarray(nominal.info["inertial"])
+        n_bodies = nominal.info["n_bodies"]
+        delta = state["basis"] @ theta["link_inertia"]
+        offset = consistent_null_offset(inertial, delta, state["null"], n_bodies)
+        if np.any(offset):
+            notes.append("link_inertia: weakly identified directions moved to keep every body physically consistent")
+            state["null_offset"] = offset
+            theta, residual, sizes = _linear_fit(problem, data.tau, nonlinear)
+            delta = state["basis"] @ theta["link_inertia"]
+        alpha = consistent_shrink(inertial, delta + offset, n_bodies)
         if alpha < 1.0:
-            notes.append(f"link_inertia: correction shrunk to {alpha:.3f} of the fit to stay physically consistent")
+            # The consistent set is convex and holds the nominal model: step back along the correction.
+            notes.append(f"link_inertia: correction scaled by {alpha:.4f} to stay physically consistent")
+            state["null_offset"] = offset * alpha
             theta = _refit_with_fixed(problem, data.tau, nonlinear, theta, "link_inertia", alpha)
-            residual = data.tau - problem.predict(theta, nonlinear)
+        residual = data.tau - problem.predict(theta, nonlinear)
     values = _values(effects, theta, nonlinear, signals, states)
     intervals: dict[str, Any] = {}
     if uncertainty:
@@ -686,6 +725,7 @@ def fit_ladder(
             effect_names, nominal, fit_data, holdout_data, residual,
             {"fit": fit_settings, "diagnosis": settings.get("diagnosis", {})},
             fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot,
+            nonlinear_fixed=result.nonlinear,
         )
     return round_floats(document), result
 

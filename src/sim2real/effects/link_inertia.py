@@ -18,6 +18,7 @@ import numpy as np
 from sim2real.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, explained_per_joint, per_joint_dict
 
 RELATIVE_SINGULAR_TOL = 1e-3  # directions excited 1000x less than the best are left at nominal
+STRUCTURAL_ZERO = 1e-9  # relative column norm below which a parameter does not act at all
 
 
 def pseudo_inertia(params: np.ndarray) -> np.ndarray:
@@ -54,6 +55,54 @@ def to_mass_com_inertia(params: np.ndarray) -> dict[str, Any]:
     }
 
 
+def min_eigenvalues(params: np.ndarray, n_bodies: int) -> np.ndarray:
+    return np.array([np.linalg.eigvalsh(pseudo_inertia(params[10 * b : 10 * b + 10])).min() for b in range(n_bodies)])
+
+
+# d(pseudo-inertia)/d(parameter k) for one body: the pseudo-inertia is linear in the parameters.
+_PSEUDO_BASIS = np.array([pseudo_inertia(np.eye(10)[k]) for k in range(10)])
+
+
+def _min_eigen_gradients(params: np.ndarray, n_bodies: int) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest eigenvalue per body and its gradient w.r.t. all parameters (n_bodies, 10*n_bodies)."""
+    values = np.zeros(n_bodies)
+    grads = np.zeros((n_bodies, 10 * n_bodies))
+    for b in range(n_bodies):
+        w, v = np.linalg.eigh(pseudo_inertia(params[10 * b : 10 * b + 10]))
+        values[b] = w[0]
+        grads[b, 10 * b : 10 * b + 10] = np.einsum("i,kij,j->k", v[:, 0], _PSEUDO_BASIS, v[:, 0])
+    return values, grads
+
+
+def consistent_null_offset(nominal: np.ndarray, delta: np.ndarray, null: np.ndarray, n_bodies: int) -> np.ndarray:
+    """Smallest move along the weakly identified directions that makes every body consistent.
+
+    Those directions hardly change the predicted torque, so the fit keeps its quality. Returns the
+    best offset found (parameter units); the caller checks consistency and shrinks if still needed.
+    """
+    from scipy import optimize
+
+    margin = np.minimum(1e-7, 0.5 * np.clip(min_eigenvalues(nominal, n_bodies), 0.0, None))
+    if np.all(min_eigenvalues(nominal + delta, n_bodies) > margin):
+        return np.zeros_like(delta)
+    if null.shape[1] == 0:
+        return np.zeros_like(delta)
+    start = nominal + delta
+
+    def constraint(z: np.ndarray) -> np.ndarray:
+        return _min_eigen_gradients(start + null @ z, n_bodies)[0] - margin
+
+    def constraint_jac(z: np.ndarray) -> np.ndarray:
+        return _min_eigen_gradients(start + null @ z, n_bodies)[1] @ null
+
+    result = optimize.minimize(
+        lambda z: float(z @ z), np.zeros(null.shape[1]), jac=lambda z: 2 * z, method="SLSQP",
+        constraints=[{"type": "ineq", "fun": constraint, "jac": constraint_jac}],
+        options={"maxiter": 150, "ftol": 1e-10},
+    )
+    return null @ result.x
+
+
 def consistent_shrink(nominal: np.ndarray, delta: np.ndarray, n_bodies: int) -> float:
     """Largest alpha in [0, 1] with nominal + alpha*delta physically consistent (bisection)."""
     if physically_consistent(nominal + delta, n_bodies):
@@ -82,23 +131,40 @@ class LinkInertia(Effect):
 
     def prepare(self, signals: Signals) -> dict[str, Any]:
         y = signals.regressor.reshape(-1, signals.regressor.shape[2])
+        n_params = y.shape[1]
         scale = np.linalg.norm(y, axis=0)
-        scale[scale == 0] = 1.0
+        # Parameters that (numerically) never act on the measured joints are not identifiable at all.
+        active = np.flatnonzero(scale > STRUCTURAL_ZERO * scale.max())
+        ya = y[:, active] / scale[active]
         # Eigen-decomposition of the scaled Gram matrix = SVD of the stacked regressor, much cheaper.
-        eigval, eigvec = np.linalg.eigh((y / scale).T @ (y / scale))
+        eigval, eigvec = np.linalg.eigh(ya.T @ ya)
         order = np.argsort(eigval)[::-1]
         singular = np.sqrt(np.clip(eigval[order], 0.0, None))
         rank = int(np.sum(singular > RELATIVE_SINGULAR_TOL * singular[0]))
-        # Basis in the original parameter units: delta = basis @ beta.
-        basis = eigvec[:, order[:rank]] / scale[:, None]
-        return {"basis": basis, "rank": rank}
+        # Basis in the original parameter units: delta = basis @ beta. The rest of the space barely
+        # changes the torque on these data: the fit moves along it only to stay physically consistent
+        # (structurally unidentifiable parameters included).
+        basis = np.zeros((n_params, rank))
+        basis[active] = eigvec[:, order[:rank]] / scale[active, None]
+        weak = np.zeros((n_params, len(active) - rank))
+        weak[active] = eigvec[:, order[rank:]] / scale[active, None]
+        inactive = np.setdiff1d(np.arange(n_params), active)
+        structural = np.zeros((n_params, len(inactive)))
+        structural[inactive, np.arange(len(inactive))] = 1.0
+        null = np.hstack([weak, structural])
+        return {"basis": basis, "null": null, "rank": rank, "null_offset": np.zeros(n_params)}
+
+    def offset(self, signals, state, theta):
+        if not np.any(state["null_offset"]):
+            return None
+        return signals.regressor @ state["null_offset"]
 
     def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
         basis = state["basis"]
         return signals.regressor @ basis, [ColumnLabel(f"base_{i}") for i in range(basis.shape[1])]
 
     def values(self, theta, nonlinear, signals, state):
-        delta = state["basis"] @ theta
+        delta = state["basis"] @ theta + state["null_offset"]
         nominal = np.asarray(signals.nominal["inertial"])
         total = nominal + delta
         bodies = signals.nominal["body_links"]

@@ -34,7 +34,10 @@ class ViscousFriction(Effect):
 
     def apply_to_spec(self, spec, values, context):
         for joint, value in values["damping"].items():
-            spec.joint(joint).damping = float(value)
+            # MuJoCo 4 joint damping is a polynomial in velocity (3 coefficients): set the linear one.
+            damping = np.array(spec.joint(joint).damping, dtype=float).reshape(-1)
+            damping[0] = float(value)
+            spec.joint(joint).damping = damping
 
     def calibration(self, values, calibration):
         for joint, value in values["damping"].items():

@@ -1,0 +1,68 @@
+"""Virtual-lab data for the sysid/diagnosis tests, generated once per test session (fast settings).
+
+The lab (sim2real.lab) implements its hidden effects itself; these tests only see its runs,
+never truth.yaml, exactly like the pipeline.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
+from sim2real import sysid
+from sim2real.gap import load_prepared_runs
+from sim2real.lab import run_lab_scenario_run, scenario_runs
+from sim2real.measurements import estimate_noise_floor
+
+# Fast settings: decimated fit grid, few bootstrap replicates, a small refinement subset.
+FAST_FIT = {"fit_rate_hz": 100.0, "bootstrap_replicates": 20, "refine_max_samples": 1500}
+LAB_DURATION_S = 8.0
+
+
+class Lab:
+    """A dev Panda (URDF + MJCF MuJoCo makes of it), a short lab config, runs on demand."""
+
+    def __init__(self, directory: Path) -> None:
+        self.dir = directory
+        self.urdf, self.mjcf = build_dev_panda(directory)
+        self.lab_config = short_lab_config(directory, duration_s=LAB_DURATION_S)
+        # The dev MJCF comes straight from the URDF: no extra armature, the flange is the last link.
+        self.nominal = sysid.load_nominal(self.urdf, PANDA_JOINTS)
+        self._data: dict[str, tuple[sysid.TorqueData, sysid.TorqueData]] = {}
+
+    def measurement_list(self, scenario: str) -> Path:
+        out = self.dir / scenario
+        runs = []
+        for run in scenario_runs(self.lab_config, scenario):
+            path = out / f"{run['name']}.csv"
+            if not path.exists():
+                run_lab_scenario_run(self.mjcf, self.lab_config, "panda", scenario, run["name"], path)
+            runs.append({"name": run["name"], "path": str(path), "role": run["role"]})
+        listing = out / "measurements.yaml"
+        listing.write_text(yaml.safe_dump({"runs": runs}), encoding="utf-8")
+        return listing
+
+    def data(self, scenario: str) -> tuple[sysid.TorqueData, sysid.TorqueData]:
+        if scenario not in self._data:
+            entries, prepared, _ = load_prepared_runs(self.measurement_list(scenario), PANDA_JOINTS, "/")
+            by_role: dict[str, list[dict[str, Any]]] = {"fit": [], "holdout": []}
+            for entry, run in zip(entries, prepared, strict=True):
+                by_role[entry.role].append(sysid.run_from_prepared(run, estimate_noise_floor(run)))
+            self._data[scenario] = (
+                sysid.stack_runs(by_role["fit"], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]),
+                sysid.stack_runs(by_role["holdout"], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]),
+            )
+        return self._data[scenario]
+
+    def ladder(self, scenario: str, effects: list[str], diagnose: bool = True) -> dict[str, Any]:
+        fit_data, holdout_data = self.data(scenario)
+        document, _ = sysid.fit_ladder(effects, self.nominal, fit_data, holdout_data, {"fit": FAST_FIT}, "panda",
+                                       diagnose=diagnose)
+        return document
+
+
+def overall(rung: dict[str, Any]) -> float:
+    return float(rung["metrics"]["torque_rmse"]["overall"])

@@ -1,0 +1,79 @@
+"""Diagnosis on virtual-lab data with hidden effects: the missing effect is named, adding it works."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from sysid_lab import Lab, overall
+
+SINGLE_EFFECTS = [
+    "viscous_friction", "coulomb_friction", "rotor_inertia", "actuation_delay",
+    "payload", "link_inertia", "torque_bias", "torque_gain",
+]
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory) -> Lab:
+    return Lab(tmp_path_factory.mktemp("sysid_lab"))
+
+
+@pytest.mark.parametrize("effect", SINGLE_EFFECTS)
+def test_hidden_effect_is_ranked_first_and_adding_it_reaches_the_noise_floor(lab, effect):
+    nominal = lab.ladder(effect, [])
+    diagnosis = nominal["diagnosis"]
+    ranked = [c["effect"] for c in diagnosis["candidates"]]
+    assert ranked[0] == effect, ranked
+    assert diagnosis["status"] == "add_effect"
+    assert diagnosis["candidates"][0]["add"] == f"- {effect}"
+    assert diagnosis["candidates"][0]["joints"], "the diagnosis names the joints the effect acts on"
+
+    added = lab.ladder(effect, [effect], diagnose=False)
+    before, after = overall(added["ladder"][0]), overall(added["ladder"][1])
+    assert before == pytest.approx(overall(nominal["ladder"][0]))
+    floor = added["noise_floor"]["torque_rmse"]["overall"]
+    # The 80% cut is judged on the error a model can remove (above the noise floor): where the lab's
+    # effect is small (nominal error < 5x the floor) no model could cut the raw RMSE by 80%.
+    removable_before = math.sqrt(max(before**2 - floor**2, 0.0))
+    removable_after = math.sqrt(max(after**2 - floor**2, 0.0))
+    assert removable_after <= 0.2 * removable_before, f"{effect}: holdout RMSE {before:.4f} -> {after:.4f}"
+    if before >= 5 * floor:
+        assert after <= 0.2 * before, f"{effect}: holdout RMSE {before:.4f} -> {after:.4f}"
+    assert after <= 1.5 * floor, f"{effect}: {after:.4f} N*m vs noise floor {floor:.4f} N*m"
+
+
+def test_two_hidden_effects_are_found_in_two_rounds(lab):
+    found: list[str] = []
+    for _ in range(2):
+        document = lab.ladder("friction_and_payload", found)
+        assert document["diagnosis"]["status"] == "add_effect"
+        found.append(document["diagnosis"]["candidates"][0]["effect"])
+    assert sorted(found) == ["coulomb_friction", "payload"]
+    final = lab.ladder("friction_and_payload", found, diagnose=False)
+    rmse = [overall(r) for r in final["ladder"]]
+    assert rmse[0] > rmse[1] > rmse[2], "the error falls rung by rung"
+    assert rmse[2] <= 0.2 * rmse[0]
+
+
+def test_nominal_model_on_clean_data_gets_no_confident_diagnosis(lab):
+    diagnosis = lab.ladder("clean", [])["diagnosis"]
+    assert diagnosis["status"] == "at_noise_floor"
+    assert all(c["explained"] < 0.3 for c in diagnosis["candidates"])
+    assert all(c["joints"] == [] for c in diagnosis["candidates"])
+    assert "Nothing to add" in diagnosis["verdict"]
+
+
+def test_demo_friction_names_coulomb_friction_and_the_ladder_falls(lab):
+    nominal = lab.ladder("demo", [])
+    assert nominal["diagnosis"]["candidates"][0]["effect"] == "coulomb_friction"
+    assert "coulomb_friction" in nominal["diagnosis"]["verdict"]
+    added = lab.ladder("demo", ["coulomb_friction", "viscous_friction"], diagnose=False)
+    rmse = [overall(r) for r in added["ladder"]]
+    assert rmse[-1] <= 0.2 * rmse[0]
+
+
+def test_delay_is_not_offered_when_the_torque_is_measured_by_a_sensor(lab):
+    diagnosis = lab.ladder("clean", [])["diagnosis"]
+    assert "actuation_delay" not in [c["effect"] for c in diagnosis["candidates"]]
+    assert [s["effect"] for s in diagnosis["skipped"]] == ["actuation_delay"]
