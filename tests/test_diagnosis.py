@@ -38,8 +38,6 @@ def test_hidden_effect_is_ranked_first_and_adding_it_reaches_the_noise_floor(lab
     removable_before = math.sqrt(max(before**2 - floor**2, 0.0))
     removable_after = math.sqrt(max(after**2 - floor**2, 0.0))
     assert removable_after <= 0.2 * removable_before, f"{effect}: holdout RMSE {before:.4f} -> {after:.4f}"
-    if before >= 5 * floor:
-        assert after <= 0.2 * before, f"{effect}: holdout RMSE {before:.4f} -> {after:.4f}"
     assert after <= 1.5 * floor, f"{effect}: {after:.4f} N*m vs noise floor {floor:.4f} N*m"
 
 
@@ -64,13 +62,19 @@ def test_nominal_model_on_clean_data_gets_no_confident_diagnosis(lab):
     assert "Nothing to add" in diagnosis["verdict"]
 
 
-def test_demo_friction_names_coulomb_friction_and_the_ladder_falls(lab):
-    nominal = lab.ladder("demo", [])
-    assert nominal["diagnosis"]["candidates"][0]["effect"] == "coulomb_friction"
-    assert "coulomb_friction" in nominal["diagnosis"]["verdict"]
-    added = lab.ladder("demo", ["coulomb_friction", "viscous_friction"], diagnose=False)
-    rmse = [overall(r) for r in added["ladder"]]
-    assert rmse[-1] <= 0.2 * rmse[0]
+def test_demo_friction_follow_the_diagnosis_until_nothing_is_left(lab):
+    """The user's loop on the demo: add the named line, rerun, until the verdict says nothing to add."""
+    effects: list[str] = []
+    document = lab.ladder("demo", effects)
+    assert document["diagnosis"]["candidates"][0]["effect"] == "coulomb_friction"
+    assert "coulomb_friction" in document["diagnosis"]["verdict"]
+    while document["diagnosis"]["status"] == "add_effect" and len(effects) < 3:
+        effects.append(document["diagnosis"]["candidates"][0]["effect"])
+        document = lab.ladder("demo", effects)
+    assert document["diagnosis"]["status"] == "at_noise_floor", document["diagnosis"]["verdict"]
+    rmse = [overall(r) for r in document["ladder"]]
+    assert rmse[-1] <= 0.2 * rmse[0], rmse
+    assert rmse == sorted(rmse, reverse=True)
 
 
 def test_delay_is_not_offered_when_the_torque_is_measured_by_a_sensor(lab):

@@ -21,6 +21,15 @@ RELATIVE_SINGULAR_TOL = 1e-3  # directions excited 1000x less than the best are 
 STRUCTURAL_ZERO = 1e-9  # relative column norm below which a parameter does not act at all
 
 
+def parameter_scales(inertial: np.ndarray) -> np.ndarray:
+    """Typical size of each dynamic parameter of each body: m, m*0.1 m, m*(0.1 m)^2."""
+    scales = []
+    for b in range(len(inertial) // 10):
+        mass = max(abs(float(inertial[10 * b])), 0.1)
+        scales.append([mass] + [0.1 * mass] * 3 + [0.01 * mass] * 6)
+    return np.asarray(scales, dtype=float).reshape(-1)
+
+
 def pseudo_inertia(params: np.ndarray) -> np.ndarray:
     """4x4 pseudo-inertia matrix of one body's 10 dynamic parameters (PD iff physically consistent)."""
     m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz = params
@@ -132,25 +141,28 @@ class LinkInertia(Effect):
     def prepare(self, signals: Signals) -> dict[str, Any]:
         y = signals.regressor.reshape(-1, signals.regressor.shape[2])
         n_params = y.shape[1]
-        scale = np.linalg.norm(y, axis=0)
+        # Work in relative units (parameter / its typical size on that body): the minimum-norm
+        # correction and the consistency move are then the smallest *relative* changes to the URDF.
+        scale = parameter_scales(np.asarray(signals.nominal["inertial"]))
+        yw = y * scale
+        norms = np.linalg.norm(yw, axis=0)
         # Parameters that (numerically) never act on the measured joints are not identifiable at all.
-        active = np.flatnonzero(scale > STRUCTURAL_ZERO * scale.max())
-        ya = y[:, active] / scale[active]
-        # Eigen-decomposition of the scaled Gram matrix = SVD of the stacked regressor, much cheaper.
+        active = np.flatnonzero(norms > STRUCTURAL_ZERO * norms.max())
+        ya = yw[:, active]
+        # Eigen-decomposition of the Gram matrix = SVD of the stacked regressor, much cheaper.
         eigval, eigvec = np.linalg.eigh(ya.T @ ya)
         order = np.argsort(eigval)[::-1]
         singular = np.sqrt(np.clip(eigval[order], 0.0, None))
         rank = int(np.sum(singular > RELATIVE_SINGULAR_TOL * singular[0]))
-        # Basis in the original parameter units: delta = basis @ beta. The rest of the space barely
-        # changes the torque on these data: the fit moves along it only to stay physically consistent
-        # (structurally unidentifiable parameters included).
+        # Basis in parameter units: delta = basis @ beta. The rest of the space barely changes the
+        # torque on these data: the fit moves along it only to stay physically consistent.
         basis = np.zeros((n_params, rank))
-        basis[active] = eigvec[:, order[:rank]] / scale[active, None]
+        basis[active] = eigvec[:, order[:rank]] * scale[active, None]
         weak = np.zeros((n_params, len(active) - rank))
-        weak[active] = eigvec[:, order[rank:]] / scale[active, None]
+        weak[active] = eigvec[:, order[rank:]] * scale[active, None]
         inactive = np.setdiff1d(np.arange(n_params), active)
         structural = np.zeros((n_params, len(inactive)))
-        structural[inactive, np.arange(len(inactive))] = 1.0
+        structural[inactive, np.arange(len(inactive))] = scale[inactive]
         null = np.hstack([weak, structural])
         return {"basis": basis, "null": null, "rank": rank, "null_offset": np.zeros(n_params)}
 
