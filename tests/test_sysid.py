@@ -1,0 +1,127 @@
+"""Fit: known parameters are recovered with honest intervals; real-log mode; files out."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from sim2real import sysid
+from sim2real.errors import InputError
+from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
+
+FAST = {"fit_rate_hz": 100.0, "bootstrap_replicates": 50, "refine_max_samples": 1500}
+
+
+@pytest.fixture(scope="module")
+def nominal():
+    return sysid.load_nominal(PANDA_URDF, PANDA_JOINTS, {"panda_joint*": 0.1}, "panda_link8")
+
+
+def _data(hidden, seeds):
+    return sysid.stack_runs([make_run(f"r{s}", hidden, s, duration=12.0) for s in seeds], PANDA_JOINTS)
+
+
+@pytest.mark.parametrize(
+    ("effect", "hidden", "param", "truth"),
+    [
+        ("viscous_friction", {"viscous_friction": [0.4] * 7}, "damping", 0.403),  # + URDF damping 0.003
+        ("coulomb_friction", {"coulomb_friction": [0.5] * 7}, "friction", 0.5),
+        ("rotor_inertia", {"rotor_inertia": [0.2] * 7}, "armature", 0.3),  # + robot.yaml armature 0.1
+        ("torque_bias", {"torque_bias": [0.3] * 7}, "bias", 0.3),
+        ("torque_gain", {"torque_gain": [1.1] * 7}, "gain", 1.1),
+    ],
+)
+def test_per_joint_effects_are_recovered_inside_their_intervals(nominal, effect, hidden, param, truth):
+    result = sysid.fit([effect], nominal, _data(hidden, [1, 2]), FAST)
+    for joint in PANDA_JOINTS:
+        value = result.values[effect][param][joint]
+        lo, hi = result.intervals[effect][param][joint]
+        assert value == pytest.approx(truth, rel=0.05, abs=0.01)
+        assert lo <= value <= hi
+        assert hi - lo < 0.2 * abs(truth) + 0.02
+
+
+def test_payload_and_delay_are_recovered(nominal):
+    payload = sysid.fit(["payload"], nominal, _data({"payload": (1.2, [0.02, 0.0, 0.12])}, [3]), FAST)
+    assert payload.values["payload"]["mass"] == pytest.approx(1.2, rel=0.02)
+    assert payload.values["payload"]["com_in_last_link"] == pytest.approx([0.02, 0.0, 0.12], abs=0.005)
+    assert payload.values["payload"]["link"] == "panda_link8"  # reported at the flange, as the Xacro wants it
+    delayed = _data({"actuation_delay": 0.012}, [4])
+    assert delayed.torque_source == "tau_cmd"
+    delay = sysid.fit(["actuation_delay"], nominal, delayed, FAST)
+    assert delay.values["actuation_delay"]["delay"] == pytest.approx(0.012, abs=0.002)
+
+
+def test_ladder_falls_rung_by_rung_and_is_deterministic(nominal):
+    hidden = {"coulomb_friction": [0.5] * 7, "rotor_inertia": [0.2] * 7}
+    fit_data, holdout = _data(hidden, [5]), _data(hidden, [6])
+    first, _ = sysid.fit_ladder(["coulomb_friction", "rotor_inertia"], nominal, fit_data, holdout, {"fit": FAST})
+    again, _ = sysid.fit_ladder(["coulomb_friction", "rotor_inertia"], nominal, fit_data, holdout, {"fit": FAST})
+    assert json.dumps(first, sort_keys=True) == json.dumps(again, sort_keys=True)
+    rmse = [r["metrics"]["torque_rmse"]["overall"] for r in first["ladder"]]
+    assert rmse[0] > rmse[1] > rmse[2]
+    assert [r["effects"] for r in first["ladder"]] == [[], ["coulomb_friction"], ["coulomb_friction", "rotor_inertia"]]
+    assert set(first["ladder"][2]["metrics"]["torque_rmse"]["per_joint"]) == set(PANDA_JOINTS)
+    assert first["diagnosis"]["status"] == "at_noise_floor"
+
+
+def _write_real_log(path, run, with_repeats=True):
+    """A real-log style table: only time, q, qd, tau; irregular stamps, repeated samples."""
+    rng = np.random.default_rng(0)
+    keep = np.sort(rng.choice(len(run["time"]), size=int(0.8 * len(run["time"])), replace=False))
+    table = {"time": run["time"][keep] + rng.uniform(0, 2e-4, size=len(keep))}
+    for j, joint in enumerate(PANDA_JOINTS):
+        table[f"q.{joint}"] = run["q"][keep, j]
+        table[f"qd.{joint}"] = run["qd"][keep, j] + rng.normal(scale=0.01, size=len(keep))
+        table[f"tau.{joint}"] = run["tau"][keep, j]
+    frame = pd.DataFrame(table)
+    if with_repeats:
+        frame = pd.concat([frame, frame.iloc[::7]]).sort_values("time", kind="stable")
+        frame["time"] = frame["time"] + np.arange(len(frame)) * 1e-9  # repeated state, fresh stamp
+    frame.to_csv(path, index=False)
+    path.with_suffix(".yaml").write_text(yaml.safe_dump({"robot": "panda", "source": "real", "control_mode": "torque"}))
+
+
+def test_real_log_mode_without_commands(tmp_path):
+    hidden = {"coulomb_friction": [0.6] * 7}
+    for name, seed in (("a", 7), ("b", 8)):
+        _write_real_log(tmp_path / f"{name}.csv", make_run(name, hidden, seed, duration=12.0, rate=1000.0))
+    (tmp_path / "measurements.yaml").write_text(yaml.safe_dump({"runs": [
+        {"name": "a", "path": "a.csv", "role": "fit"}, {"name": "b", "path": "b.csv", "role": "holdout"}]}))
+    (tmp_path / "model.yaml").write_text("effects:\n- coulomb_friction\nfit: {bootstrap_replicates: 20, fit_rate_hz: 100}\n")
+    (tmp_path / "robot.yaml").write_text(yaml.safe_dump({"armature": {"panda_joint*": 0.1}, "flange": "panda_link8"}))
+    out = tmp_path / "out"
+    document = sysid.run_sysid(
+        "panda", PANDA_URDF, tmp_path / "robot.yaml", tmp_path / "model.yaml", tmp_path / "measurements.yaml",
+        out / "ladder.json", out / "params.yaml", out / "calibration.yaml", root=tmp_path,
+    )
+    assert document["state_domain"]["status"] == "skipped"
+    assert "no commanded torque" in document["state_domain"]["reason"]
+    assert "actuation_delay" in [s["effect"] for s in document["diagnosis"]["skipped"]]
+    rmse = [r["metrics"]["torque_rmse"]["overall"] for r in document["ladder"]]
+    assert rmse[1] < 0.3 * rmse[0]
+    params = yaml.safe_load((out / "params.yaml").read_text())
+    assert params["effects"]["coulomb_friction"]["friction"]["panda_joint4"] == pytest.approx(0.6, rel=0.1)
+    calibration = yaml.safe_load((out / "calibration.yaml").read_text())
+    assert calibration["joints"]["panda_joint4"]["friction"] == pytest.approx(0.6, rel=0.1)
+    assert json.loads((out / "ladder.json").read_text()) == document
+
+
+def test_model_yaml_errors_name_the_key(tmp_path):
+    bad = tmp_path / "model.yaml"
+    bad.write_text("effects:\n- coulomb_frictoin\n")
+    with pytest.raises(InputError, match="effects/0"):
+        sysid.load_model_config(bad)
+    bad.write_text("effects: [payload, payload]\n")
+    with pytest.raises(InputError, match="effects"):
+        sysid.load_model_config(bad)
+
+
+def test_runs_mixing_torque_sources_are_refused(nominal):
+    runs = [make_run("a", {}, 1, duration=3.0), make_run("b", {"actuation_delay": 0.01}, 2, duration=3.0)]
+    with pytest.raises(InputError, match="torque sources"):
+        sysid.stack_runs(runs, PANDA_JOINTS)
