@@ -193,7 +193,10 @@ def _apply_spec_effects(spec: mujoco.MjSpec, joints: Sequence[str], effects: Map
     if "viscous_friction" in effects:
         values = _per_joint(effects["viscous_friction"]["coefficient"], joints, "viscous_friction", path)
         for j, v in zip(joints, values):
-            spec.joint(j).damping = spec.joint(j).damping + v
+            # MuJoCo 4 joint damping is a polynomial in velocity: only the linear term is viscous.
+            damping = np.array(spec.joint(j).damping, dtype=float).reshape(-1)
+            damping[0] += v
+            spec.joint(j).damping = damping
         truth["viscous_friction"] = {"coefficient": dict(zip(joints, values.tolist()))}
     coulomb = effects.get("coulomb_friction")
     if coulomb and coulomb.get("model", "sign") == "sign":
