@@ -1,5 +1,7 @@
 # Helpers shared by the rules files. Logic lives in src/sim2real; this only maps
 # config and wildcards onto paths.
+import os
+
 
 ROBOTS = list(config["robots"])
 
@@ -14,6 +16,11 @@ def robot_dir(robot):
 
 def robot_config(robot):
     return f"configs/{robot}/robot.yaml"
+
+
+def has_measurements(robot):
+    """Robots with measurements get the gap report, identified parameters and calibrated assets."""
+    return os.path.exists(f"configs/{robot}/measurements.yaml")
 
 
 def all_targets():

@@ -14,12 +14,18 @@ def mjcf_collision_inputs(wildcards):
     )
 
 
+def identified_params(wildcards):
+    """The calibrated tree also takes what the URDF cannot hold (armature, delay, gear) from sysid."""
+    return [f"results/{wildcards.robot}/sysid/params.yaml"] if wildcards.variant else []
+
+
 rule mjcf:
     input:
         urdf="results/{robot}/{variant}{robot}.urdf",
         config=lambda w: robot_config(w.robot),
         visual=lambda w: visual_mesh_dirs(w.robot),
         collision=mjcf_collision_inputs,
+        params=identified_params,
     output:
         xml="results/{robot}/{variant}mjcf/{robot}.xml",
         scene="results/{robot}/{variant}mjcf/scene.xml",
@@ -35,7 +41,9 @@ rule mjcf:
 
 STAGE_TARGETS.append(
     lambda robot: [
-        f"results/{robot}/mjcf/{robot}.xml",
-        f"results/{robot}/mjcf/scene.xml",
+        f"results/{robot}/{variant}mjcf/{robot}.xml"
+        for variant in ("", "calibrated/")
+        if not variant or has_measurements(robot)
     ]
+    + [f"results/{robot}/mjcf/scene.xml"]
 )

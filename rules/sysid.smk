@@ -46,7 +46,7 @@ STAGE_TARGETS.append(
             f"results/{robot}/sysid/ladder.json",
             f"results/{robot}/sysid/calibration.yaml",
         ]
-        if os.path.exists(sysid_measurement_list(robot))
+        if has_measurements(robot)
         else []
     )
 )

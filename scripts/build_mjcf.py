@@ -2,6 +2,7 @@
 
 import logging
 
+from sim2real.effects import spec_edit_from_params
 from sim2real.mjcf import build_mjcf
 
 logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
@@ -13,6 +14,7 @@ try:
         {uri: list(files) for uri, files in snakemake.params.collision_meshes.items()},
         snakemake.output.xml,
         snakemake.output.scene,
+        spec_edit=spec_edit_from_params(snakemake.input.params[0]) if snakemake.input.params else None,
     )
 except Exception:
     logging.exception("failed")  # the log names the bad input too
