@@ -27,6 +27,7 @@ PARTS_MANIFEST = "parts.json"
 SOURCES = ("visual", "collision")
 SURFACE_SAMPLES = 3000  # points per surface for the distance measures; enough for ~0.1 mm stable means
 SAMPLE_SEED = 0
+VOXELS_PER_EXTENT = 80  # solid voxel model of the source: ~2-3 mm on a Panda link
 
 
 @dataclass(frozen=True)
@@ -238,17 +239,28 @@ def _distance_to_parts(points: np.ndarray, parts: Sequence[trimesh.Trimesh]) -> 
     return distance
 
 
+def solid_voxels(source: trimesh.Trimesh) -> trimesh.voxel.VoxelGrid:
+    """The source as a filled voxel solid: enclosed cavities of a CAD shell count as material.
+
+    Collision shapes may fill a sealed cavity without any effect on contacts, so the measures treat
+    the inside of that solid as source. It also gives a volume for sources that are not closed.
+    """
+    pitch = float(np.max(source.extents)) / VOXELS_PER_EXTENT
+    return source.voxelized(pitch).fill()
+
+
 def shape_fidelity(source: trimesh.Trimesh, parts: Sequence[trimesh.Trimesh]) -> dict[str, Any]:
     """How closely the parts follow the source surface, in mm, plus a volume ratio.
 
     Two one-sided distances on seeded surface samples:
     - ``source_to_parts``: source surface outside every part (shape the parts miss);
-    - ``parts_to_source``: outer surface of the parts (samples not inside another part and not behind
-      the source surface) to the source surface (concavities the parts fill).
+    - ``parts_to_source``: outer surface of the parts (samples not inside another part and not inside
+      the source solid) to the source surface (concavities the parts fill).
     ``hausdorff_mm`` is the larger maximum, ``mean_mm`` the mean over both sample sets.
-    ``volume_ratio`` is the summed part volume over the source volume (overlaps count twice; the
-    source volume is exact only for a closed source, hence ``source_watertight``).
+    ``volume_ratio`` is the summed part volume (overlaps count twice) over the source volume: exact
+    for a closed source, else the filled voxel volume (``source_watertight`` says which).
     """
+    solid = solid_voxels(source)
     source_points, _ = trimesh.sample.sample_surface(source, SURFACE_SAMPLES, seed=SAMPLE_SEED)
     miss = _distance_to_parts(source_points, parts)
     outer_points = []
@@ -262,12 +274,13 @@ def shape_fidelity(source: trimesh.Trimesh, parts: Sequence[trimesh.Trimesh]) ->
     outer = np.concatenate(outer_points)
     closest, fill, triangle = trimesh.proximity.closest_point(source, outer)
     fill = np.asarray(fill)
-    # Part surface behind the source surface lies inside the solid (a cut face between parts):
-    # it is no filled concavity. Side from the nearest face's normal, robust for open meshes.
+    # Part surface inside the source solid (a cut face between parts, a sealed cavity) fills nothing;
+    # nor does part surface behind the nearest source face (side from its normal, for open meshes).
     side = np.einsum("ij,ij->i", outer - closest, source.face_normals[triangle])
-    fill[side < 0] = 0.0
+    fill[(side < 0) | solid.is_filled(outer)] = 0.0
     both = np.concatenate([miss, fill])
-    source_volume = float(abs(source.volume))
+    watertight = bool(source.is_watertight)
+    source_volume = float(abs(source.volume)) if watertight else float(solid.volume)
     parts_volume = float(sum(abs(p.volume) for p in parts))
     return {
         "hulls": len(parts),
@@ -278,7 +291,7 @@ def shape_fidelity(source: trimesh.Trimesh, parts: Sequence[trimesh.Trimesh]) ->
         "volume_ratio": round(parts_volume / source_volume, 4) if source_volume > 0 else None,
         "source_volume_cm3": round(source_volume * 1e6, 3),
         "parts_volume_cm3": round(parts_volume * 1e6, 3),
-        "source_watertight": bool(source.is_watertight),
+        "source_watertight": watertight,
         "source_faces": len(source.faces),
     }
 
