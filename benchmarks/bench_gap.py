@@ -32,7 +32,7 @@ def main(robot: str = "panda") -> None:
         start = time.perf_counter()
         gap, _ = compute_gap(robot, urdf, mjcf, listing)
         compute_s = time.perf_counter() - start
-        figures = {k: Path(tmp) / f"{k}.png" for k in ("torque", "residual_velocity", "regimes")}
+        figures = {k: Path(tmp) / f"{k}.png" for k in ("torque", "residual_velocity", "regimes", "ladder")}
         start = time.perf_counter()
         build_gap_report(robot, urdf, mjcf, listing, Path(tmp) / "gap.json", Path(tmp) / "gap.md", figures)
         report_s = time.perf_counter() - start

@@ -84,6 +84,12 @@ rule gap_report:
             category="Gap report",
             subcategory="{robot}",
         ),
+        ladder=report(
+            "results/{robot}/gap/ladder.png",
+            caption="../report/gap_ladder.rst",
+            category="Gap report",
+            subcategory="{robot}",
+        ),
     log:
         "results/{robot}/logs/gap_report.log",
     benchmark:

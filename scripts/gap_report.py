@@ -13,6 +13,6 @@ build_gap_report(
     snakemake.output.json,
     snakemake.output.md,
     {"torque": snakemake.output.torque, "residual_velocity": snakemake.output.residual_velocity,
-     "regimes": snakemake.output.regimes},
+     "regimes": snakemake.output.regimes, "ladder": snakemake.output.ladder},
     precomputed_path=snakemake.input.ladder[0] if snakemake.input.ladder else None,
 )

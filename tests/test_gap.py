@@ -40,7 +40,7 @@ def lab(tmp_path_factory):
 def test_demo_report_points_at_friction_in_slow_motion_and_reversals(lab):
     listing = lab["scenario"]("demo")
     out = lab["dir"] / "demo_report"
-    figures = {k: out / "gap" / f"{k}.png" for k in ("torque", "residual_velocity", "regimes")}
+    figures = {k: out / "gap" / f"{k}.png" for k in ("torque", "residual_velocity", "regimes", "ladder")}
     gap = build_gap_report("panda", lab["urdf"], lab["mjcf"], listing, out / "gap.json", out / "gap.md", figures)
     findings = gap["where"]["findings"]
     assert findings, "friction must show up somewhere"

@@ -467,7 +467,7 @@ def build_gap_report(
     gap_json: str | Path, gap_md: str | Path, figures: Mapping[str, str | Path],
     precomputed_path: str | Path | None = None, root: str | Path = ".",
 ) -> dict[str, Any]:
-    """Write gap.json, gap.md and the figures (keys: torque, residual_velocity, regimes)."""
+    """Write gap.json, gap.md and the figures (keys: torque, residual_velocity, regimes, ladder)."""
     from sim2real.report import render_gap_markdown, write_gap_figures
 
     precomputed = None

@@ -104,10 +104,39 @@ def figure_regimes(gap: Mapping[str, Any], target: str | Path) -> None:
     _save(fig, target)
 
 
+def _rung_label(effects: Sequence[str]) -> str:
+    return "nominal" if not effects else "+ " + effects[-1]
+
+
+def figure_ladder(gap: Mapping[str, Any], target: str | Path) -> None:
+    """Holdout torque RMSE rung by rung (overall and per joint) against the noise floor."""
+    ladder = gap.get("ladder") or [
+        {"effects": [], "metrics": {"torque_rmse": gap["metrics"]["torque_rmse"]}}
+    ]
+    floor = gap["noise_floor"]["torque_rmse"]
+    x = np.arange(len(ladder))
+    fig, ax = plt.subplots(figsize=(max(4.5, 1.6 * len(ladder) + 2.5), 3.4))
+    for j, joint in enumerate(gap["joints"]):
+        per_joint = [rung["metrics"]["torque_rmse"]["per_joint"][joint] for rung in ladder]
+        ax.plot(x, per_joint, marker=".", lw=0.8, alpha=0.6, color=f"C{j % 10}", label=joint)
+    overall = [rung["metrics"]["torque_rmse"]["overall"] for rung in ladder]
+    ax.plot(x, overall, marker="o", lw=2.2, color="black", label="overall")
+    ax.axhline(floor["overall"], color="black", ls="--", lw=1.0, label="noise floor (overall)")
+    ax.set_xticks(x, [_rung_label(rung["effects"]) for rung in ladder], fontsize=8)
+    ax.set_yscale("log")
+    ax.set_ylabel("holdout torque RMSE [N m]", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=6, ncol=2, loc="upper right")
+    ax.set_title("Model ladder: the error falls as effects are added", fontsize=10)
+    fig.tight_layout()
+    _save(fig, target)
+
+
 def write_gap_figures(gap: Mapping[str, Any], comparisons: Sequence[Any], figures: Mapping[str, str | Path]) -> None:
     figure_torque(comparisons, figures["torque"])
     figure_residual_velocity(comparisons, figures["residual_velocity"])
     figure_regimes(gap, figures["regimes"])
+    figure_ladder(gap, figures["ladder"])
 
 
 def _fmt(x: float | None, digits: int = 3) -> str:
@@ -176,14 +205,22 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
         lines.append(f"| {win['run']} | {win['t_start']:.2f} | {win['t_end']:.2f} | {win['rmse']:.3g} | "
                      f"{win['worst_joint']} ({win['worst_joint_rmse']:.3g}) |")
     if "ladder" in gap:
-        lines += ["", "## Model ladder", "", "| rung | effects | holdout torque RMSE [N m] |", "|---|---|---|"]
+        first = gap["ladder"][0]["metrics"]["torque_rmse"]["overall"]
+        lines += ["", "## Model ladder", "",
+                  "Effects of configs/{robot}/model.yaml added one by one, each rung fitted on the `fit` runs and "
+                  "judged on the `holdout` runs.".replace("{robot}", gap["robot"]), "",
+                  "| rung | effects | holdout torque RMSE [N m] | change from nominal | x noise floor |",
+                  "|---|---|---|---|---|"]
         for k, rung in enumerate(gap["ladder"]):
-            lines.append(f"| {k} | {', '.join(rung['effects']) or 'nominal'} | "
-                         f"{rung['metrics']['torque_rmse']['overall']:.3g} |")
+            value = rung["metrics"]["torque_rmse"]["overall"]
+            change = f"{100 * (value - first) / first:+.0f}%" if k and first else "–"
+            lines.append(f"| {k} | {', '.join(rung['effects']) or 'nominal'} | {value:.3g} | {change} | "
+                         f"{value / floor['overall']:.2f} |")
+        lines += ["", f"![Model ladder]({figures['ladder']})"]
     if "diagnosis" in gap:
         lines += ["", "## Diagnosis", "", gap["diagnosis"]["verdict"], ""]
         for cand in gap["diagnosis"]["candidates"][:3]:
-            lines.append(f"- `{cand['effect']}` on {', '.join(cand['joints'])}: explains "
+            lines.append(f"- `{cand['effect']}` on {', '.join(cand['joints']) or 'no joint in particular'}: explains "
                          f"{100 * cand['explained']:.0f}% of the residual; add `{cand['add']}`")
     lines += ["", "## Figures", "",
               f"![Measured vs model torque]({figures['torque']})", "",
