@@ -219,3 +219,70 @@ def check_equivalence(
     if out_json is not None:
         write_json(out_json, report)
     return report
+
+
+# ------------------------------------------------------------------------------ dynamic equivalence
+
+
+@dataclass
+class HoldTrajectory:
+    """Joint positions (rows: samples every ``sample_dt`` seconds) of an arm holding its home pose."""
+
+    joints: list[str]
+    times: np.ndarray
+    q: np.ndarray
+    q0: np.ndarray
+
+
+def hold_in_mujoco(mjcf_path: str | Path, joints: list[str], duration: float, dt: float, sample_dt: float = 0.01) -> HoldTrajectory:
+    """MuJoCo from the ``home`` keyframe, actuators holding it under gravity (contacts as in the MJCF)."""
+    model = mujoco.MjModel.from_xml_path(str(mjcf_path))
+    model.opt.timestep = dt
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
+    addresses = [model.jnt_qposadr[model.joint(j).id] for j in joints]
+    q0 = data.qpos[addresses].copy()
+    every = max(1, round(sample_dt / dt))
+    samples = []
+    for step in range(1, round(duration / dt) + 1):
+        mujoco.mj_step(model, data)
+        if step % every == 0:
+            samples.append(data.qpos[addresses].copy())
+    return HoldTrajectory(list(joints), np.arange(1, len(samples) + 1) * every * dt, np.array(samples), q0)
+
+
+def hold_in_newton(usd_path: str | Path, home: Mapping[str, float], joints: list[str], duration: float, dt: float,
+                   sample_dt: float = 0.01) -> HoldTrajectory:
+    """NVIDIA Newton (CPU, Featherstone) on the USD: start at ``home``, drive targets at ``home``, gravity on.
+
+    Contacts are not simulated (the pose holds in free space). Featherstone integrates drive damping
+    explicitly, so ``dt`` must resolve kd / (link inertia + armature): 0.4 ms suits the Panda.
+    """
+    import newton
+    import warp as wp
+
+    wp.config.quiet = True
+    builder = newton.ModelBuilder()
+    builder.add_usd(str(usd_path), floating=False, enable_self_collisions=False)
+    model = builder.finalize(device="cpu")
+    names = [label.rsplit("/", 1)[-1] for label in model.joint_label]
+    q_start = model.joint_q_start.numpy()
+    q0 = model.joint_q.numpy().copy()
+    for index, name in enumerate(names):
+        if name in home and q_start[index + 1] - q_start[index] == 1:
+            q0[q_start[index]] = home[name]
+    columns = [int(q_start[names.index(j)]) for j in joints]
+    state, next_state, control = model.state(), model.state(), model.control()
+    state.joint_q.assign(q0)
+    control.joint_target_q.assign(q0)
+    newton.eval_fk(model, state.joint_q, state.joint_qd, state)
+    solver = newton.solvers.SolverFeatherstone(model)
+    every = max(1, round(sample_dt / dt))
+    samples = []
+    for step in range(1, round(duration / dt) + 1):
+        state.clear_forces()
+        solver.step(state, next_state, control, None, dt)
+        state, next_state = next_state, state
+        if step % every == 0:
+            samples.append(state.joint_q.numpy()[columns].copy())
+    return HoldTrajectory(list(joints), np.arange(1, len(samples) + 1) * every * dt, np.array(samples), q0[columns])
