@@ -13,7 +13,9 @@ def collision_section(robot):
 def coacd_settings(wildcards):
     """Settings of one mesh (defaults < collision.coacd < collision.overrides.<name>) as plain params."""
     return _sim2real_collision.mesh_settings(
-        collision_section(wildcards.robot), wildcards.name, robot_config(wildcards.robot)
+        collision_section(wildcards.robot),
+        wildcards.name,
+        robot_config(wildcards.robot),
     ).as_params()
 
 

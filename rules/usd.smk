@@ -8,9 +8,7 @@ def usd_visual_dirs(wildcards):
 
 def usd_collision_inputs(wildcards):
     return sorted(
-        f
-        for files in coacd_collision_meshes(wildcards.robot).values()
-        for f in files
+        f for files in coacd_collision_meshes(wildcards.robot).values() for f in files
     )
 
 
