@@ -3,53 +3,6 @@
 # and its settings are params: it reruns when that mesh or its settings change, never on a URDF edit.
 # The jobs are checkpoints because the number of convex parts is known only after CoACD ran;
 # coacd_collision_meshes() reads it back for the MJCF and USD stages.
-import sim2real.collision as _sim2real_collision
-
-
-def collision_section(robot):
-    return robot_settings(robot).get("collision") or {}
-
-
-def coacd_settings(wildcards):
-    """Settings of one mesh (defaults < collision.coacd < collision.overrides.<name>) as plain params."""
-    return _sim2real_collision.mesh_settings(
-        collision_section(wildcards.robot),
-        wildcards.name,
-        robot_config(wildcards.robot),
-    ).as_params()
-
-
-def coacd_source(wildcards):
-    """The mesh CoACD decomposes: the detailed visual mesh of the same name or the coarse collision STL."""
-    if coacd_settings(wildcards)["source"] == "collision":
-        return f"results/{wildcards.robot}/meshes/collision/{wildcards.name}.stl"
-    if wildcards.name not in robot_meshes(wildcards.robot)["visual"]:
-        raise ValueError(
-            f"{robot_config(wildcards.robot)}: collision.overrides.{wildcards.name}: no visual mesh named "
-            f"'{wildcards.name}' to decompose. Fix: set 'source: collision' for this mesh"
-        )
-    return f"results/{wildcards.robot}/meshes/visual/{wildcards.name}"
-
-
-def coacd_dirs(robot):
-    """{collision mesh name: convex parts directory} of every URDF collision mesh."""
-    return {
-        name: f"results/{robot}/collision/{name}"
-        for name in sorted(robot_meshes(robot)["collision"])
-    }
-
-
-def coacd_collision_meshes(robot):
-    """{URDF collision mesh URI: [convex part files]} (waits for the decomposition checkpoints)."""
-    return {
-        uri: [
-            str(f)
-            for f in _sim2real_collision.part_files(
-                checkpoints.coacd.get(robot=robot, name=name).output[0]
-            )
-        ]
-        for name, uri in sorted(robot_meshes(robot)["collision"].items())
-    }
 
 
 checkpoint coacd:

@@ -1,26 +1,22 @@
-# Helpers shared by the rules files. Logic lives in src/sim2real; this only maps
-# config and wildcards onto paths.
+# Helpers shared by the rules files: config, wildcards and built files mapped onto paths.
+# The logic lives in src/sim2real; the rules files hold only rules.
+import glob
 import os
 
+import sim2real.collision as _sim2real_collision
+import sim2real.io as _sim2real_io
+import sim2real.urdf as _sim2real_urdf
 
 ROBOTS = list(config["robots"])
 
 
 wildcard_constraints:
     robot="|".join(ROBOTS) if ROBOTS else "[^/]+",
+    variant="(calibrated/)?",
 
 
-def robot_dir(robot):
-    return f"robots/{robot}"
-
-
-def robot_config(robot):
-    return f"configs/{robot}/robot.yaml"
-
-
-def has_measurements(robot):
-    """Robots with measurements get the gap report, identified parameters and calibrated assets."""
-    return os.path.exists(f"configs/{robot}/measurements.yaml")
+# Each rules file appends a function robot -> list of its final outputs.
+STAGE_TARGETS = []
 
 
 def all_targets():
@@ -32,5 +28,217 @@ def all_targets():
     return targets
 
 
-# Each rules file appends a function robot -> list of its final outputs.
-STAGE_TARGETS = []
+# ---- robot sources and settings -------------------------------------------------
+
+
+def robot_dir(robot):
+    return f"robots/{robot}"
+
+
+def robot_config(robot):
+    return f"configs/{robot}/robot.yaml"
+
+
+def robot_settings(robot):
+    """configs/{robot}/robot.yaml as a dict (validated by the MJCF stage)."""
+    return _sim2real_io.read_yaml(robot_config(robot))
+
+
+def robot_xacro(robot):
+    return robot_settings(robot).get("xacro", f"{robot_dir(robot)}/{robot}.urdf.xacro")
+
+
+def xacro_includes(wildcards):
+    """Every Xacro file the robot's Xacro may include (its own folder and robots/common)."""
+    files = set(glob.glob(f"{robot_dir(wildcards.robot)}/**/*.xacro", recursive=True))
+    files |= set(glob.glob("robots/common/**/*.xacro", recursive=True))
+    return sorted(files)
+
+
+def measurement_list(robot):
+    return f"configs/{robot}/measurements.yaml"
+
+
+def model_ladder(robot):
+    return f"configs/{robot}/model.yaml"
+
+
+def identifies(robot):
+    """Robots with measurements and a model ladder get identified parameters and calibrated assets."""
+    return os.path.exists(measurement_list(robot)) and os.path.exists(
+        model_ladder(robot)
+    )
+
+
+# ---- URDF: nominal (variant "") and calibrated (variant "calibrated/") trees -----
+
+
+def calibration_file(wildcards):
+    return (
+        [f"results/{wildcards.robot}/sysid/calibration.yaml"]
+        if wildcards.variant
+        else []
+    )
+
+
+def urdf_xacro_args(wildcards):
+    args = dict(robot_settings(wildcards.robot).get("xacro_args") or {})
+    args["calibration"] = calibration_file(wildcards)[0] if wildcards.variant else ""
+    return args
+
+
+def nominal_urdf(robot):
+    return f"results/{robot}/{robot}.urdf"
+
+
+# ---- meshes: the list comes from the nominal URDF through the urdf checkpoint ---
+
+_MESH_NAMES_CACHE = {}
+
+
+def robot_meshes(robot):
+    """{kind: {name: package uri}} of the robot's nominal URDF (read once per URDF version)."""
+    urdf = checkpoints.urdf.get(robot=robot, variant="").output[0]
+    key = (urdf, os.path.getmtime(urdf))
+    if key not in _MESH_NAMES_CACHE:
+        _MESH_NAMES_CACHE[key] = _sim2real_urdf.mesh_names(urdf)
+    return _MESH_NAMES_CACHE[key]
+
+
+def mesh_uri(kind):
+    def uri(wildcards):
+        return robot_meshes(wildcards.robot)[kind][wildcards.name]
+
+    return uri
+
+
+def mesh_source(kind):
+    def source(wildcards):
+        return str(_sim2real_urdf.resolve_package_uri(mesh_uri(kind)(wildcards)))
+
+    return source
+
+
+def visual_mesh_dirs(robot):
+    return [
+        f"results/{robot}/meshes/visual/{name}"
+        for name in sorted(robot_meshes(robot)["visual"])
+    ]
+
+
+# ---- collision: CoACD parts, one checkpoint job per URDF collision mesh ---------
+
+
+def collision_section(robot):
+    return robot_settings(robot).get("collision") or {}
+
+
+def coacd_settings(wildcards):
+    """Settings of one mesh (defaults < collision.coacd < collision.overrides.<name>) as plain params."""
+    return _sim2real_collision.mesh_settings(
+        collision_section(wildcards.robot),
+        wildcards.name,
+        robot_config(wildcards.robot),
+    ).as_params()
+
+
+def coacd_source(wildcards):
+    """The mesh CoACD decomposes: the detailed visual mesh of the same name or the coarse collision STL."""
+    if coacd_settings(wildcards)["source"] == "collision":
+        return f"results/{wildcards.robot}/meshes/collision/{wildcards.name}.stl"
+    if wildcards.name not in robot_meshes(wildcards.robot)["visual"]:
+        raise ValueError(
+            f"{robot_config(wildcards.robot)}: collision.overrides.{wildcards.name}: no visual mesh named "
+            f"'{wildcards.name}' to decompose. Fix: set 'source: collision' for this mesh"
+        )
+    return f"results/{wildcards.robot}/meshes/visual/{wildcards.name}"
+
+
+def coacd_dirs(robot):
+    """{collision mesh name: convex parts directory} of every URDF collision mesh."""
+    return {
+        name: f"results/{robot}/collision/{name}"
+        for name in sorted(robot_meshes(robot)["collision"])
+    }
+
+
+def coacd_collision_meshes(robot):
+    """{URDF collision mesh URI: [convex part files]} (waits for the decomposition checkpoints)."""
+    return {
+        uri: [
+            str(f)
+            for f in _sim2real_collision.part_files(
+                checkpoints.coacd.get(robot=robot, name=name).output[0]
+            )
+        ]
+        for name, uri in sorted(robot_meshes(robot)["collision"].items())
+    }
+
+
+def collision_part_files(wildcards):
+    """Every convex part file of the robot: the collision geoms of the MJCF and the USD."""
+    return sorted(
+        f for files in coacd_collision_meshes(wildcards.robot).values() for f in files
+    )
+
+
+# ---- system identification ------------------------------------------------------
+
+
+def identified_params(wildcards):
+    """The calibrated MJCF also takes what the URDF cannot hold (armature, delay, gear) from sysid."""
+    return [f"results/{wildcards.robot}/sysid/params.yaml"] if wildcards.variant else []
+
+
+def identified_params_if_any(wildcards):
+    """sysid/params.yaml where the robot is identified (randomization coverage), else nothing."""
+    return (
+        [f"results/{wildcards.robot}/sysid/params.yaml"]
+        if identifies(wildcards.robot)
+        else []
+    )
+
+
+def sysid_ladder(wildcards):
+    """The ladder and diagnosis section of the gap report, where the robot is identified."""
+    return (
+        [f"results/{wildcards.robot}/sysid/ladder.json"]
+        if identifies(wildcards.robot)
+        else []
+    )
+
+
+# ---- measurements and the virtual lab -------------------------------------------
+
+
+def measurement_files(wildcards):
+    """Every run table of measurements.yaml and its metadata YAML (so lab runs get built)."""
+    from sim2real.measurements import load_measurement_list
+
+    files = []
+    for entry in load_measurement_list(measurement_list(wildcards.robot)):
+        files += [entry.path.as_posix(), entry.path.with_suffix(".yaml").as_posix()]
+    return files
+
+
+def bag_topics(wildcards):
+    """ROS 2 topics of configs/{robot}/measurements.yaml (`ros2:`), with the package defaults."""
+    from sim2real.measurements import ros2_topics
+
+    return ros2_topics(measurement_list(wildcards.robot))
+
+
+def lab_config(robot):
+    return f"configs/{robot}/lab.yaml"
+
+
+def lab_demo_targets(robot):
+    """The demo scenario's runs and truth, when the robot has a lab."""
+    from sim2real.lab import scenario_runs
+
+    if not os.path.exists(lab_config(robot)):
+        return []
+    runs = scenario_runs(lab_config(robot), "demo")
+    return [f"results/{robot}/lab/demo/{r['name']}.parquet" for r in runs] + [
+        f"results/{robot}/lab/demo/truth.yaml"
+    ]

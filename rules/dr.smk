@@ -1,22 +1,9 @@
 # Domain randomization: configs/{robot}/dr.yaml resolved against the built MJCF.
 #
 # dr.json depends only on the MJCF and dr.yaml (fast, no wait for the fit). The coverage check
-# against identified values is a separate rule (dr_summary) that reads sysid/params.yaml only when
-# the workflow can build it (or it exists); without it the check is skipped and says so.
+# against identified values is a separate rule (dr_summary) that reads sysid/params.yaml where the
+# robot is identified (measurements and a model ladder); elsewhere the check is skipped and says so.
 # config["dr"]["strict_coverage"]: true turns uncovered identified values into an error.
-
-import os
-
-
-def dr_identified_params(wildcards):
-    """[results/{robot}/sysid/params.yaml] when some rule produces it or it exists, else []."""
-    path = f"results/{wildcards.robot}/sysid/params.yaml"
-    produced = any(
-        str(out).endswith("sysid/params.yaml")
-        for r in workflow.rules
-        for out in r.output
-    )
-    return [path] if produced or os.path.exists(path) else []
 
 
 rule dr_resolve:
@@ -39,7 +26,7 @@ rule dr_resolve:
 rule dr_summary:
     input:
         dr="results/{robot}/dr.json",
-        identified=dr_identified_params,
+        identified=identified_params_if_any,
     output:
         coverage="results/{robot}/dr/coverage.json",
         table=report(

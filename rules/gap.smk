@@ -1,41 +1,9 @@
 # Gap report: measurements (configs/{robot}/measurements.yaml) vs the model -> gap.json, gap.md, figures.
 # ROS 2 bags under data/{robot}/bags/ are converted to measurement runs first.
-import os
 
 
 wildcard_constraints:
     bag="[A-Za-z0-9_.-]+",
-
-
-def measurement_list(robot):
-    return f"configs/{robot}/measurements.yaml"
-
-
-def measurement_files(wildcards):
-    """Every run table of measurements.yaml and its metadata YAML (so lab runs get built)."""
-    from pathlib import Path
-
-    from sim2real.measurements import load_measurement_list
-
-    files = []
-    for entry in load_measurement_list(measurement_list(wildcards.robot)):
-        files += [entry.path.as_posix(), entry.path.with_suffix(".yaml").as_posix()]
-    return files
-
-
-def sysid_ladder(wildcards):
-    """The precomputed ladder/diagnosis section, when the robot has a model ladder and a rule makes it."""
-    target = f"results/{wildcards.robot}/sysid/ladder.json"
-    produced = any(str(o).endswith("sysid/ladder.json") for r in workflow.rules for o in r.output)
-    has_model = os.path.exists(f"configs/{wildcards.robot}/model.yaml")
-    return [target] if produced and has_model else []
-
-
-def bag_topics(wildcards):
-    from sim2real.io import read_validated_yaml
-
-    ros2 = read_validated_yaml(measurement_list(wildcards.robot), "measurements.schema.yaml").get("ros2", {})
-    return ros2
 
 
 rule bag_to_run:
@@ -45,13 +13,13 @@ rule bag_to_run:
     output:
         run="results/{robot}/bags/{bag}.parquet",
         meta="results/{robot}/bags/{bag}.yaml",
-    params:
-        joint_topic=lambda w: bag_topics(w).get("joint_topic", "/joint_states"),
-        command_topic=lambda w: bag_topics(w).get("command_topic"),
     log:
         "results/{robot}/logs/bag_to_run/{bag}.log",
     benchmark:
         "results/{robot}/benchmarks/bag_to_run/{bag}.tsv"
+    params:
+        joint_topic=lambda w: bag_topics(w)["joint_topic"],
+        command_topic=lambda w: bag_topics(w)["command_topic"],
     script:
         "../scripts/bag_to_run.py"
 
@@ -98,4 +66,6 @@ rule gap_report:
         "../scripts/gap_report.py"
 
 
-STAGE_TARGETS.append(lambda robot: [f"results/{robot}/gap.json", f"results/{robot}/gap.md"])
+STAGE_TARGETS.append(
+    lambda robot: [f"results/{robot}/gap.json", f"results/{robot}/gap.md"]
+)

@@ -7,22 +7,6 @@ wildcard_constraints:
     run="(?!truth$)[A-Za-z0-9_-]+",
 
 
-def lab_config(robot):
-    return f"configs/{robot}/lab.yaml"
-
-
-def lab_demo_targets(robot):
-    """The demo scenario's runs and truth, when the robot has a lab."""
-    import os
-
-    from sim2real.lab import scenario_runs
-
-    if not os.path.exists(lab_config(robot)):
-        return []
-    runs = scenario_runs(lab_config(robot), "demo")
-    return [f"results/{robot}/lab/demo/{r['name']}.parquet" for r in runs] + [f"results/{robot}/lab/demo/truth.yaml"]
-
-
 rule lab_run:
     input:
         mjcf="results/{robot}/mjcf/{robot}.xml",

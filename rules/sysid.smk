@@ -2,23 +2,6 @@
 # (role: fit), judged on role: holdout, with the diagnosis of the missing effect; the fitted values
 # become results/{robot}/sysid/calibration.yaml, from which the URDF/MJCF rules build
 # results/{robot}/calibrated/. Never reads the lab's truth.yaml.
-import os
-
-import sim2real.io as _sysid_io
-
-
-def sysid_measurement_list(robot):
-    return f"configs/{robot}/measurements.yaml"
-
-
-def sysid_run_files(wildcards):
-    """Every run listed in measurements.yaml and its metadata file beside it."""
-    data = _sysid_io.read_yaml(sysid_measurement_list(wildcards.robot)) or {}
-    files = []
-    for run in data.get("runs", []):
-        path = run["path"]
-        files += [path, os.path.splitext(path)[0] + ".yaml"]
-    return sorted(files)
 
 
 rule sysid:
@@ -26,8 +9,8 @@ rule sysid:
         urdf="results/{robot}/{robot}.urdf",
         robot_config=lambda w: robot_config(w.robot),
         model="configs/{robot}/model.yaml",
-        measurements=lambda w: sysid_measurement_list(w.robot),
-        runs=sysid_run_files,
+        measurements=lambda w: measurement_list(w.robot),
+        runs=measurement_files,
     output:
         ladder="results/{robot}/sysid/ladder.json",
         params="results/{robot}/sysid/params.yaml",
@@ -46,7 +29,7 @@ STAGE_TARGETS.append(
             f"results/{robot}/sysid/ladder.json",
             f"results/{robot}/sysid/calibration.yaml",
         ]
-        if has_measurements(robot)
+        if identifies(robot)
         else []
     )
 )

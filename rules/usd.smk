@@ -1,30 +1,21 @@
-# URDF + built visual meshes + CoACD parts -> UsdPhysics asset (robot layer + geometry layer), and the
+# URDF + built visual meshes + CoACD parts -> UsdPhysics asset (robot layer + geometry layer), for the
+# nominal tree and for the calibrated one (results/{robot}/calibrated/usd/), and the
 # cross-format equivalence check of URDF, MJCF and USD (fails the build naming the joint or link).
-
-
-def usd_visual_dirs(wildcards):
-    return visual_mesh_dirs(wildcards.robot)
-
-
-def usd_collision_inputs(wildcards):
-    return sorted(
-        f for files in coacd_collision_meshes(wildcards.robot).values() for f in files
-    )
 
 
 rule usd:
     input:
-        urdf="results/{robot}/{robot}.urdf",
+        urdf="results/{robot}/{variant}{robot}.urdf",
         config=lambda w: robot_config(w.robot),
-        visual=usd_visual_dirs,
-        collision=usd_collision_inputs,
+        visual=lambda w: visual_mesh_dirs(w.robot),
+        collision=collision_part_files,
     output:
-        usda="results/{robot}/usd/{robot}.usda",
-        geometry="results/{robot}/usd/{robot}_geometry.usda",
+        usda="results/{robot}/{variant}usd/{robot}.usda",
+        geometry="results/{robot}/{variant}usd/{robot}_geometry.usda",
     log:
-        "results/{robot}/logs/usd.log",
+        "results/{robot}/{variant}logs/usd.log",
     benchmark:
-        "results/{robot}/benchmarks/usd.tsv"
+        "results/{robot}/{variant}benchmarks/usd.tsv"
     params:
         collision_meshes=lambda w: coacd_collision_meshes(w.robot),
     script:
@@ -52,4 +43,5 @@ STAGE_TARGETS.append(
         f"results/{robot}/usd/{robot}.usda",
         f"results/{robot}/equivalence.json",
     ]
+    + ([f"results/{robot}/calibrated/usd/{robot}.usda"] if identifies(robot) else [])
 )

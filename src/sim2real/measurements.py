@@ -371,6 +371,18 @@ def measurement_settings(path: str | Path) -> dict[str, Any]:
     }
 
 
+DEFAULT_JOINT_TOPIC = "/joint_states"
+
+
+def ros2_topics(path: str | Path) -> dict[str, str | None]:
+    """ROS 2 bag topics of measurements.yaml (`ros2: {joint_topic, command_topic}`), with defaults."""
+    ros2 = read_validated_yaml(path, "measurements.schema.yaml").get("ros2", {})
+    return {
+        "joint_topic": ros2.get("joint_topic", DEFAULT_JOINT_TOPIC),
+        "command_topic": ros2.get("command_topic"),
+    }
+
+
 def write_run(
     path: str | Path, time: np.ndarray, joint_names: Sequence[str], signals: Mapping[str, np.ndarray],
     meta: Mapping[str, Any],
@@ -395,7 +407,7 @@ def write_run(
 
 
 def mcap_to_run(
-    bag_path: str | Path, output: str | Path, robot: str, joint_topic: str = "/joint_states",
+    bag_path: str | Path, output: str | Path, robot: str, joint_topic: str = DEFAULT_JOINT_TOPIC,
     command_topic: str | None = None, joints: Sequence[str] | None = None,
 ) -> Path:
     """Convert a ROS 2 bag (MCAP) to a measurement run (table + metadata) at ``output``.
