@@ -15,13 +15,15 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import trimesh
 
 from sim2real.errors import InputError
 from sim2real.io import atomic_dir, write_json, write_text
+
+if TYPE_CHECKING:
+    import trimesh
 
 PARTS_MANIFEST = "parts.json"
 SOURCES = ("visual", "collision")
@@ -109,6 +111,7 @@ def load_source_mesh(source: str | Path) -> trimesh.Trimesh:
 
     Vertices shared by several material submeshes are merged so CoACD sees one connected surface.
     """
+    import trimesh
     source = Path(source)
     if source.is_dir():
         manifest_path = source / PARTS_MANIFEST
@@ -144,6 +147,7 @@ def load_source_mesh(source: str | Path) -> trimesh.Trimesh:
 
 def run_coacd(mesh: trimesh.Trimesh, settings: CoacdSettings) -> list[trimesh.Trimesh]:
     """CoACD parts as trimesh meshes, in CoACD's (deterministic, seeded) order."""
+    import trimesh
     import coacd
 
     coacd.set_log_level("error")
@@ -232,6 +236,7 @@ def _inside_any(points: np.ndarray, hulls: Sequence[trimesh.Trimesh], tol: float
 
 def _distance_to_parts(points: np.ndarray, parts: Sequence[trimesh.Trimesh]) -> np.ndarray:
     """Distance from each point to the union of the convex parts (0 inside)."""
+    import trimesh
     union = trimesh.util.concatenate(list(parts)) if len(parts) > 1 else parts[0]
     _, distance, _ = trimesh.proximity.closest_point(union, points)
     distance = np.asarray(distance)
@@ -260,6 +265,7 @@ def shape_fidelity(source: trimesh.Trimesh, parts: Sequence[trimesh.Trimesh]) ->
     ``volume_ratio`` is the summed part volume (overlaps count twice) over the source volume: exact
     for a closed source, else the filled voxel volume (``source_watertight`` says which).
     """
+    import trimesh
     solid = solid_voxels(source)
     source_points, _ = trimesh.sample.sample_surface(source, SURFACE_SAMPLES, seed=SAMPLE_SEED)
     miss = _distance_to_parts(source_points, parts)

@@ -28,14 +28,15 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
-from scipy import signal
 
 from sim2real.errors import InputError
 from sim2real.io import read_validated_yaml
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 SIGNAL_KINDS = ("q", "qd", "tau", "tau_cmd", "q_cmd")
 MIN_DURATION_S = 1.0
@@ -92,6 +93,7 @@ class MeasurementEntry:
 
 
 def _read_table(path: Path) -> pd.DataFrame:
+    import pandas as pd
     if not path.exists():
         raise InputError(path, None, "file does not exist", "create it or correct the path in measurements.yaml")
     suffix = path.suffix.lower()
@@ -118,6 +120,7 @@ def load_run(
     position_limits: Mapping[str, tuple[float, float]] | None = None,
 ) -> Run:
     """Load a CSV/Parquet run and its metadata; ``InputError`` (file, column, row) on bad input."""
+    import pandas as pd
     path = Path(path)
     meta_path = path.with_suffix(".yaml")
     if not meta_path.exists():
@@ -260,6 +263,7 @@ def prepare_run(
     use_measured_qd: bool = False,
 ) -> PreparedRun:
     """Dedup, resample to a uniform grid, zero-phase filter q, differentiate: see the module docstring."""
+    from scipy import signal
     # 1. drop stale repeats: a row whose positions equal the previous row's
     same = np.all(run.q[1:] == run.q[:-1], axis=1)
     keep = np.concatenate([[True], ~same])
@@ -388,6 +392,7 @@ def write_run(
     meta: Mapping[str, Any],
 ) -> None:
     """Write a run (CSV or Parquet by extension) plus its metadata YAML, atomically and deterministically."""
+    import pandas as pd
     from sim2real.io import atomic_path, validate, write_yaml
 
     path = Path(path)
