@@ -1,5 +1,6 @@
 # Helpers shared by the rules files: config, wildcards and built files mapped onto paths.
 # The logic lives in src/sim2real; the rules files hold only rules.
+import functools
 import glob
 import os
 
@@ -39,8 +40,9 @@ def robot_config(robot):
     return f"configs/{robot}/robot.yaml"
 
 
+@functools.cache
 def robot_settings(robot):
-    """configs/{robot}/robot.yaml as a dict (validated by the MJCF stage)."""
+    """configs/{robot}/robot.yaml as a dict (validated by the MJCF stage); read once per run."""
     return _sim2real_io.read_yaml(robot_config(robot))
 
 
