@@ -65,7 +65,7 @@ def test_delay_scenario_writes_commands_only_and_delays_them(dev):
     scenario = config["scenarios"]["actuation_delay"]
     time, signals, truth = simulate_run(dev["mjcf"], config["joints"], scenario, seed=5)
     assert "tau" not in signals and "tau_cmd" in signals
-    assert truth["actuation_delay"]["delay_s"] == pytest.approx(0.008)
+    assert truth["actuation_delay"]["delay_s"] == pytest.approx(scenario["effects"]["actuation_delay"]["delay_s"])
 
 
 def test_hidden_effects_change_the_measured_torque(dev):

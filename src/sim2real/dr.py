@@ -28,13 +28,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import jsonschema
 import mujoco
 import numpy as np
 from scipy.special import ndtr, ndtri
 
 from sim2real.errors import InputError
-from sim2real.io import load_schema, read_yaml
+from sim2real.io import read_yaml, validate
 
 SCHEMA_NAME = "dr.schema.json"
 FORMAT_VERSION = 1
@@ -251,24 +250,6 @@ def _preschema_checks(config: Any, path: str | Path | None) -> None:
                     "MuJoCo has a single Coulomb (sliding) friction coefficient per geom and no restitution coefficient",
                     "replace the static/dynamic/restitution ranges by one 'range: [low, high]' for the sliding friction",
                 )
-
-
-def _validate_schema(config: Any, path: str | Path | None) -> None:
-    """Schema check reporting the most specific error: a failed ``allOf`` branch also makes
-    ``unevaluatedProperties`` flag every sibling key, which would hide the real culprit."""
-    validator = jsonschema.Draft202012Validator(load_schema(SCHEMA_NAME))
-    errors = list(validator.iter_errors(config))
-    if not errors:
-        return
-    specific = [e for e in errors if e.validator != "unevaluatedProperties"] or errors
-    error = max(specific, key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))))
-    key_path = "/".join(str(p) for p in error.absolute_path) or "<top level>"
-    raise InputError(
-        path,
-        f"key '{key_path}'",
-        f"{error.message} (schema {SCHEMA_NAME})",
-        f"make '{key_path}' match schemas/{SCHEMA_NAME} (see the descriptions there)",
-    )
 
 
 def _check_range(lo_hi: Sequence[float], path: str | Path | None, key: str) -> tuple[float, float]:
@@ -554,7 +535,7 @@ def resolve_config(
     Raises :class:`InputError` naming the key path and the fix for every bad input.
     """
     _preschema_checks(config, config_path)
-    _validate_schema(config, config_path)
+    validate(config, SCHEMA_NAME, config_path)
     physics_cfg: Mapping[str, Any] = config.get("physics_randomization") or {}
     noise_cfg: Mapping[str, Any] = config.get("observation_noise") or {}
 

@@ -97,18 +97,22 @@ def load_schema(name: str) -> dict[str, Any]:
 
 
 def validate(data: Any, schema_name: str, path: str | Path | None = None) -> Any:
-    """Validate ``data`` against ``schemas/<schema_name>``; the error names the key path."""
-    schema = load_schema(schema_name)
-    validator = jsonschema.Draft202012Validator(schema)
-    errors = sorted(validator.iter_errors(data), key=lambda e: list(map(str, e.absolute_path)))
+    """Validate ``data`` against ``schemas/<schema_name>``; the error names the key path.
+
+    Reports the most specific error: a failed ``allOf`` branch also makes ``unevaluatedProperties``
+    flag every sibling key, which would hide the real culprit.
+    """
+    validator = jsonschema.Draft202012Validator(load_schema(schema_name))
+    errors = list(validator.iter_errors(data))
     if errors:
-        err = errors[0]
+        specific = [e for e in errors if e.validator != "unevaluatedProperties"] or errors
+        err = max(specific, key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))))
         key_path = "/".join(str(p) for p in err.absolute_path) or "<top level>"
         raise InputError(
             path,
             f"key '{key_path}'",
             f"{err.message} (schema {schema_name})",
-            f"make '{key_path}' match schemas/{schema_name}",
+            f"make '{key_path}' match schemas/{schema_name} (see the descriptions there)",
         )
     return data
 
