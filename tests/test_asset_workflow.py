@@ -1,4 +1,7 @@
-"""End to end in a tmp copy of the project: the asset DAG reruns exactly what an edit affects."""
+"""End to end in a tmp copy of the project: the asset DAG reruns exactly what an edit affects.
+
+(The calibrated tree, built by the same rules from identified values, is exercised end to end in
+tests/test_demo_loop.py.)"""
 
 from __future__ import annotations
 
@@ -6,17 +9,16 @@ from pathlib import Path
 
 import mujoco
 import pytest
-import yaml
 
 from buildtree import copy_repo as copy_project
-from buildtree import rules_run
+from buildtree import make_fast, rules_run
 from buildtree import run_snakemake as snakemake
 
 pytestmark = pytest.mark.slow
 
 ROBOT = "ur5"  # the smaller mesh set keeps the cold build short; nothing here is robot-specific
 TARGETS = [f"results/{ROBOT}/{ROBOT}.urdf", f"results/{ROBOT}/mjcf/{ROBOT}.xml", f"results/{ROBOT}/mjcf/scene.xml"]
-MESH_RULES = {"visual_mesh", "collision_mesh"}
+MESH_RULES = {"visual_mesh", "collision_mesh", "coacd"}  # mesh conversion and convex decomposition
 
 
 def mesh_outputs(tree: Path) -> dict[str, float]:
@@ -26,8 +28,9 @@ def mesh_outputs(tree: Path) -> dict[str, float]:
 
 def test_inertial_edit_reruns_urdf_and_mjcf_only_then_nothing(tmp_path: Path, repo_root: Path) -> None:
     tree = copy_project(repo_root, tmp_path / "project")
+    make_fast(tree)
     cold = rules_run(snakemake(tree, *TARGETS))
-    assert {"urdf", "mjcf", "visual_mesh", "collision_mesh"} <= cold
+    assert {"urdf", "mjcf"} | MESH_RULES <= cold
     meshes_before = mesh_outputs(tree)
     assert any(name.endswith(".obj") for name in meshes_before) and any(name.endswith(".stl") for name in meshes_before)
 
@@ -46,25 +49,3 @@ def test_inertial_edit_reruns_urdf_and_mjcf_only_then_nothing(tmp_path: Path, re
 
     assert "Nothing to be done" in snakemake(tree, "-n", *TARGETS)
     assert rules_run(snakemake(tree, *TARGETS)) == set()
-
-
-def test_calibrated_tree_is_built_by_the_same_rules(tmp_path: Path, repo_root: Path) -> None:
-    tree = copy_project(repo_root, tmp_path / "project")
-    calibration = tree / "results" / ROBOT / "sysid" / "calibration.yaml"
-    calibration.parent.mkdir(parents=True)
-    calibration.write_text(yaml.safe_dump({"joints": {"elbow_joint": {"damping": 1.5, "friction": 0.8}}}))
-    target = f"results/{ROBOT}/calibrated/mjcf/{ROBOT}.xml"
-    # calibration.yaml is the sysid stage's output; a workflow of the asset stages only takes it as a given source
-    (tree / "Snakefile.assets").write_text(
-        'configfile: "configs/config.yaml"\n'
-        'include: "rules/common.smk"\ninclude: "rules/urdf.smk"\ninclude: "rules/meshes.smk"\ninclude: "rules/mjcf.smk"\n'
-    )
-    ran = rules_run(snakemake(tree, "-s", "Snakefile.assets", target))
-    assert {"urdf", "mjcf"} <= ran
-    calibrated = tree / "results" / ROBOT / "calibrated"
-    assert (calibrated / f"{ROBOT}.urdf").is_file() and (calibrated / "mjcf" / "scene.xml").is_file()
-    assert not (calibrated / "meshes").exists()  # meshes are shared with the nominal tree
-    model = mujoco.MjModel.from_xml_path(str(calibrated / "mjcf" / "scene.xml"))
-    dof = model.jnt_dofadr[model.joint("elbow_joint").id]
-    assert (model.dof_damping[dof], model.dof_frictionloss[dof]) == (pytest.approx(1.5), pytest.approx(0.8))
-    assert 'file="../../meshes/visual/' in (calibrated / "mjcf" / f"{ROBOT}.xml").read_text()
