@@ -33,7 +33,7 @@ def snakemake(tree: Path, *args: str) -> float:
 
 
 def mesh_seconds(tree: Path, robot: str) -> dict[str, float]:
-    timing = tree / "results" / robot / "collision" / "timing"
+    timing = tree / "results" / robot / "benchmarks" / "coacd"
     return {p.stem: json.loads(p.read_text())["seconds"] for p in sorted(timing.glob("*.json"))}
 
 

@@ -2,7 +2,9 @@
 # A job's inputs are its source mesh only (the built visual mesh directory or the coarse collision STL)
 # and its settings are params: it reruns when that mesh or its settings change, never on a URDF edit.
 # The jobs are checkpoints because the number of convex parts is known only after CoACD ran;
-# coacd_collision_meshes() reads it back for the MJCF and USD stages.
+# coacd_collision_meshes() reads it back for the MJCF and USD stages. Wall times differ from run to
+# run, so they (and the report table that shows them) live under benchmarks/, apart from the
+# byte-reproducible outputs.
 
 
 checkpoint coacd:
@@ -10,7 +12,7 @@ checkpoint coacd:
         coacd_source,
     output:
         parts=directory("results/{robot}/collision/{name}"),
-        timing="results/{robot}/collision/timing/{name}.json",
+        timing="results/{robot}/benchmarks/coacd/{name}.json",
     log:
         "results/{robot}/logs/coacd/{name}.log",
     benchmark:
@@ -27,13 +29,13 @@ rule collision_report:
     input:
         parts=lambda w: list(coacd_dirs(w.robot).values()),
         timing=lambda w: [
-            f"results/{w.robot}/collision/timing/{name}.json"
+            f"results/{w.robot}/benchmarks/coacd/{name}.json"
             for name in coacd_dirs(w.robot)
         ],
     output:
         json="results/{robot}/collision/report.json",
         table=report(
-            "results/{robot}/collision/summary.tsv",
+            "results/{robot}/benchmarks/collision_summary.tsv",
             caption="../report/collision_summary.rst",
             category="Collision",
             labels={"robot": "{robot}", "table": "CoACD parts"},
