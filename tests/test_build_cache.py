@@ -69,8 +69,10 @@ def test_restored_cache_runs_nothing_and_an_inertial_edit_reruns_only_its_depend
 
     xacro = fresh / "robots" / "panda" / "panda.urdf.xacro"
     text = xacro.read_text()
-    edited, count = re.subn(r'(<mass value=")([0-9.]+)(")', lambda m: f"{m[1]}{float(m[2]) * 1.05:.6g}{m[3]}", text, count=1)
-    assert count == 1, "no <mass value=...> in the Panda Xacro to edit"
+    edited, count = re.subn(
+        r'(name="panda_link3" mesh="link3" mass=")([0-9.]+)(")', lambda m: f"{m[1]}{float(m[2]) * 1.05:.6g}{m[3]}", text
+    )
+    assert count == 1, "no panda_link3 mass in the Panda Xacro to edit"
     xacro.write_text(edited)
     jobs = _jobs_run(_snakemake(fresh, FAST_BUILD_TARGET))
     assert "urdf" in " ".join(jobs) and "mjcf" in " ".join(jobs), jobs

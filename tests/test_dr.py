@@ -381,7 +381,9 @@ def test_coverage_reads_the_sysid_params_shape(tmp_path: Path, mjcf: dict[str, P
 @pytest.mark.slow
 def test_snakemake_builds_dr_json_and_summary_reproducibly(tmp_path: Path, mjcf: dict[str, Path]) -> None:
     for relative in ["rules/common.smk", "rules/dr.smk", "scripts/dr_resolve.py", "scripts/dr_summary.py",
-                     "report/dr_summary.rst", "schemas/dr.schema.json", "configs/config.yaml", "configs/panda/dr.yaml", "configs/ur5/dr.yaml"]:
+                     "report/dr_summary.rst", "schemas/dr.schema.json", "configs/config.yaml", "configs/panda/dr.yaml", "configs/ur5/dr.yaml",
+                     # the Panda is identified (measurements + model ladder): its coverage is checked
+                     "configs/panda/measurements.yaml", "configs/panda/model.yaml"]:
         (tmp_path / relative).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(REPO / relative, tmp_path / relative)
     for robot, path in mjcf.items():
