@@ -634,30 +634,38 @@ PACKAGE_ONLY_VALIDATORS = {"usdUtilsValidators:UsdzPackageValidator", "usdUtilsV
 def compliance_errors(usd_path: str | Path) -> list[str]:
     """Errors of USD's compliance checking on a USD file and the layers it references.
 
-    ``UsdUtils.ComplianceChecker`` (usdchecker) where the installed pxr still has it; usd-core 26
-    replaced it by the UsdValidation framework, whose validators (the same checks plus
-    UsdPhysics' articulation, joint, rigid-body and collider checkers) are run here instead.
+    ``UsdUtils.ComplianceChecker`` (usdchecker's classic checks; usd-core < 26.8 still ships it,
+    hence the pin in pyproject.toml) and the UsdValidation framework that replaces it, whose
+    validators add UsdPhysics' articulation, joint, rigid-body and collider checks. Both run where
+    the installed pxr has them.
     """
+    import warnings
+
     from pxr import Usd, UsdUtils
 
+    errors: list[str] = []
     checker_class = getattr(UsdUtils, "ComplianceChecker", None)
     if checker_class is not None:
-        checker = checker_class(arkit=False, skipARKitRootLayerCheck=True, rootPackageOnly=False, skipVariants=False)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)  # deprecated in favour of UsdValidation, run below
+            checker = checker_class(arkit=False, skipARKitRootLayerCheck=True, rootPackageOnly=False, skipVariants=False)
         checker.CheckCompliance(str(usd_path))
-        return list(checker.GetErrors()) + list(checker.GetFailedChecks())
-    from pxr import UsdValidation
-
+        errors += [f"ComplianceChecker: {e}" for e in list(checker.GetErrors()) + list(checker.GetFailedChecks())]
+    try:
+        from pxr import UsdValidation
+    except ImportError:
+        return errors
     registry = UsdValidation.ValidationRegistry()
     names = sorted(str(m.name) for m in registry.GetAllValidatorMetadata() if str(m.name) not in PACKAGE_ONLY_VALIDATORS)
     validators = [registry.GetOrLoadValidatorByName(name) for name in names]
     context = UsdValidation.ValidationContext(validators)
     stage = Usd.Stage.Open(str(usd_path))
-    errors = context.Validate(stage)
-    return sorted(
+    errors += sorted(
         f"{error.GetIdentifier()}: {error.GetMessage()}"
-        for error in errors
+        for error in context.Validate(stage)
         if error.GetType() == UsdValidation.ValidationErrorType.Error
     )
+    return errors
 
 
 @contextlib.contextmanager
