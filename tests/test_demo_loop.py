@@ -53,6 +53,9 @@ def test_diagnose_add_one_line_refit_and_calibrate(tmp_path: Path) -> None:
     before = ladder[0]["metrics"]["torque_rmse"]["overall"]
     after = ladder[1]["metrics"]["torque_rmse"]["overall"]
     assert after <= 0.2 * before, f"holdout torque RMSE {before:.4f} -> {after:.4f} N m"
+    # Replayed with the identified friction, the arm also follows the measured positions more closely.
+    positions = [r["metrics"]["position_rmse"]["overall"] for r in ladder]
+    assert positions[1] < 0.5 * positions[0], positions
 
     identified = ladder[1]["params"]["coulomb_friction"]["friction"]
     model = mujoco.MjModel.from_xml_path(str(tree / "results/panda/calibrated/mjcf/panda.xml"))

@@ -106,7 +106,12 @@ def test_precomputed_ladder_is_merged_and_validated(lab, tmp_path):
                                       "evidence": {}, "add": "coulomb_friction"}], "verdict": "add coulomb_friction"},
     }
     gap, _ = compute_gap("panda", lab["urdf"], lab["mjcf"], lab["scenario"]("clean"), precomputed=ladder)
-    assert gap["ladder"] == ladder["ladder"] and gap["diagnosis"]["verdict"] == "add coulomb_friction"
+    rung = gap["ladder"][0]
+    assert rung["effects"] == [] and rung["metrics"]["torque_rmse"] == ladder["ladder"][0]["metrics"]["torque_rmse"]
+    assert gap["diagnosis"]["verdict"] == "add coulomb_friction"
+    # Each rung is replayed in MuJoCo with its fitted effects: the nominal model on clean lab data tracks closely.
+    assert rung["metrics"]["position_rmse"]["overall"] < 1e-3
+    assert set(rung["metrics"]["position_rmse"]["per_joint"]) == set(PANDA_JOINTS)
     broken = json.loads(json.dumps(gap))
     broken["diagnosis"]["candidates"][0]["explained"] = 2.0
     with pytest.raises(InputError, match="explained"):

@@ -94,13 +94,22 @@ def torque_metrics(measured: np.ndarray, residual: np.ndarray, joints: Sequence[
 
 def replay(
     mjcf_path: str | Path, prepared: PreparedRun, horizon_s: float,
+    identified: Mapping[str, Any] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Multiple-shooting replay of tau_cmd: (simulated q, simulated qd, index of the compared samples)."""
+    """Multiple-shooting replay of tau_cmd: (simulated q, simulated qd, index of the compared samples).
+
+    ``identified``: fitted effects in the shape of params.yaml (``effects``, ``torque_source``) to write
+    into the model first, so that a rung of the model ladder is replayed as it was fitted.
+    """
+    from sim2real.effects import apply_to_spec
     from sim2real.lab import arm_spec, compile_arm
 
     assert prepared.tau_cmd is not None
     joints = prepared.joint_names
-    model, qadr, dadr = compile_arm(arm_spec(mjcf_path, joints), joints)
+    spec = arm_spec(mjcf_path, joints)
+    if identified:
+        apply_to_spec(spec, dict(identified), include_urdf_effects=True)
+    model, qadr, dadr = compile_arm(spec, joints)
     model.opt.timestep = prepared.dt
     seg = max(2, int(round(horizon_s / prepared.dt)))
     n_seg = (prepared.time.size - 1) // seg
@@ -223,6 +232,27 @@ def state_domain(mjcf_path: str | Path, runs: Sequence[TorqueComparison], horizo
         "fidelity": fidelity_grade(mean_abs),
         "reality_gap": gap,
     }
+
+
+def ladder_position_rmse(
+    mjcf_path: str | Path, comparisons: Sequence[TorqueComparison], horizon_s: float,
+    ladder: Sequence[Mapping[str, Any]], torque_source: str | None,
+) -> list[dict[str, Any] | None]:
+    """Position RMSE of each rung's replay on the holdout runs with commands (None where there is none)."""
+    holdout = [c for c in comparisons if c.role == "holdout" and c.run.tau_cmd is not None]
+    if not holdout:
+        return [None for _ in ladder]
+    joints = holdout[0].run.joint_names
+    out: list[dict[str, Any] | None] = []
+    for rung in ladder:
+        identified = {"effects": rung.get("params") or {}, "torque_source": torque_source}
+        errors = []
+        for c in holdout:
+            q_sim, _, idx = replay(mjcf_path, c.run, horizon_s, identified)
+            error = q_sim - c.run.q[idx]
+            errors.append(error[np.all(np.isfinite(error), axis=1)])
+        out.append(rmse(np.concatenate(errors), joints))
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -456,7 +486,14 @@ def compute_gap(
     if precomputed:
         for key in ("ladder", "diagnosis"):
             if key in precomputed:
-                gap[key] = precomputed[key]
+                gap[key] = json.loads(json.dumps(precomputed[key]))
+        if "ladder" in gap and mjcf_path is not None and metrics["state_domain"]["status"] == "computed":
+            # Each rung replayed with its fitted effects written into the MJCF: the state-domain view of the ladder.
+            positions = ladder_position_rmse(mjcf_path, comparisons, settings["horizon_s"], gap["ladder"],
+                                             precomputed.get("torque_source"))
+            for rung, position in zip(gap["ladder"], positions):
+                if position is not None:
+                    rung["metrics"]["position_rmse"] = position
     gap = json.loads(json.dumps(gap))  # plain JSON types only
     validate(gap, "gap.schema.json", "gap.json")
     return gap, comparisons

@@ -209,13 +209,15 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
         lines += ["", "## Model ladder", "",
                   "Effects of configs/{robot}/model.yaml added one by one, each rung fitted on the `fit` runs and "
                   "judged on the `holdout` runs.".replace("{robot}", gap["robot"]), "",
-                  "| rung | effects | holdout torque RMSE [N m] | change from nominal | x noise floor |",
-                  "|---|---|---|---|---|"]
+                  "| rung | effects | holdout torque RMSE [N m] | change from nominal | x noise floor | "
+                  "replay position RMSE [rad] |",
+                  "|---|---|---|---|---|---|"]
         for k, rung in enumerate(gap["ladder"]):
             value = rung["metrics"]["torque_rmse"]["overall"]
             change = f"{100 * (value - first) / first:+.0f}%" if k and first else "–"
+            position = rung["metrics"].get("position_rmse", {}).get("overall")
             lines.append(f"| {k} | {', '.join(rung['effects']) or 'nominal'} | {value:.3g} | {change} | "
-                         f"{value / floor['overall']:.2f} |")
+                         f"{value / floor['overall']:.2f} | {_fmt(position)} |")
         lines += ["", f"![Model ladder]({figures['ladder']})"]
     if "diagnosis" in gap:
         lines += ["", "## Diagnosis", "", gap["diagnosis"]["verdict"], ""]

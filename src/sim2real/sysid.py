@@ -660,8 +660,8 @@ def state_domain_status(data: TorqueData) -> dict[str, str]:
         }
     return {
         "status": "skipped",
-        "reason": "the ladder is fitted and judged in the torque domain; the state-domain replay of the "
-        "nominal model is in gap.json metrics.state_domain",
+        "reason": "the ladder is fitted and judged in the torque domain; the gap report replays each rung "
+        "with its fitted effects (gap.json ladder[].metrics.position_rmse)",
     }
 
 
