@@ -9,6 +9,8 @@ the calibrated MJCF carries the identified friction.
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import mujoco
@@ -45,6 +47,9 @@ def test_diagnose_add_one_line_refit_and_calibrate(tmp_path: Path) -> None:
     # Where it fails: friction acts in slow motion and at velocity reversals.
     assert gap["where"]["summary"]["regimes"][0] == "slow_reversal"
 
+    nominal_report = tmp_path / "base_gap.json"
+    nominal_report.write_bytes((tree / "results/panda/gap.json").read_bytes())
+
     _set_effects(tree, ["coulomb_friction"])
     log = run_snakemake(tree, "results/panda/gap.json", "results/panda/calibrated/mjcf/panda.xml")
     assert "lab_run" not in rules_run(log), "editing the model does not rebuild the measurements"
@@ -56,6 +61,14 @@ def test_diagnose_add_one_line_refit_and_calibrate(tmp_path: Path) -> None:
     # Replayed with the identified friction, the arm also follows the measured positions more closely.
     positions = [r["metrics"]["position_rmse"]["overall"] for r in ladder]
     assert positions[1] < 0.5 * positions[0], positions
+
+    # What a reviewer reads in the pull request that adds the line.
+    diff = subprocess.run(
+        [sys.executable, "-m", "sim2real.cli", "gap-diff", str(nominal_report), str(tree / "results/panda/gap.json")],
+        check=True, capture_output=True, text=True,
+    ).stdout
+    assert "| + coulomb_friction | – |" in diff and "new |" in diff
+    assert "base: `coulomb_friction`" in diff
 
     identified = ladder[1]["params"]["coulomb_friction"]["friction"]
     model = mujoco.MjModel.from_xml_path(str(tree / "results/panda/calibrated/mjcf/panda.xml"))
