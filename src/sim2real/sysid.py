@@ -56,6 +56,18 @@ DEFAULT_SETTINGS: dict[str, Any] = {
 # Data
 
 
+def kept_segments(segments: Sequence[slice], rows: np.ndarray) -> list[slice]:
+    """Run segments (slices of stacked rows) after keeping the sorted ``rows``: empty runs drop out."""
+    kept = []
+    start = 0
+    for seg in segments:
+        count = int(np.count_nonzero((rows >= seg.start) & (rows < seg.stop)))
+        if count:
+            kept.append(slice(start, start + count))
+        start += count
+    return kept
+
+
 @dataclass
 class TorqueData:
     """Runs stacked along time, on a uniform grid per run; ``segments`` are the run boundaries."""
@@ -79,13 +91,7 @@ class TorqueData:
     def subset(self, rows: np.ndarray) -> TorqueData:
         """Rows of the stacked arrays (sorted); segments are rebuilt from the kept rows."""
         rows = np.sort(rows)
-        segments = []
-        start = 0
-        for seg in self.segments:
-            count = int(np.count_nonzero((rows >= seg.start) & (rows < seg.stop)))
-            if count:
-                segments.append(slice(start, start + count))
-            start += count
+        segments = kept_segments(self.segments, rows)
         return TorqueData(
             self.joint_names, self.time[rows], self.q[rows], self.qd[rows], self.qdd[rows], self.tau[rows],
             segments, self.run_names, self.torque_source, self.has_commands, self.noise_floor,
@@ -436,13 +442,7 @@ def _refine_nonlinear(
 
 
 def _subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
-    segments = []
-    start = 0
-    for seg in signals.segments:
-        count = int(np.count_nonzero((rows >= seg.start) & (rows < seg.stop)))
-        if count:
-            segments.append(slice(start, start + count))
-        start += count
+    segments = kept_segments(signals.segments, rows)
     regressor = signals._regressor[rows] if signals._regressor is not None else None
     parent = signals
     return Signals(
