@@ -1,13 +1,13 @@
-# CoACD convex decomposition, one checkpoint job per URDF collision mesh, and the collision report.
+# CoACD convex decomposition, one job per URDF collision mesh, and the collision report.
 # A job's inputs are its source mesh only (the built visual mesh directory or the coarse collision STL)
 # and its settings are params: it reruns when that mesh or its settings change, never on a URDF edit.
-# The jobs are checkpoints because the number of convex parts is known only after CoACD ran;
-# coacd_collision_meshes() reads it back for the MJCF and USD stages. Wall times differ from run to
+# The number of convex parts is known only after CoACD ran, so the MJCF and USD stages take the parts
+# directories as inputs and read their manifests (no checkpoint to re-evaluate). Wall times differ from run to
 # run, so they (and the report table that shows them) live under benchmarks/, apart from the
 # byte-reproducible outputs.
 
 
-checkpoint coacd:
+rule coacd:
     input:
         coacd_source,
     output:

@@ -164,24 +164,12 @@ def coacd_dirs(robot):
     }
 
 
-def coacd_collision_meshes(robot):
-    """{URDF collision mesh URI: [convex part files]} (waits for the decomposition checkpoints)."""
+def collision_part_dirs(robot):
+    """{URDF collision mesh URI: its CoACD parts directory}: the collision geoms of the MJCF and the USD."""
     return {
-        uri: [
-            str(f)
-            for f in _sim2real_collision.part_files(
-                checkpoints.coacd.get(robot=robot, name=name).output[0]
-            )
-        ]
+        uri: f"results/{robot}/collision/{name}"
         for name, uri in sorted(robot_meshes(robot)["collision"].items())
     }
-
-
-def collision_part_files(wildcards):
-    """Every convex part file of the robot: the collision geoms of the MJCF and the USD."""
-    return sorted(
-        f for files in coacd_collision_meshes(wildcards.robot).values() for f in files
-    )
 
 
 # ---- system identification ------------------------------------------------------

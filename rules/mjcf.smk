@@ -8,7 +8,7 @@ rule mjcf:
         urdf="results/{robot}/{variant}{robot}.urdf",
         config=lambda w: robot_config(w.robot),
         visual=lambda w: visual_mesh_dirs(w.robot),
-        collision=collision_part_files,
+        collision=lambda w: sorted(collision_part_dirs(w.robot).values()),
         params=identified_params,
     output:
         xml="results/{robot}/{variant}mjcf/{robot}.xml",
@@ -18,7 +18,7 @@ rule mjcf:
     benchmark:
         "results/{robot}/{variant}benchmarks/mjcf.tsv"
     params:
-        collision_meshes=lambda w: coacd_collision_meshes(w.robot),
+        collision_dirs=lambda w: collision_part_dirs(w.robot),
     script:
         "../scripts/build_mjcf.py"
 

@@ -8,7 +8,7 @@ rule usd:
         urdf="results/{robot}/{variant}{robot}.urdf",
         config=lambda w: robot_config(w.robot),
         visual=lambda w: visual_mesh_dirs(w.robot),
-        collision=collision_part_files,
+        collision=lambda w: sorted(collision_part_dirs(w.robot).values()),
     output:
         usda="results/{robot}/{variant}usd/{robot}.usda",
         geometry="results/{robot}/{variant}usd/{robot}_geometry.usda",
@@ -17,7 +17,7 @@ rule usd:
     benchmark:
         "results/{robot}/{variant}benchmarks/usd.tsv"
     params:
-        collision_meshes=lambda w: coacd_collision_meshes(w.robot),
+        collision_dirs=lambda w: collision_part_dirs(w.robot),
     script:
         "../scripts/build_usd.py"
 

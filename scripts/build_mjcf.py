@@ -2,6 +2,7 @@
 
 import logging
 
+from sim2real.collision import parts_by_uri
 from sim2real.effects import spec_edit_from_params
 from sim2real.mjcf import build_mjcf
 
@@ -11,7 +12,7 @@ try:
         snakemake.input.urdf,
         snakemake.input.config,
         list(snakemake.input.visual),
-        {uri: list(files) for uri, files in snakemake.params.collision_meshes.items()},
+        parts_by_uri(snakemake.params.collision_dirs),
         snakemake.output.xml,
         snakemake.output.scene,
         spec_edit=spec_edit_from_params(snakemake.input.params[0]) if snakemake.input.params else None,

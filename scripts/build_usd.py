@@ -2,6 +2,7 @@
 
 import logging
 
+from sim2real.collision import parts_by_uri
 from sim2real.usd import build_usd
 
 logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
@@ -10,7 +11,7 @@ try:
         snakemake.input.urdf,
         snakemake.input.config,
         list(snakemake.input.visual),
-        {uri: list(files) for uri, files in snakemake.params.collision_meshes.items()},
+        parts_by_uri(snakemake.params.collision_dirs),
         snakemake.output.usda,
         snakemake.output.geometry,
     )

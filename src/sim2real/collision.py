@@ -221,6 +221,11 @@ def part_files(parts_dir: str | Path) -> list[Path]:
     return [parts_dir / part["file"] for part in manifest["parts"]]
 
 
+def parts_by_uri(parts_dirs: Mapping[str, str | Path]) -> dict[str, list[str]]:
+    """{collision mesh URI: its convex part files} from {URI: decomposition directory}."""
+    return {uri: [str(f) for f in part_files(d)] for uri, d in parts_dirs.items()}
+
+
 # ----------------------------------------------------------------------------------------- fidelity
 
 
