@@ -128,7 +128,7 @@ def visual_mesh_dirs(robot):
     ]
 
 
-# ---- collision: CoACD parts, one checkpoint job per URDF collision mesh ---------
+# ---- collision: CoACD parts, one job per URDF collision mesh -------------------
 
 
 def collision_section(robot):
