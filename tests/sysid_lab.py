@@ -13,9 +13,8 @@ import yaml
 
 from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
 from sim2real import sysid
-from sim2real.gap import load_prepared_runs
 from sim2real.lab import run_lab_scenario_run, scenario_runs
-from sim2real.measurements import estimate_noise_floor
+from sim2real.measurements import estimate_noise_floor, load_prepared_runs
 
 # Fast settings: decimated fit grid, few bootstrap replicates, a small refinement subset.
 FAST_FIT = {"fit_rate_hz": 100.0, "bootstrap_replicates": 20, "refine_max_samples": 1500}

@@ -12,6 +12,7 @@ from sim2real.errors import InputError
 from sim2real.measurements import (
     estimate_noise_floor,
     load_measurement_list,
+    load_prepared_runs,
     load_run,
     mcap_to_run,
     prepare_run,
@@ -159,6 +160,23 @@ def test_measurement_list_roles_and_duplicates(tmp_path):
                                              {"name": "a", "path": "y.csv", "role": "test"}]}))
     with pytest.raises(InputError, match="role"):
         load_measurement_list(path)
+
+
+def test_prepared_runs_follow_the_list_and_its_filter_and_share_joints(tmp_path):
+    header, rows = good_rows()
+    write_csv(tmp_path / "a.csv", header, rows)
+    write_csv(tmp_path / "b.csv", header, rows)
+    listing = tmp_path / "m.yaml"
+    listing.write_text(yaml.safe_dump({"runs": [{"name": "one", "path": "a.csv", "role": "fit"},
+                                                {"name": "two", "path": "b.csv", "role": "holdout"}],
+                                       "filter": {"cutoff_hz": 8.0}}))
+    entries, prepared, settings = load_prepared_runs(listing, JOINTS, root=tmp_path)
+    assert [e.name for e in entries] == [p.name for p in prepared] == ["one", "two"]
+    assert settings["cutoff_hz"] == 8.0 and all(p.filter["cutoff_hz"] == 8.0 for p in prepared)
+    # a run that logs other joints than the first one is named, with the joints to log
+    write_csv(tmp_path / "b.csv", [h.replace("panda_joint2", "panda_joint3") for h in header], rows)
+    with pytest.raises(InputError, match=r"b\.csv.*joints differ.*panda_joint1, panda_joint2"):
+        load_prepared_runs(listing, [*JOINTS, "panda_joint3"], root=tmp_path)
 
 
 def test_mcap_bag_converts_to_run(tmp_path):

@@ -12,8 +12,11 @@
   the contact term is not applicable and the other weights are renormalised to sum to 1 (an arm in
   free space would otherwise be charged 0.1 for contacts that do not exist).
 * Where it fails: per joint and regime (slow motion and velocity reversals, hard accelerations,
-  gravity-loaded poses, near the limits), and the worst time windows with their stamps.
+  gravity-loaded poses, near the limits; defined in ``sim2real.regimes``), and the worst time windows
+  with their stamps.
 * The noise floor: the torque RMS that no model can explain (``estimate_noise_floor``).
+
+The runs are read and prepared by ``sim2real.measurements.load_prepared_runs``.
 
 ``compute_gap`` returns the gap.json content; ``build_gap_report`` writes gap.json, gap.md and the
 figures. An optional precomputed section (``ladder``, ``diagnosis``, from the sysid rule) is merged in.
@@ -21,7 +24,6 @@ figures. An optional precomputed section (``ladder``, ``diagnosis``, from the sy
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -33,26 +35,17 @@ import numpy as np
 from mujoco import rollout
 
 from sim2real.dynamics import RigidBodyModel
-from sim2real.errors import InputError
 from sim2real.io import validate, write_json
 from sim2real.measurements import (
-    MeasurementEntry,
     PreparedRun,
     estimate_noise_floor,
     load_measurement_list,
+    load_prepared_runs,
     load_run,
-    measurement_settings,
-    prepare_run,
 )
 from sim2real.metrics import rmse
+from sim2real.regimes import REGIME_DEFINITIONS, REGIME_LABELS, REGIMES, regime_masks
 
-REGIMES = ("slow_reversal", "hard_acceleration", "gravity_loaded", "near_limit")
-REGIME_LABELS = {
-    "slow_reversal": "slow motion and velocity reversals",
-    "hard_acceleration": "hard accelerations",
-    "gravity_loaded": "gravity-loaded poses",
-    "near_limit": "near the position limits",
-}
 GAP_WEIGHTS = {"position": 0.3, "velocity": 0.2, "torque": 0.15, "correlation": 0.15, "spectral": 0.1, "contact": 0.1}
 WINDOW_S = 0.5
 N_WORST_WINDOWS = 5
@@ -259,34 +252,6 @@ def ladder_position_rmse(
 # where it fails
 
 
-def regime_masks(c: TorqueComparison, lower: np.ndarray, upper: np.ndarray) -> dict[str, tuple[np.ndarray, ...]]:
-    """Per regime: (in-regime mask, side = +1/-1 splitting the regime in two, stratum), each (N, n).
-
-    The side is the sign of the regime's variable: velocity, acceleration, gravity torque, which limit.
-    A model error that lives in the regime shows as a step of the residual between the two sides.
-    The stratum is the sign of the variable most likely to confound it (velocity, whose friction
-    error would otherwise leak into any regime the motion direction correlates with; acceleration for
-    the slow regime): the step is measured within each stratum and averaged.
-    """
-    run = c.run
-    speed = np.abs(run.qd)
-    v_slow = 0.15 * np.percentile(speed, 99, axis=0)
-    acc = np.abs(run.qdd)
-    a_hard = np.percentile(acc, 80, axis=0)
-    g_abs = np.abs(c.gravity)
-    g_max = g_abs.max(axis=0)
-    rng_ = np.where(np.isfinite(upper - lower), upper - lower, np.inf)
-    dist_lo = run.q - lower
-    dist_hi = upper - run.q
-    near = np.minimum(dist_lo, dist_hi) < 0.1 * rng_
-    return {
-        "slow_reversal": (speed < v_slow, np.sign(run.qd), np.sign(run.qdd)),
-        "hard_acceleration": (acc > a_hard, np.sign(run.qdd), np.sign(run.qd)),
-        "gravity_loaded": ((g_abs > 0.7 * g_max) & (g_max > 0.5), np.sign(c.gravity), np.sign(run.qd)),
-        "near_limit": (near, np.where(dist_hi < dist_lo, 1.0, -1.0), np.sign(run.qd)),
-    }
-
-
 def _stratified_step(r: np.ndarray, pos: np.ndarray, neg: np.ndarray, strata: np.ndarray) -> float:
     """|mean(r | pos) - mean(r | neg)| within each stratum, averaged with the stratum sizes."""
     total, weight = 0.0, 0
@@ -303,7 +268,7 @@ def where_it_fails(
     comparisons: Sequence[TorqueComparison], lower: np.ndarray, upper: np.ndarray, noise_floor: np.ndarray,
 ) -> dict[str, Any]:
     joints = comparisons[0].run.joint_names
-    masks = [regime_masks(c, lower, upper) for c in comparisons]
+    masks = [regime_masks(c.run, c.gravity, lower, upper) for c in comparisons]
     residual = np.concatenate([c.residual for c in comparisons])
     overall = np.sqrt(np.mean(residual**2, axis=0))
     per_joint: dict[str, Any] = {}
@@ -354,10 +319,7 @@ def where_it_fails(
         },
         "worst_windows": worst_windows(comparisons, masks),
         "definitions": {
-            "slow_reversal": "|qd| below 15% of the joint's 99th-percentile speed; sides: sign of qd",
-            "hard_acceleration": "|qdd| above the joint's 80th percentile; sides: sign of qdd",
-            "gravity_loaded": "|gravity torque| above 70% of its maximum (joints with > 0.5 N*m); sides: its sign",
-            "near_limit": "within 10% of the range of a position limit; sides: which limit",
+            **REGIME_DEFINITIONS,
             "step": "|mean residual on one side - on the other| in N*m: an error that lives in the regime",
             "explained": "share of the in-regime residual power explained by that step (0..1)",
             "finding": "step > 3x noise floor and > 0.5x the joint RMSE and explained > 0.2",
@@ -403,24 +365,6 @@ def model_armature(mjcf_path: str | Path, joints: Sequence[str]) -> dict[str, fl
 
     model, _, dadr = compile_arm(arm_spec(mjcf_path, joints), joints)
     return {j: float(model.dof_armature[d]) for j, d in zip(joints, dadr)}
-
-
-def load_prepared_runs(
-    measurement_list: str | Path, known_joints: Sequence[str] | None = None, root: str | Path = ".",
-    limits: Mapping[str, tuple[float, float]] | None = None,
-) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
-    entries = load_measurement_list(measurement_list)
-    settings = measurement_settings(measurement_list)
-    prepared = []
-    for e in entries:
-        run = dataclasses.replace(load_run(Path(root) / e.path, known_joints, limits), name=e.name)
-        prepared.append(prepare_run(run, cutoff_hz=settings["cutoff_hz"], order=settings["order"]))
-    joints = prepared[0].joint_names
-    for e, p in zip(entries, prepared):
-        if p.joint_names != joints:
-            raise InputError(Path(root) / e.path, "columns q.<joint>", "joints differ from the first run's",
-                             f"log the same joints in every run: {', '.join(joints)}")
-    return entries, prepared, settings
 
 
 def compute_gap(

@@ -9,7 +9,8 @@ Format (a contract shared with real robot logs and the virtual lab):
   joints or for none.
 * Beside it ``<stem>.yaml`` validated by ``schemas/measurement.schema.yaml``.
 
-Preparation (``prepare_run``) for the comparisons:
+Preparation (``prepare_run``; ``load_prepared_runs`` for every run of a measurement list) for the
+comparisons:
 
 1. Consecutive samples with identical positions (a logger faster than the state) are dropped:
    they carry a stale state, and keeping them would put steps into the differentiated signals.
@@ -25,6 +26,7 @@ Preparation (``prepare_run``) for the comparisons:
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -373,6 +375,29 @@ def measurement_settings(path: str | Path) -> dict[str, Any]:
         "order": int(data.get("filter", {}).get("order", DEFAULT_FILTER_ORDER)),
         "horizon_s": float(data.get("replay", {}).get("horizon_s", 0.5)),
     }
+
+
+def load_prepared_runs(
+    measurement_list: str | Path, known_joints: Sequence[str] | None = None, root: str | Path = ".",
+    limits: Mapping[str, tuple[float, float]] | None = None,
+) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
+    """Every run of a measurement list loaded, validated and prepared with the list's filter settings.
+
+    Returns (entries, prepared runs in the same order, settings of :func:`measurement_settings`).
+    ``known_joints`` / ``limits`` are passed to :func:`load_run`; every run must log the same joints.
+    """
+    entries = load_measurement_list(measurement_list)
+    settings = measurement_settings(measurement_list)
+    prepared = []
+    for e in entries:
+        run = dataclasses.replace(load_run(Path(root) / e.path, known_joints, limits), name=e.name)
+        prepared.append(prepare_run(run, cutoff_hz=settings["cutoff_hz"], order=settings["order"]))
+    joints = prepared[0].joint_names
+    for e, p in zip(entries, prepared):
+        if p.joint_names != joints:
+            raise InputError(Path(root) / e.path, "columns q.<joint>", "joints differ from the first run's",
+                             f"log the same joints in every run: {', '.join(joints)}")
+    return entries, prepared, settings
 
 
 DEFAULT_JOINT_TOPIC = "/joint_states"

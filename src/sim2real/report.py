@@ -13,6 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from sim2real.io import atomic_path  # noqa: E402
+from sim2real.regimes import REGIME_LABELS, REGIMES  # noqa: E402
 
 PNG_METADATA = {"Software": None}
 MAX_PLOT_S = 10.0
@@ -82,8 +83,6 @@ def figure_residual_velocity(comparisons: Sequence[Any], target: str | Path) -> 
 
 def figure_regimes(gap: Mapping[str, Any], target: str | Path) -> None:
     """Per joint and regime: the residual step between the regime's two sides, against the noise floor."""
-    from sim2real.gap import REGIME_LABELS, REGIMES
-
     joints = gap["joints"]
     per_joint = gap["where"]["per_joint"]
     x = np.arange(len(joints))
@@ -145,8 +144,6 @@ def _fmt(x: float | None, digits: int = 3) -> str:
 
 def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> str:
     """gap.md: numbers a reviewer reads in a pull request, then the figures."""
-    from sim2real.gap import REGIME_LABELS
-
     joints = gap["joints"]
     m = gap["metrics"]
     floor = gap["noise_floor"]["torque_rmse"]
