@@ -5,6 +5,9 @@ tried: it is added to the model, the model is refitted on the fit runs, and its 
 is compared with the current one. ``explained`` is the fraction of the current holdout residual
 energy the candidate removes (1 - SSE_after / SSE_now, clipped to 0..1); because it is measured
 on runs the fit never saw, an effect that only soaks up noise explains nothing.
+``explained_beyond_noise`` is the same removal as a share of the residual energy above the noise
+floor, the part any model could remove: near the floor a real effect removes most of that excess
+but only a small share of the whole residual, so the decision is taken on it.
 
 Each candidate also carries its residual signature (:meth:`sim2real.effects.base.Effect.evidence`
 on the current holdout residual), the joints it acts on (those where it removes a good share of
@@ -26,11 +29,18 @@ from sim2real.effects import EFFECTS
 from sim2real.effects.base import Signals, per_joint_dict
 
 DEFAULT_DIAGNOSIS: dict[str, float] = {
-    "min_explained": 0.3,  # a candidate must remove this share of the holdout residual energy
-    "joint_min_explained": 0.2,  # ... and this share of a joint's residual to name that joint
+    "min_explained": 0.3,  # a candidate must remove this share of the holdout residual beyond the noise floor
+    "min_gain": 0.05,  # ... and this share of the whole holdout residual energy (a fall worth a rung)
+    "joint_min_explained": 0.2,  # ... and this share of a joint's residual beyond noise to name that joint
     "noise_floor_factor": 1.5,  # residual RMS within this factor of the noise floor: nothing to add
-    "parsimony": 1.05,  # a simpler candidate within this factor of the best holdout RMSE ranks first
+    # Nested effects (a payload is a change of the last link's inertia): a candidate with fewer parameters
+    # ranks first when its holdout RMSE is within this fraction of the noise floor of the best one's.
+    "parsimony_noise_fraction": 0.1,
 }
+
+
+# Effects that are special cases of another: never tried once the larger one is in the model.
+NESTED_IN: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",)}
 
 
 def add_line(effect: str) -> str:
@@ -42,16 +52,18 @@ def _sse(residual: np.ndarray) -> np.ndarray:
     return np.sum(residual**2, axis=0)
 
 
-def _rank(candidates: list[dict[str, Any]], parsimony: float) -> list[dict[str, Any]]:
-    """By explained share; then the simplest candidate that does about as well as the best goes first.
+def _rank(candidates: list[dict[str, Any]], tolerance: float) -> list[dict[str, Any]]:
+    """By explained share; then the simplest candidate that does as well as the best goes first.
 
     Effects nest (a payload is a change of the last link's inertia; link_inertia holds it): the
     bigger one always explains a little more, the smaller one is the better name for what is missing.
+    "As well" is judged against the noise floor: within ``tolerance`` N*m of the best holdout RMSE,
+    a difference no excitation of this length can tell from noise.
     """
     ranked = sorted(candidates, key=lambda c: (-c["explained"], c["effect"]))
     if not ranked:
         return ranked
-    limit = parsimony * ranked[0]["evidence"]["rmse_after"]
+    limit = ranked[0]["evidence"]["rmse_after"] + tolerance
     close = [c for c in ranked if c["evidence"]["rmse_after"] <= limit]
     simplest = min(close, key=lambda c: (c["evidence"]["parameters"], -c["explained"], c["effect"]))
     return [simplest] + [c for c in ranked if c is not simplest]
@@ -72,8 +84,10 @@ def diagnose(
     """Rank every effect not in ``model_effects`` by the holdout residual it removes.
 
     ``nominal``, ``fit_data``, ``holdout_data`` are :mod:`sim2real.sysid` objects; the residual is the
-    current model's holdout residual (judged minus predicted torque). ``nonlinear_fixed``: the
-    current model's nonlinear parameters, held while a candidate is tried (only its own are refined).
+    current model's holdout residual (judged minus predicted torque). Each candidate is fitted exactly
+    as its rung would be (:func:`sim2real.sysid.fit`, physically consistent, the current model's
+    nonlinear parameters ``nonlinear_fixed`` held), so ``rmse_after`` is the holdout error the ladder
+    delivers when the user adds it.
     """
     from sim2real import sysid  # the fit lives there; imported here to keep the modules acyclic
 
@@ -85,10 +99,16 @@ def diagnose(
     sse_now = _sse(holdout_residual)
     total_now = float(sse_now.sum())
     rmse_now = float(np.sqrt(np.mean(holdout_residual**2)))
-    noise = float(np.sqrt(np.mean(np.asarray(holdout_data.noise_floor) ** 2)))
+    floor = np.asarray(holdout_data.noise_floor, dtype=float)
+    noise = float(np.sqrt(np.mean(floor**2)))
+    excess_now = np.clip(sse_now - holdout_residual.shape[0] * floor**2, 0.0, None)  # per joint
     candidates, skipped = [], []
     for name, effect in EFFECTS.items():
         if name in model_effects:
+            continue
+        holder = next((held for held in model_effects if name in NESTED_IN.get(held, ())), None)
+        if holder is not None:
+            skipped.append({"effect": name, "reason": f"{holder} in the model already holds it (a special case of it)"})
             continue
         if effect.needs_commands and holdout_data.torque_source != "tau_cmd":
             skipped.append({
@@ -98,13 +118,17 @@ def diagnose(
             })
             continue
         result = sysid.fit([*model_effects, name], nominal, fit_data, settings.get("fit"), signals=fit_signals,
-                           uncertainty=False, consistency=False, nonlinear_fixed=nonlinear_fixed)
+                           uncertainty=False, nonlinear_fixed=nonlinear_fixed)
         _, residual = sysid.holdout_metrics(result, nominal, holdout_data, holdout_signals)
         sse_after = _sse(residual)
         explained = float(np.clip(1.0 - sse_after.sum() / total_now, 0.0, 1.0)) if total_now > 0 else 0.0
+        gain = total_now - float(sse_after.sum())
+        beyond = float(np.clip(gain / excess_now.sum(), 0.0, 1.0)) if excess_now.sum() > 0 else 0.0
         with np.errstate(invalid="ignore", divide="ignore"):
             per_joint = np.clip(np.where(sse_now > 0, 1.0 - sse_after / sse_now, 0.0), 0.0, 1.0)
-        acting = [j for j, v in zip(joints, per_joint, strict=True) if v >= limits["joint_min_explained"]]
+            per_joint_beyond = np.clip(np.where(excess_now > 0, (sse_now - sse_after) / excess_now, 0.0), 0.0, 1.0)
+        acting = [j for j, v in zip(joints, per_joint_beyond, strict=True) if v >= limits["joint_min_explained"]]
+        decisive = beyond >= limits["min_explained"] and explained >= limits["min_gain"]
         evidence = effect.evidence(holdout_residual, holdout_signals)
         evidence["per_joint_explained"] = per_joint_dict(joints, per_joint, 3)
         evidence["rmse_after"] = round(float(np.sqrt(np.mean(residual**2))), 6)
@@ -112,33 +136,39 @@ def diagnose(
         evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
         candidates.append({
             "effect": name,
-            "joints": acting if explained >= limits["min_explained"] else [],
+            "joints": acting if decisive else [],
             "explained": round(explained, 4),
+            "explained_beyond_noise": round(beyond, 4),
+            "decisive": decisive,
             "evidence": evidence,
             "add": add_line(name),
         })
-    candidates = _rank(candidates, float(limits["parsimony"]))
+    candidates = _rank(candidates, float(limits["parsimony_noise_fraction"]) * noise)
     best = candidates[0] if candidates else None
     ratio = rmse_now / noise if noise > 0 else float("inf")
-    if best is not None and best["explained"] >= limits["min_explained"]:
+    if best is not None and best["decisive"]:
         status = "add_effect"
         joint_text = f" on {', '.join(best['joints'])}" if best["joints"] else ""
         verdict = (
             f"The model is missing {best['effect']}{joint_text}: it explains {best['explained']:.0%} of the holdout "
-            f"residual. Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml."
+            f"residual ({best['explained_beyond_noise']:.0%} of what lies above the noise floor), bringing it from "
+            f"{rmse_now:.3g} to {best['evidence']['rmse_after']:.3g} N*m. "
+            f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml."
         )
     elif ratio <= limits["noise_floor_factor"]:
         status = "at_noise_floor"
         verdict = (
             f"Nothing to add: the holdout residual ({rmse_now:.3g} N*m) is within {limits['noise_floor_factor']}x "
-            f"the noise floor ({noise:.3g} N*m) and no effect explains more than {limits['min_explained']:.0%} of it."
+            f"the noise floor ({noise:.3g} N*m) and no effect explains more than {limits['min_explained']:.0%} "
+            "of what lies above it."
         )
     else:
         status = "unexplained"
         verdict = (
             f"No effect in the library explains the residual: it is {ratio:.1f}x the noise floor, but the best "
             f"candidate ({best['effect'] if best else 'none'}) removes only "
-            f"{best['explained'] if best else 0:.0%} of it. Look at the worst windows in the gap report."
+            f"{best['explained_beyond_noise'] if best else 0:.0%} of what lies above it. "
+            "Look at the worst windows in the gap report."
         )
     return {
         "candidates": candidates,

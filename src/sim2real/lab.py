@@ -14,7 +14,10 @@ joint order or a ``{joint: value}`` map):
 * ``rotor_inertia`` ``{armature}`` kg*m^2: added to the joint armature.
 * ``actuation_delay`` ``{delay_s}``: the applied torque is the command delayed by delay_s.
 * ``payload`` ``{mass, com?, body?}``: a point-ish mass at the flange (last body), added with MjSpec.
-* ``link_inertia`` ``{scale}``: link masses and inertias multiplied by per-body factors.
+* ``link_inertia`` ``{scale?, mass_scale?, com_offset?}``: the body moved by each joint made heavier or
+  lighter (``scale``/``mass_scale``: mass and inertia about the COM multiplied, as a denser or larger
+  part would be) and its centre of mass moved (``com_offset``: ``{joint: [x, y, z]}`` m in the body
+  frame), as a real arm's links differ from their CAD values.
 * ``torque_bias`` ``{bias}`` N*m and ``torque_gain`` ``{gain}``: sensor side, see below.
 
 Column semantics of the written runs:
@@ -25,6 +28,8 @@ Column semantics of the written runs:
   the NOMINAL model, fed by the noisy sensors).
 * ``tau.<j>``: the joint torque sensor: applied torque (the command after any delay) times
   ``torque_gain`` plus ``torque_bias`` plus white noise ``sensors.torque_noise_std``.
+* ``time``: the logger's stamps: the sample instants plus Gaussian ``sensors.stamp_jitter_s`` (kept
+  increasing), like a real log whose stamps wander around the control period.
 * ``q_cmd.<j>``: the desired trajectory.
 
 A scenario lists the columns it writes (e.g. a delay scenario writes only ``tau_cmd``, like an arm
@@ -127,6 +132,14 @@ def _per_joint(value: Any, joints: Sequence[str], where: str, path: Path | None)
     return np.full(len(joints), float(value))
 
 
+def _per_joint_vectors(value: Mapping[str, Any], joints: Sequence[str], where: str, path: Path | None) -> np.ndarray:
+    """``{joint: [x, y, z]}`` -> (n, 3), zero for joints not listed."""
+    unknown = [k for k in value if k not in joints]
+    if unknown:
+        raise InputError(path, where, f"unknown joint(s) {', '.join(unknown)}", f"use {', '.join(joints)}")
+    return np.array([np.asarray(value.get(j, [0.0, 0.0, 0.0]), dtype=float) for j in joints])
+
+
 # ---------------------------------------------------------------------------------------------
 # model
 
@@ -210,14 +223,23 @@ def _apply_spec_effects(spec: mujoco.MjSpec, joints: Sequence[str], effects: Map
             spec.joint(j).armature = spec.joint(j).armature + v
         truth["rotor_inertia"] = {"armature": dict(zip(joints, values.tolist()))}
     if "link_inertia" in effects:
+        link = effects["link_inertia"]
         moving = [spec.joint(j).parent for j in joints]
-        scales = _per_joint(effects["link_inertia"]["scale"], joints, "link_inertia", path)
-        for body, scale in zip(moving, scales):
+        scales = _per_joint(link.get("scale", 1.0), joints, "link_inertia/scale", path)
+        scales = scales * _per_joint(link.get("mass_scale", 1.0), joints, "link_inertia/mass_scale", path)
+        if np.any(scales <= 0):
+            raise InputError(path, "link_inertia/mass_scale", "a mass scale is not positive", "give factors > 0")
+        offsets = _per_joint_vectors(link.get("com_offset", {}), joints, "link_inertia/com_offset", path)
+        for body, scale, offset in zip(moving, scales, offsets):
             body.mass = body.mass * scale
             body.inertia = np.asarray(body.inertia) * scale
             if np.all(np.isfinite(body.fullinertia)):
                 body.fullinertia = np.asarray(body.fullinertia) * scale
-        truth["link_inertia"] = {"scale": {b.name: float(s) for b, s in zip(moving, scales)}}
+            body.ipos = np.asarray(body.ipos) + offset
+        truth["link_inertia"] = {
+            "mass_scale": {b.name: float(s) for b, s in zip(moving, scales)},
+            "com_offset": {b.name: o.tolist() for b, o in zip(moving, offsets) if np.any(o)},
+        }
     if "payload" in effects:
         payload = effects["payload"]
         body_name = payload.get("body") or spec.joint(joints[-1]).parent.name
@@ -377,6 +399,11 @@ def simulate_run(
     tau_sensor = gain * out_applied + bias + float(sensors["torque_noise_std"]) * rng.standard_normal((steps, n))
     signals = {"q": out_q, "qd": out_qd, "tau": tau_sensor, "tau_cmd": out_cmd, "q_cmd": q_des}
     columns = set(scenario["columns"])
+    jitter = float(sensors.get("stamp_jitter_s", 0.0))
+    if jitter > 0:
+        # Stamps wander around the sample instants; a real logger never writes them out of order.
+        stamps = time + jitter * rng.standard_normal(steps)
+        time = np.maximum.accumulate(np.clip(stamps, time - 0.45 * dt, time + 0.45 * dt))
     return time, {k: v for k, v in signals.items() if k in columns}, truth
 
 

@@ -142,6 +142,28 @@ def _fmt(x: float | None, digits: int = 3) -> str:
     return "n/a" if x is None else f"{x:.{digits}g}"
 
 
+def _identified_markdown(rung: Mapping[str, Any]) -> list[str]:
+    """What the data identified of the link inertias (last rung): a richer excitation is needed when little."""
+    link = rung.get("params", {}).get("link_inertia")
+    if not link:
+        return []
+    bodies = link.get("bodies", {})
+    moved = [name for name, b in bodies.items() if b["moved"]]
+    stayed = [name for name, b in bodies.items() if not b["moved"]]
+    lines = ["", "### What the data identified (link inertias)", "",
+             f"{link['base_parameters']} base parameters (identifiable combinations of the "
+             f"{10 * len(bodies)} inertial parameters); condition number of the excitation "
+             f"{link['condition_number']:.3g} (the scaled regressor's largest over smallest singular value on those "
+             "directions: above ~1000 a richer excitation trajectory would pin them down better).", "",
+             f"Moved from the URDF: {', '.join(moved) or 'none'}. Stayed at the URDF values (not seen or not "
+             f"needed by these data): {', '.join(stayed) or 'none'}.", "",
+             "| body | moved | mass change [kg] | COM shift [mm] | divergence from CAD |", "|---|---|---|---|---|"]
+    for name, b in bodies.items():
+        lines.append(f"| {name} | {'yes' if b['moved'] else 'no'} | {b['mass_change_kg']:+.3g} | "
+                     f"{b['com_shift_mm']:.3g} | {_fmt(b['divergence'])} |")
+    return lines
+
+
 def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> str:
     """gap.md: numbers a reviewer reads in a pull request, then the figures."""
     joints = gap["joints"]
@@ -207,20 +229,36 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
                   "Effects of configs/{robot}/model.yaml added one by one, each rung fitted on the `fit` runs and "
                   "judged on the `holdout` runs.".replace("{robot}", gap["robot"]), "",
                   "| rung | effects | holdout torque RMSE [N m] | change from nominal | x noise floor | "
-                  "replay position RMSE [rad] |",
-                  "|---|---|---|---|---|---|"]
+                  "unconstrained fit [N m] | replay position RMSE [rad] |",
+                  "|---|---|---|---|---|---|---|"]
         for k, rung in enumerate(gap["ladder"]):
             value = rung["metrics"]["torque_rmse"]["overall"]
             change = f"{100 * (value - first) / first:+.0f}%" if k and first else "–"
             position = rung["metrics"].get("position_rmse", {}).get("overall")
+            free = rung["metrics"].get("unconstrained_torque_rmse", {}).get("overall")
+            physical = rung.get("consistency", {}).get("unconstrained_physical")
+            free_text = _fmt(free) + (" (non-physical)" if physical is False else "")
             lines.append(f"| {k} | {', '.join(rung['effects']) or 'nominal'} | {value:.3g} | {change} | "
-                         f"{value / floor['overall']:.2f} | {_fmt(position)} |")
+                         f"{value / floor['overall']:.2f} | {free_text} | {_fmt(position)} |")
+        lines += ["", "Each rung is the physically consistent fit (every body's pseudo-inertia positive definite, "
+                  "friction, damping and armature >= 0); the unconstrained column is the same rung without those "
+                  "constraints, for comparison."]
+        for k, rung in enumerate(gap["ladder"]):
+            for note in rung.get("notes", []):
+                if note.startswith("physical consistency"):
+                    lines += ["", f"**Rung {k}:** {note}."]
+        lines += _identified_markdown(gap["ladder"][-1])
         lines += ["", f"![Model ladder]({figures['ladder']})"]
     if "diagnosis" in gap:
         lines += ["", "## Diagnosis", "", gap["diagnosis"]["verdict"], ""]
         for cand in gap["diagnosis"]["candidates"][:3]:
+            beyond = cand.get("explained_beyond_noise")
+            beyond_text = f" ({100 * beyond:.0f}% of what lies above the noise floor)" if beyond is not None else ""
             lines.append(f"- `{cand['effect']}` on {', '.join(cand['joints']) or 'no joint in particular'}: explains "
-                         f"{100 * cand['explained']:.0f}% of the residual; add `{cand['add']}`")
+                         f"{100 * cand['explained']:.0f}% of the residual{beyond_text}, holdout RMSE after "
+                         f"{_fmt(cand['evidence'].get('rmse_after'))} N m; add `{cand['add']}`")
+        for skip in gap["diagnosis"].get("skipped", []):
+            lines.append(f"- `{skip['effect']}` not tried: {skip['reason']}")
     lines += ["", "## Figures", "",
               f"![Measured vs model torque]({figures['torque']})", "",
               f"![Residual vs velocity]({figures['residual_velocity']})", "",

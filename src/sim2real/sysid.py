@@ -25,6 +25,7 @@ parameters ``theta_e``, ``nl_e`` its few nonlinear parameters (a friction smooth
 
 from __future__ import annotations
 
+import copy
 import fnmatch
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
@@ -49,6 +50,8 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "bootstrap_block_s": 1.0,
     "confidence": 0.95,
     "seed": 0,
+    # Weight of the entropic pull of link inertias towards CAD, x the noise floor's variance (sim2real.inertial).
+    "inertia_regularization": 1e-3,
 }
 
 
@@ -260,6 +263,8 @@ class FitResult:
     intervals: dict[str, Any]
     fit_rmse: dict[str, Any]
     notes: list[str] = field(default_factory=list)
+    consistency: dict[str, Any] = field(default_factory=dict)
+    unconstrained: FitResult | None = None  # the same rung without the physical constraints
 
 
 class _Problem:
@@ -288,6 +293,13 @@ class _Problem:
                 return float(nonlinear[effect.name][0])
         return 0.0
 
+    def block(self, effect: Effect, nonlinear: dict[str, np.ndarray]) -> np.ndarray:
+        """One effect's columns (N, n, k) at the given nonlinear parameters (before the time shift)."""
+        cols = self.static_columns.get(effect.name)
+        if cols is None:
+            cols = effect.columns(self.signals, self.states[effect.name], nonlinear[effect.name])[0]
+        return cols
+
     def design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:
         """Columns (N, n, p) at the given nonlinear parameters (before the time shift) and sizes."""
         blocks, sizes = [], []
@@ -295,9 +307,7 @@ class _Problem:
             if effect.time_shift:
                 sizes.append(0)
                 continue
-            cols = self.static_columns.get(effect.name)
-            if cols is None:
-                cols = effect.columns(self.signals, self.states[effect.name], nonlinear[effect.name])[0]
+            cols = self.block(effect, nonlinear)
             blocks.append(cols)
             sizes.append(cols.shape[2])
         n_samples, n = self.signals.q.shape
@@ -498,6 +508,10 @@ def _block_bootstrap(
             grams.append(a.T @ a)
             rhs.append(a.T @ y)
     grams_arr, rhs_arr = np.asarray(grams), np.asarray(rhs)
+    # Replicates are unconstrained solves; their spread around the full-sample solve is centred on the
+    # estimate (which may be the consistent one), so intervals describe the estimate the rung reports.
+    full = np.linalg.lstsq(grams_arr.sum(axis=0), rhs_arr.sum(axis=0), rcond=1e-12)[0] / scale
+    estimate = _flatten_theta(problem.effects, theta, sizes)
     rng = np.random.default_rng(int(settings["seed"]))
     out = []
     for _ in range(replicates):
@@ -505,7 +519,7 @@ def _block_bootstrap(
         g = grams_arr[pick].sum(axis=0)
         r = rhs_arr[pick].sum(axis=0)
         coef = np.linalg.lstsq(g, r, rcond=1e-12)[0] / scale
-        out.append(_split_theta(problem.effects, coef, sizes))
+        out.append(_split_theta(problem.effects, estimate + coef - full, sizes))
     return out
 
 
@@ -541,8 +555,12 @@ def fit(
 ) -> FitResult:
     """Fit the model ``nominal + effect_names`` on ``data`` (the fit runs).
 
-    ``uncertainty``: bootstrap intervals; ``consistency``: keep link inertias physically consistent
-    (both cost time and hardly change the prediction: the diagnosis's trial fits skip them).
+    ``consistency``: solve the rung as one convex program (:mod:`sim2real.inertial`: link inertias
+    physically consistent, friction/armature/payload mass >= 0) and keep the unconstrained fit beside
+    it (``result.unconstrained``); ``uncertainty``: bootstrap intervals; ``nonlinear_fixed``: nonlinear
+    parameters held (the previous rung's: a rung refines only the nonlinear parameters of the effect it
+    adds). The ladder and the diagnosis call this same function with the same arguments, so the fall a
+    candidate promises is the fall its rung delivers.
     """
     settings = {**DEFAULT_SETTINGS, **(settings or {})}
     signals = signals or make_signals(nominal, data)
@@ -558,28 +576,15 @@ def fit(
     problem = _Problem(effects, signals, states)
     nonlinear = _refine_nonlinear(problem, data.tau, settings, nonlinear_fixed)
     theta, residual, sizes = _linear_fit(problem, data.tau, nonlinear)
-    # Physical consistency of link inertias: first move along the weakly identified directions
-    # (free for the fit), else shrink the correction towards nominal and refit the rest.
-    if "link_inertia" in theta and consistency:
-        from sim2real.effects.link_inertia import consistent_null_offset, consistent_shrink
-
-        state = states["link_inertia"]
-        inertial = np.asarray(nominal.info["inertial"])
-        n_bodies = nominal.info["n_bodies"]
-        delta = state["basis"] @ theta["link_inertia"]
-        offset = consistent_null_offset(inertial, delta, state["null"], n_bodies)
-        if np.any(offset):
-            notes.append("link_inertia: weakly identified directions moved to keep every body physically consistent")
-            state["null_offset"] = offset
-            theta, residual, sizes = _linear_fit(problem, data.tau, nonlinear)
-            delta = state["basis"] @ theta["link_inertia"]
-        alpha = consistent_shrink(inertial, delta + offset, n_bodies)
-        if alpha < 1.0:
-            # The consistent set is convex and holds the nominal model: step back along the correction.
-            notes.append(f"link_inertia: correction scaled by {alpha:.4f} to stay physically consistent")
-            state["null_offset"] = offset * alpha
-            theta = _refit_with_fixed(problem, data.tau, nonlinear, theta, "link_inertia", alpha)
-        residual = data.tau - problem.predict(theta, nonlinear)
+    unconstrained = FitResult(
+        effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=copy.deepcopy(states),
+        values=_values(effects, theta, nonlinear, signals, states), intervals={},
+        fit_rmse=rmse(residual, data.joint_names), notes=list(notes),
+    )
+    record: dict[str, Any] = {}
+    if consistency:
+        theta, residual, record = _consistent_fit(problem, data, nonlinear, theta, settings)
+        notes.extend(record.pop("notes"))
     values = _values(effects, theta, nonlinear, signals, states)
     intervals: dict[str, Any] = {}
     if uncertainty:
@@ -589,31 +594,121 @@ def fit(
             intervals = _prune(_intervals(samples, float(settings["confidence"])))
     return FitResult(
         effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=states, values=values,
-        intervals=intervals, fit_rmse=rmse(residual, data.joint_names), notes=notes,
+        intervals=intervals, fit_rmse=rmse(residual, data.joint_names), notes=notes, consistency=record,
+        unconstrained=unconstrained if consistency else None,
     )
 
 
-def _refit_with_fixed(problem: _Problem, tau, nonlinear, theta, fixed: str, alpha: float) -> dict[str, np.ndarray]:
-    """Refit every other effect with ``fixed``'s coefficients scaled by alpha and held."""
-    theta = dict(theta)
-    theta[fixed] = theta[fixed] * alpha
-    design, sizes = problem.design(nonlinear)
-    delay = problem.delay(nonlinear)
+def _consistent_fit(
+    problem: _Problem, data: TorqueData, nonlinear: dict[str, np.ndarray], theta_free: dict[str, np.ndarray],
+    settings: Mapping[str, Any],
+) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, Any]]:
+    """The rung's linear coefficients under the physical constraints; (theta, fit residual, record).
+
+    Link inertias enter as full per-body corrections (the regressor's columns), every other effect
+    with its own columns and lower bounds. Offsets that are not linear (a payload's own inertia) are
+    held at the current estimate and updated by fixed-point iteration, as in the unconstrained fit.
+    """
+    from sim2real.effects.link_inertia import correction_anchors
+    from sim2real.inertial import InertialBlock, InfeasibleFit, physically_consistent, solve_consistent
+
     signals = problem.signals
-    index, start = {}, 0
-    for effect, size in zip(problem.effects, sizes, strict=True):
-        index[effect.name] = slice(start, start + size)
-        start += size
-    keep = np.ones(design.shape[2], dtype=bool)
-    keep[index[fixed]] = False
-    fixed_part = design[:, :, index[fixed]] @ theta[fixed]
-    shifted = shift_prediction(design[:, :, keep], signals.time, signals.segments, delay)
-    base = shift_prediction(signals.tau_nominal + fixed_part + problem.offsets(theta), signals.time, signals.segments, delay)
-    coef = _solve_linear(shifted, tau - base)
-    flat = np.zeros(design.shape[2])
-    flat[keep] = coef
-    flat[index[fixed]] = theta[fixed]
-    return _split_theta(problem.effects, flat, sizes)
+    blocks, lower, inertial = [], [], None
+    start = 0
+    for effect in problem.effects:
+        if effect.time_shift:
+            continue
+        if effect.name == "link_inertia":
+            cols = signals.regressor
+            inertial = InertialBlock(slice(start, start + cols.shape[2]), correction_anchors(signals.nominal))
+            lower.append(np.full(cols.shape[2], -np.inf))
+            problem.states[effect.name]["null_offset"] = np.zeros(cols.shape[2])
+        else:
+            cols = problem.block(effect, nonlinear)
+            lower.append(np.asarray(effect.theta_lower(signals, cols.shape[2]), dtype=float))
+        blocks.append((effect, slice(start, start + cols.shape[2]), cols))
+        start += cols.shape[2]
+    free_residual = data.tau - problem.predict(theta_free, nonlinear)
+    record: dict[str, Any] = {"notes": []}
+    if not blocks:
+        return theta_free, free_residual, record
+    delay = problem.delay(nonlinear)
+    shifted = shift_prediction(np.concatenate([b[2] for b in blocks], axis=2), signals.time, signals.segments, delay)
+    base = shift_prediction(signals.tau_nominal, signals.time, signals.segments, delay)
+    bounds = np.concatenate(lower)
+    floor = float(np.mean(np.asarray(data.noise_floor, dtype=float) ** 2))
+    weight = float(settings["inertia_regularization"]) * max(floor, 1e-12)
+    has_offset = any(type(e).offset is not Effect.offset and e.name != "link_inertia" for e in problem.effects)
+    theta: dict[str, np.ndarray] = {}
+    solve_time = 0.0
+    try:
+        for _ in range(3 if has_offset else 1):
+            offset = shift_prediction(problem.offsets(theta), signals.time, signals.segments, delay)
+            solution = solve_consistent(shifted, data.tau - base - offset, bounds, inertial, weight)
+            solve_time += solution.solve_time_s
+            for effect, cols, _ in blocks:
+                coefficients = solution.coefficients[cols]
+                if effect.name == "link_inertia":
+                    coefficients = effect.set_correction(problem.states[effect.name], coefficients)
+                theta[effect.name] = coefficients
+        for effect in problem.effects:
+            theta.setdefault(effect.name, np.zeros(0))  # a time shift has no linear coefficients
+    except InfeasibleFit as exc:
+        record["status"] = "infeasible"
+        record["notes"].append(
+            f"physical consistency: {exc}; the rung keeps the UNCONSTRAINED fit, which may be non-physical. "
+            "Check the torque signs and units of the runs and the URDF's inertials"
+        )
+        return theta_free, free_residual, record
+    residual = data.tau - problem.predict(theta, nonlinear)
+    record.update({"status": solution.status, "solve_time_s": solve_time})
+    free_physical = _physical(problem, theta_free, signals)
+    record["unconstrained_physical"] = free_physical
+    fit_now, fit_free = float(np.sqrt(np.mean(residual**2))), float(np.sqrt(np.mean(free_residual**2)))
+    noise = float(np.sqrt(floor))
+    if not free_physical and fit_now > 1.1 * fit_free and fit_now - fit_free > 0.1 * noise:
+        # The data pull the model out of the physical set: say so, never hide it behind the nominal model.
+        record["contradiction"] = True
+        record["notes"].append(
+            f"physical consistency: the data contradict a physical model with these effects: the unconstrained fit "
+            f"needs non-physical values ({_violations(problem, theta_free, signals)}) and fits the fit runs to "
+            f"{fit_free:.3g} N*m against {fit_now:.3g} N*m for the best physical fit. An effect is missing, or the "
+            "torque columns' sign or units are wrong"
+        )
+    if inertial is not None:
+        delta = problem.states["link_inertia"]["basis"] @ theta["link_inertia"] + problem.states["link_inertia"]["null_offset"]
+        assert physically_consistent(inertial.anchors.reshape(-1) + delta)
+    return theta, residual, record
+
+
+def _physical(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals) -> bool:
+    """Does a solution satisfy every constraint of the consistent fit?"""
+    return not _violations(problem, theta, signals)
+
+
+def _violations(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals) -> str:
+    """What is non-physical in a solution, in words ('' when nothing)."""
+    from sim2real.effects.link_inertia import correction_anchors
+    from sim2real.inertial import min_eigenvalues
+
+    found = []
+    for effect in problem.effects:
+        coefficients = np.asarray(theta.get(effect.name, []), dtype=float)
+        if effect.time_shift or not coefficients.size:
+            continue
+        if effect.name == "link_inertia":
+            state = problem.states[effect.name]
+            anchors = correction_anchors(signals.nominal)
+            eig = min_eigenvalues(anchors.reshape(-1) + state["basis"] @ coefficients + state["null_offset"])
+            bad = [signals.nominal["body_links"][b] for b in np.flatnonzero(eig <= 0)]
+            if bad:
+                found.append(f"link_inertia: non-physical inertia of {', '.join(bad)}")
+            continue
+        low = effect.theta_lower(signals, coefficients.size)
+        below = np.flatnonzero(coefficients < low - 1e-9)
+        if below.size:
+            found.append(f"{effect.name}: {below.size} value(s) below their physical bound")
+    return "; ".join(found)
 
 
 def predict(result: FitResult, nominal: NominalModel, data: TorqueData, signals: Signals | None = None) -> np.ndarray:
@@ -690,7 +785,8 @@ def fit_ladder(
     residual = None
     for k in range(len(effect_names) + 1):
         effects = list(effect_names[:k])
-        result = fit(effects, nominal, fit_data, fit_settings, signals=fit_signals)
+        held = result.nonlinear if result is not None else None
+        result = fit(effects, nominal, fit_data, fit_settings, signals=fit_signals, nonlinear_fixed=held)
         metrics, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
         rung: dict[str, Any] = {
             "effects": effects,
@@ -698,6 +794,12 @@ def fit_ladder(
             "intervals": result.intervals,
             "metrics": {**metrics, "fit_torque_rmse": result.fit_rmse},
         }
+        if result.unconstrained is not None and result.consistency:
+            # The same rung without the physical constraints: what consistency costs (or gains) on holdout.
+            free, _ = holdout_metrics(result.unconstrained, nominal, holdout_data, holdout_signals)
+            rung["metrics"]["unconstrained_torque_rmse"] = free["torque_rmse"]
+            # Wall time stays out of the document (outputs are byte-identical on rebuild).
+            rung["consistency"] = {k: v for k, v in result.consistency.items() if k != "solve_time_s"}
         if result.notes:
             rung["notes"] = result.notes
         rungs.append(rung)
@@ -724,8 +826,7 @@ def fit_ladder(
         document["diagnosis"] = run_diagnosis(
             effect_names, nominal, fit_data, holdout_data, residual,
             {"fit": fit_settings, "diagnosis": settings.get("diagnosis", {})},
-            fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot,
-            nonlinear_fixed=result.nonlinear,
+            fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot, nonlinear_fixed=result.nonlinear,
         )
     return round_floats(document), result
 
@@ -775,9 +876,8 @@ def run_sysid(
 ) -> dict[str, Any]:
     """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration."""
     from sim2real.effects import calibration_from_params
-    from sim2real.gap import load_prepared_runs
     from sim2real.io import read_yaml, write_json, write_yaml
-    from sim2real.measurements import estimate_noise_floor, load_measurement_list, load_run
+    from sim2real.measurements import estimate_noise_floor, load_measurement_list, load_prepared_runs, load_run
 
     model_config = load_model_config(model_config_path)
     robot_config = read_yaml(robot_config_path) or {}

@@ -146,6 +146,10 @@ class Effect:
         """Regressor columns (N, n, k), linear in this effect's parameters, and their labels."""
         return np.zeros((len(signals.time), signals.n, 0)), []
 
+    def theta_lower(self, signals: Signals, size: int) -> np.ndarray:
+        """Lower bounds of the fitted coefficients (the consistent fit's constraints); -inf where none."""
+        return np.full(size, -np.inf)
+
     def offset(self, signals: Signals, state: dict[str, Any], theta: np.ndarray) -> np.ndarray | None:
         """Torque term not linear in the parameters, evaluated at the current estimate (or None)."""
         return None

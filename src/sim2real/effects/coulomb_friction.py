@@ -40,6 +40,10 @@ class CoulombFriction(Effect):
             [ColumnLabel("friction", j) for j in signals.joint_names],
         )
 
+    def theta_lower(self, signals, size):
+        # The total friction (nominal + fitted) is never negative.
+        return -np.asarray(signals.nominal.get("friction", np.zeros(signals.n)), dtype=float)
+
     def values(self, theta, nonlinear, signals, state):
         total = np.asarray(signals.nominal.get("friction", np.zeros(signals.n))) + theta
         smoothing = nonlinear if len(nonlinear) else self.nonlinear_init(signals)

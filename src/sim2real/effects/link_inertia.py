@@ -1,10 +1,12 @@
 """Link inertial parameters: corrections to mass, first moment and inertia of every moving body.
 
-Only the identifiable combinations (base parameters) are fitted: the stacked regressor of the
-fit data is reduced by SVD to the directions it excites, and the correction is the minimum-norm
-one in those directions, so unexcited directions keep their nominal (URDF) values. The fit then
-keeps the result physically consistent (every body's 4x4 pseudo-inertia positive definite) by
-shrinking the correction towards the nominal model when it is not.
+The unconstrained fit works on the identifiable combinations (base parameters): the stacked
+regressor of the fit data is reduced by SVD to the directions it excites, and the correction is the
+minimum-norm one in those directions, so unexcited directions keep their nominal (URDF) values.
+The physically consistent fit (:mod:`sim2real.inertial`, the default) solves for every body's full
+10-parameter correction under the pseudo-inertia LMIs with an entropic pull to the CAD link; its
+result is stored here as base-parameter coefficients plus the remainder (``null_offset``), so both
+fits predict through the same columns.
 Pinocchio's dynamic parameter order per body: m, m*c (3), I about the joint frame
 (xx, xy, yy, xz, yz, zz).
 """
@@ -16,9 +18,14 @@ from typing import Any
 import numpy as np
 
 from sim2real.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, explained_per_joint, per_joint_dict
+from sim2real.inertial import entropic_divergence, physically_consistent
 
 RELATIVE_SINGULAR_TOL = 1e-3  # directions excited 1000x less than the best are left at nominal
 STRUCTURAL_ZERO = 1e-9  # relative column norm below which a parameter does not act at all
+# A body "moved" when the fit changed it beyond these (else it stayed at its URDF values).
+MOVED_MASS_FRACTION = 0.02
+MOVED_COM_M = 0.003
+MOVED_DIVERGENCE = 1e-3
 
 
 def parameter_scales(inertial: np.ndarray) -> np.ndarray:
@@ -28,26 +35,6 @@ def parameter_scales(inertial: np.ndarray) -> np.ndarray:
         mass = max(abs(float(inertial[10 * b])), 0.1)
         scales.append([mass] + [0.1 * mass] * 3 + [0.01 * mass] * 6)
     return np.asarray(scales, dtype=float).reshape(-1)
-
-
-def pseudo_inertia(params: np.ndarray) -> np.ndarray:
-    """4x4 pseudo-inertia matrix of one body's 10 dynamic parameters (PD iff physically consistent)."""
-    m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz = params
-    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    sigma = 0.5 * np.trace(inertia) * np.eye(3) - inertia
-    h = np.array([hx, hy, hz])
-    out = np.zeros((4, 4))
-    out[:3, :3] = sigma
-    out[:3, 3] = h
-    out[3, :3] = h
-    out[3, 3] = m
-    return out
-
-
-def physically_consistent(params: np.ndarray, n_bodies: int) -> bool:
-    return all(
-        np.linalg.eigvalsh(pseudo_inertia(params[10 * b : 10 * b + 10])).min() > 0 for b in range(n_bodies)
-    )
 
 
 def to_mass_com_inertia(params: np.ndarray) -> dict[str, Any]:
@@ -64,66 +51,39 @@ def to_mass_com_inertia(params: np.ndarray) -> dict[str, Any]:
     }
 
 
-def min_eigenvalues(params: np.ndarray, n_bodies: int) -> np.ndarray:
-    return np.array([np.linalg.eigvalsh(pseudo_inertia(params[10 * b : 10 * b + 10])).min() for b in range(n_bodies)])
+def correction_anchors(nominal: dict[str, Any]) -> np.ndarray:
+    """Per body, the parameters its correction is added to: the URDF link that receives it.
 
-
-# d(pseudo-inertia)/d(parameter k) for one body: the pseudo-inertia is linear in the parameters.
-_PSEUDO_BASIS = np.array([pseudo_inertia(np.eye(10)[k]) for k in range(10)])
-
-
-def _min_eigen_gradients(params: np.ndarray, n_bodies: int) -> tuple[np.ndarray, np.ndarray]:
-    """Smallest eigenvalue per body and its gradient w.r.t. all parameters (n_bodies, 10*n_bodies)."""
-    values = np.zeros(n_bodies)
-    grads = np.zeros((n_bodies, 10 * n_bodies))
-    for b in range(n_bodies):
-        w, v = np.linalg.eigh(pseudo_inertia(params[10 * b : 10 * b + 10]))
-        values[b] = w[0]
-        grads[b, 10 * b : 10 * b + 10] = np.einsum("i,kij,j->k", v[:, 0], _PSEUDO_BASIS, v[:, 0])
-    return values, grads
-
-
-def consistent_null_offset(nominal: np.ndarray, delta: np.ndarray, null: np.ndarray, n_bodies: int) -> np.ndarray:
-    """Smallest move along the weakly identified directions that makes every body consistent.
-
-    Those directions hardly change the predicted torque, so the fit keeps its quality. Returns the
-    best offset found (parameter units); the caller checks consistency and shrinks if still needed.
+    The calibrated URDF writes a body's correction into its joint's child link; keeping that link
+    consistent keeps the whole body consistent (the fixed links merged into it are consistent on
+    their own). A massless child link falls back to the whole body.
     """
-    from scipy import optimize
-
-    margin = np.minimum(1e-7, 0.5 * np.clip(min_eigenvalues(nominal, n_bodies), 0.0, None))
-    if np.all(min_eigenvalues(nominal + delta, n_bodies) > margin):
-        return np.zeros_like(delta)
-    if null.shape[1] == 0:
-        return np.zeros_like(delta)
-    start = nominal + delta
-
-    def constraint(z: np.ndarray) -> np.ndarray:
-        return _min_eigen_gradients(start + null @ z, n_bodies)[0] - margin
-
-    def constraint_jac(z: np.ndarray) -> np.ndarray:
-        return _min_eigen_gradients(start + null @ z, n_bodies)[1] @ null
-
-    result = optimize.minimize(
-        lambda z: float(z @ z), np.zeros(null.shape[1]), jac=lambda z: 2 * z, method="SLSQP",
-        constraints=[{"type": "ineq", "fun": constraint, "jac": constraint_jac}],
-        options={"maxiter": 150, "ftol": 1e-10},
-    )
-    return null @ result.x
+    total = np.asarray(nominal["inertial"], dtype=float).reshape(-1, 10)
+    own = nominal.get("link_own_inertial", {})
+    anchors = []
+    for b, link in enumerate(nominal["body_links"]):
+        candidate = np.asarray(own.get(link, total[b]), dtype=float)
+        anchors.append(candidate if physically_consistent(candidate) else total[b])
+    return np.asarray(anchors)
 
 
-def consistent_shrink(nominal: np.ndarray, delta: np.ndarray, n_bodies: int) -> float:
-    """Largest alpha in [0, 1] with nominal + alpha*delta physically consistent (bisection)."""
-    if physically_consistent(nominal + delta, n_bodies):
-        return 1.0
-    lo, hi = 0.0, 1.0
-    for _ in range(30):
-        mid = 0.5 * (lo + hi)
-        if physically_consistent(nominal + mid * delta, n_bodies):
-            lo = mid
-        else:
-            hi = mid
-    return lo
+def body_changes(delta: np.ndarray, nominal: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Which bodies the fit moved, and by how much (mass, centre of mass, divergence from CAD)."""
+    anchors = correction_anchors(nominal)
+    corrected = anchors + np.reshape(delta, anchors.shape)
+    divergence = entropic_divergence(corrected, anchors)
+    out = {}
+    for b, link in enumerate(nominal["body_links"]):
+        before, after = to_mass_com_inertia(anchors[b]), to_mass_com_inertia(corrected[b])
+        dm = after["mass"] - before["mass"]
+        dc = float(np.linalg.norm(np.subtract(after["com"], before["com"])))
+        moved = bool(abs(dm) > MOVED_MASS_FRACTION * max(before["mass"], 1e-9) or dc > MOVED_COM_M
+                     or divergence[b] > MOVED_DIVERGENCE)
+        out[link] = {
+            "moved": moved, "mass_change_kg": round(dm, 4), "com_shift_mm": round(1000.0 * dc, 2),
+            "divergence": round(float(divergence[b]), 6) if np.isfinite(divergence[b]) else None,
+        }
+    return out
 
 
 class LinkInertia(Effect):
@@ -156,6 +116,7 @@ class LinkInertia(Effect):
         rank = int(np.sum(singular > RELATIVE_SINGULAR_TOL * singular[0]))
         # Basis in parameter units: delta = basis @ beta. The rest of the space barely changes the
         # torque on these data: the fit moves along it only to stay physically consistent.
+        condition = float(singular[0] / singular[rank - 1]) if rank else float("inf")
         basis = np.zeros((n_params, rank))
         basis[active] = eigvec[:, order[:rank]] * scale[active, None]
         weak = np.zeros((n_params, len(active) - rank))
@@ -164,7 +125,15 @@ class LinkInertia(Effect):
         structural = np.zeros((n_params, len(inactive)))
         structural[inactive, np.arange(len(inactive))] = scale[inactive]
         null = np.hstack([weak, structural])
-        return {"basis": basis, "null": null, "rank": rank, "null_offset": np.zeros(n_params)}
+        return {"basis": basis, "null": null, "rank": rank, "condition_number": condition,
+                "null_offset": np.zeros(n_params)}
+
+    def set_correction(self, state: dict[str, Any], delta: np.ndarray) -> np.ndarray:
+        """Store a full correction (parameter units) as base coefficients + remainder; returns the coefficients."""
+        basis = state["basis"]
+        theta = np.linalg.lstsq(basis, delta, rcond=None)[0] if basis.shape[1] else np.zeros(0)
+        state["null_offset"] = delta - basis @ theta
+        return theta
 
     def offset(self, signals, state, theta):
         if not np.any(state["null_offset"]):
@@ -192,7 +161,9 @@ class LinkInertia(Effect):
             "links": {link: to_mass_com_inertia(total[10 * b : 10 * b + 10]) for b, link in enumerate(bodies)},
             "urdf_links": urdf_links,
             "base_parameters": int(state["rank"]),
-            "physically_consistent": bool(physically_consistent(total, len(bodies))),
+            "condition_number": float(state["condition_number"]),
+            "physically_consistent": bool(physically_consistent(correction_anchors(signals.nominal).reshape(-1) + delta)),
+            "bodies": body_changes(delta, signals.nominal),
         }
 
     def evidence(self, residual, signals):

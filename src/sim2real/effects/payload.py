@@ -45,6 +45,9 @@ class Payload(Effect):
             ColumnLabel("mass"), ColumnLabel("m*com_x"), ColumnLabel("m*com_y"), ColumnLabel("m*com_z"),
         ]
 
+    def theta_lower(self, signals, size):
+        return np.array([0.0, -np.inf, -np.inf, -np.inf])  # a payload has a mass >= 0
+
     def offset(self, signals, state, theta):
         mass = float(theta[0])
         if mass <= 1e-6:

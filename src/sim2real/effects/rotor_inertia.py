@@ -20,6 +20,10 @@ class RotorInertia(Effect):
     def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
         return diagonal_columns(signals.qdd), [ColumnLabel("armature", j) for j in signals.joint_names]
 
+    def theta_lower(self, signals, size):
+        # The total armature (nominal + fitted) is never negative.
+        return -np.asarray(signals.nominal.get("armature", np.zeros(signals.n)), dtype=float)
+
     def values(self, theta, nonlinear, signals, state):
         total = np.asarray(signals.nominal.get("armature", np.zeros(signals.n))) + theta
         return {"armature": per_joint_dict(signals.joint_names, total, 6)}

@@ -25,6 +25,9 @@ class TorqueGain(Effect):
     def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
         return diagonal_columns(signals.tau_nominal), [ColumnLabel("gain", j) for j in signals.joint_names]
 
+    def theta_lower(self, signals, size):
+        return np.full(size, self.parameters[0].lower - 1.0)  # gain >= its lower bound
+
     def values(self, theta, nonlinear, signals, state):
         return {"gain": per_joint_dict(signals.joint_names, 1.0 + theta, 6)}
 

@@ -21,6 +21,10 @@ class ViscousFriction(Effect):
     def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
         return diagonal_columns(signals.qd), [ColumnLabel("damping", j) for j in signals.joint_names]
 
+    def theta_lower(self, signals, size):
+        # The total damping (nominal + fitted) is never negative.
+        return -np.asarray(signals.nominal.get("damping", np.zeros(signals.n)), dtype=float)
+
     def values(self, theta, nonlinear, signals, state):
         total = np.asarray(signals.nominal.get("damping", np.zeros(signals.n))) + theta
         return {"damping": per_joint_dict(signals.joint_names, total, 6)}
