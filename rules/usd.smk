@@ -16,6 +16,10 @@ rule usd:
         "results/{robot}/{variant}logs/usd.log",
     benchmark:
         "results/{robot}/{variant}benchmarks/usd.tsv"
+    threads: 1
+    resources:
+        mem_mb=512,
+        runtime=3,
     params:
         collision_dirs=lambda w: collision_part_dirs(w.robot),
     script:
@@ -24,16 +28,20 @@ rule usd:
 
 rule equivalence:
     input:
-        urdf="results/{robot}/{robot}.urdf",
-        mjcf="results/{robot}/mjcf/{robot}.xml",
-        usd="results/{robot}/usd/{robot}.usda",
-        geometry="results/{robot}/usd/{robot}_geometry.usda",
+        urdf="results/{robot}/{variant}{robot}.urdf",
+        mjcf="results/{robot}/{variant}mjcf/{robot}.xml",
+        usd="results/{robot}/{variant}usd/{robot}.usda",
+        geometry="results/{robot}/{variant}usd/{robot}_geometry.usda",
     output:
-        "results/{robot}/equivalence.json",
+        "results/{robot}/{variant}equivalence.json",
     log:
-        "results/{robot}/logs/equivalence.log",
+        "results/{robot}/{variant}logs/equivalence.log",
     benchmark:
-        "results/{robot}/benchmarks/equivalence.tsv"
+        "results/{robot}/{variant}benchmarks/equivalence.tsv"
+    threads: 1
+    resources:
+        mem_mb=1024,
+        runtime=3,
     script:
         "../scripts/equivalence.py"
 
@@ -43,5 +51,12 @@ STAGE_TARGETS.append(
         f"results/{robot}/usd/{robot}.usda",
         f"results/{robot}/equivalence.json",
     ]
-    + ([f"results/{robot}/calibrated/usd/{robot}.usda"] if identifies(robot) else [])
+    + (
+        [
+            f"results/{robot}/calibrated/usd/{robot}.usda",
+            f"results/{robot}/calibrated/equivalence.json",
+        ]
+        if identifies(robot)
+        else []
+    )
 )

@@ -32,19 +32,25 @@ def test_hidden_effect_is_ranked_first_and_adding_it_reaches_the_noise_floor(lab
     assert before == pytest.approx(overall(nominal["ladder"][0]))
     floor = added["noise_floor"]["torque_rmse"]["overall"]
     assert after <= 0.2 * before, f"{effect}: holdout RMSE {before:.4f} -> {after:.4f} N*m, less than an 80% cut"
+    promised = diagnosis["candidates"][0]["evidence"]["rmse_after"]
+    assert before - after >= 0.9 * (before - promised), f"{effect}: promised {promised:.4f}, delivered {after:.4f}"
     assert after <= 1.5 * floor, f"{effect}: {after:.4f} N*m vs noise floor {floor:.4f} N*m"
 
 
 def test_two_hidden_effects_are_found_in_two_rounds(lab):
     found: list[str] = []
+    promises = []
     for _ in range(2):
         document = lab.ladder("friction_and_payload", found)
         assert document["diagnosis"]["status"] == "add_effect"
         found.append(document["diagnosis"]["candidates"][0]["effect"])
+        promises.append(document["diagnosis"]["candidates"][0]["evidence"]["rmse_after"])
     assert sorted(found) == ["coulomb_friction", "payload"]
     final = lab.ladder("friction_and_payload", found, diagnose=False)
     rmse = [overall(r) for r in final["ladder"]]
     assert rmse[0] > rmse[1] > rmse[2], "the error falls rung by rung"
+    for k, promised in enumerate(promises):
+        assert rmse[k] - rmse[k + 1] >= 0.9 * (rmse[k] - promised), (k, rmse, promises)
     assert rmse[2] <= 0.2 * rmse[0]
 
 

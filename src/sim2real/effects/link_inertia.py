@@ -174,8 +174,27 @@ class LinkInertia(Effect):
         }
 
     def apply_to_spec(self, spec, values, context):
-        # The MJCF is built from the calibrated URDF, which already carries these values.
-        return
+        # Used when calibrating an MJCF directly (the ladder's replay); the calibrated MJCF is built from the
+        # calibrated URDF, which carries the same values. MJCF bodies are URDF links (same frames).
+        import mujoco
+
+        for link, inertial in values.get("urdf_links", {}).items():
+            body = spec.body(link)
+            if body is None:
+                continue
+            xx, xy, xz, yy, yz, zz = inertial["inertia"]
+            body.mass = float(inertial["mass"])
+            body.ipos = [float(c) for c in inertial["com"]]
+            # A diagonal inertia + orientation, as MuJoCo stores it (it refuses both forms on one body).
+            principal, axes = np.linalg.eigh(np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]))
+            if np.linalg.det(axes) < 0:
+                axes[:, 0] = -axes[:, 0]
+            quat = np.zeros(4)
+            mujoco.mju_mat2Quat(quat, axes.reshape(-1))
+            body.inertia = principal
+            body.iquat = quat
+            body.fullinertia = [np.nan] * 6
+            body.explicitinertial = True
 
     def calibration(self, values, calibration):
         for link, inertial in values.get("urdf_links", {}).items():
