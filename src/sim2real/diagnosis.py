@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from sim2real import fitting
 from sim2real.effects import EFFECTS
 from sim2real.effects.base import Signals, per_joint_dict
 
@@ -83,18 +84,16 @@ def diagnose(
 ) -> dict[str, Any]:
     """Rank every effect not in ``model_effects`` by the holdout residual it removes.
 
-    ``nominal``, ``fit_data``, ``holdout_data`` are :mod:`sim2real.sysid` objects; the residual is the
+    ``nominal``, ``fit_data``, ``holdout_data`` are :mod:`sim2real.fitting` objects; the residual is the
     current model's holdout residual (judged minus predicted torque). Each candidate is fitted exactly
-    as its rung would be (:func:`sim2real.sysid.fit`, physically consistent, the current model's
+    as its rung would be (:func:`sim2real.fitting.fit`, physically consistent, the current model's
     nonlinear parameters ``nonlinear_fixed`` held), so ``rmse_after`` is the holdout error the ladder
     delivers when the user adds it.
     """
-    from sim2real import sysid  # the fit lives there; imported here to keep the modules acyclic
-
     settings = dict(settings or {})
     limits = {**DEFAULT_DIAGNOSIS, **settings.get("diagnosis", {})}
-    fit_signals = fit_signals or sysid.make_signals(nominal, fit_data)
-    holdout_signals = holdout_signals or sysid.make_signals(nominal, holdout_data)
+    fit_signals = fit_signals or fitting.make_signals(nominal, fit_data)
+    holdout_signals = holdout_signals or fitting.make_signals(nominal, holdout_data)
     joints = list(holdout_data.joint_names)
     sse_now = _sse(holdout_residual)
     total_now = float(sse_now.sum())
@@ -117,9 +116,9 @@ def diagnose(
                 "change; it needs runs with only tau_cmd, or the state-domain replay",
             })
             continue
-        result = sysid.fit([*model_effects, name], nominal, fit_data, settings.get("fit"), signals=fit_signals,
+        result = fitting.fit([*model_effects, name], nominal, fit_data, settings.get("fit"), signals=fit_signals,
                            uncertainty=False, nonlinear_fixed=nonlinear_fixed)
-        _, residual = sysid.holdout_metrics(result, nominal, holdout_data, holdout_signals)
+        _, residual = fitting.holdout_metrics(result, nominal, holdout_data, holdout_signals)
         sse_after = _sse(residual)
         explained = float(np.clip(1.0 - sse_after.sum() / total_now, 0.0, 1.0)) if total_now > 0 else 0.0
         gain = total_now - float(sse_after.sum())

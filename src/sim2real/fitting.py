@@ -1,0 +1,733 @@
+"""The fitting core: torque data, the nominal model, one rung's fit, its prediction and holdout metrics.
+
+The fit works in the torque domain. The judged torque (measured ``tau``, else the command
+``tau_cmd``) is predicted as
+
+    tau_judged(t) = [tau_nominal + sum_e A_e(nl_e) theta_e + offsets](t + delay)
+
+where ``tau_nominal`` is Pinocchio's inverse dynamics of the URDF (with the MJCF armature),
+``A_e`` are the regressor columns of each effect (:mod:`sim2real.effects`), linear in its
+parameters ``theta_e``, ``nl_e`` its few nonlinear parameters (a friction smoothing velocity) and
+``delay`` the actuation delay when the model has one. Steps of :func:`fit`:
+
+1. nonlinear refinement of the nonlinear parameters by bounded least squares with the linear
+   parameters projected out (variable projection), started from a coarse grid for the delay;
+   parameters of effects already in the model can be held (a ladder rung refines only its own);
+2. the linear parameters: unconstrained least squares (columns scaled, minimum-norm, link
+   inertias as base parameters) and the physically consistent fit (:mod:`sim2real.inertial`: one
+   convex program with the pseudo-inertia LMIs and sign bounds), which the rung reports;
+3. uncertainty by a moving-block bootstrap of the fit samples (residuals are correlated in time,
+   so whole blocks of time are resampled), conditional on the nonlinear parameters;
+4. judgement on the ``role: holdout`` runs (:func:`holdout_metrics`).
+
+The ladder (:mod:`sim2real.sysid`) and the diagnosis (:mod:`sim2real.diagnosis`) both call this
+module; it imports neither. It is one piece (~700 lines) because the fit, its consistent variant and
+the bootstrap share the private ``_Problem`` (the design at given nonlinear parameters).
+"""
+
+from __future__ import annotations
+
+import copy
+import fnmatch
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+from scipy import optimize
+
+from sim2real.dynamics import RigidBodyModel
+from sim2real.effects import Effect, Signals, get_effect
+from sim2real.effects.actuation_delay import MAX_DELAY, shift_prediction
+from sim2real.errors import InputError
+from sim2real.metrics import rmse
+
+DEFAULT_SETTINGS: dict[str, Any] = {
+    "fit_rate_hz": 200.0,  # fit and judge on a decimated grid: the filtered signals are smooth
+    "refine_max_samples": 2000,  # samples used by the nonlinear refinement
+    "bootstrap_replicates": 200,
+    "bootstrap_block_s": 1.0,
+    "confidence": 0.95,
+    "seed": 0,
+    # Weight of the entropic pull of link inertias towards CAD, x the noise floor's variance (sim2real.inertial).
+    "inertia_regularization": 1e-3,
+}
+
+
+# --------------------------------------------------------------------------------------------
+# Data
+
+
+def kept_segments(segments: Sequence[slice], rows: np.ndarray) -> list[slice]:
+    """Run segments (slices of stacked rows) after keeping the sorted ``rows``: empty runs drop out."""
+    kept = []
+    start = 0
+    for seg in segments:
+        count = int(np.count_nonzero((rows >= seg.start) & (rows < seg.stop)))
+        if count:
+            kept.append(slice(start, start + count))
+        start += count
+    return kept
+
+
+@dataclass
+class TorqueData:
+    """Runs stacked along time, on a uniform grid per run; ``segments`` are the run boundaries."""
+
+    joint_names: list[str]
+    time: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau: np.ndarray  # judged torque
+    segments: list[slice]
+    run_names: list[str]
+    torque_source: str  # "tau" (sensor) or "tau_cmd" (command)
+    has_commands: bool
+    noise_floor: np.ndarray  # per joint, RMS of torque no model can explain
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.time)
+
+    def subset(self, rows: np.ndarray) -> TorqueData:
+        """Rows of the stacked arrays (sorted); segments are rebuilt from the kept rows."""
+        rows = np.sort(rows)
+        segments = kept_segments(self.segments, rows)
+        return TorqueData(
+            self.joint_names, self.time[rows], self.q[rows], self.qd[rows], self.qdd[rows], self.tau[rows],
+            segments, self.run_names, self.torque_source, self.has_commands, self.noise_floor,
+        )
+
+
+def stack_runs(
+    runs: Sequence[Mapping[str, Any]], joint_names: Sequence[str], fit_rate_hz: float | None = None
+) -> TorqueData:
+    """Stack runs given as mappings with time, q, qd, qdd, tau, torque_source, has_commands, noise_floor, name.
+
+    Each run is decimated to at most ``fit_rate_hz`` (every k-th sample: the signals are already
+    zero-phase filtered, the torque noise stays white). Noise floors combine as an RMS over samples.
+    """
+    if not runs:
+        raise InputError(None, "runs", "no runs to fit or judge", "list runs with role fit and holdout in measurements.yaml")
+    sources = {r["torque_source"] for r in runs}
+    if len(sources) > 1:
+        raise InputError(
+            None, "runs", f"runs mix judged torque sources {sorted(sources)}",
+            "give every run the same torque columns (all tau, or all tau_cmd only)",
+        )
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("time", "q", "qd", "qdd", "tau")}
+    segments, floors, counts, names = [], [], [], []
+    start = 0
+    for run in runs:
+        time = np.asarray(run["time"], dtype=float)
+        step = 1
+        if fit_rate_hz and len(time) > 1:
+            rate = 1.0 / float(np.median(np.diff(time)))
+            step = max(1, int(round(rate / fit_rate_hz)))
+        for key in parts:
+            parts[key].append(np.asarray(run[key], dtype=float)[::step])
+        count = len(parts["time"][-1])
+        segments.append(slice(start, start + count))
+        start += count
+        floors.append(np.asarray(run["noise_floor"], dtype=float))
+        counts.append(count)
+        names.append(str(run["name"]))
+    weights = np.asarray(counts, dtype=float)
+    noise = np.sqrt(np.average(np.vstack(floors) ** 2, axis=0, weights=weights))
+    return TorqueData(
+        list(joint_names), *(np.concatenate(parts[k]) for k in ("time", "q", "qd", "qdd", "tau")),
+        segments=segments, run_names=names, torque_source=sources.pop(),
+        has_commands=all(bool(r.get("has_commands")) for r in runs), noise_floor=noise,
+    )
+
+
+def run_from_prepared(prepared: Any, noise_floor: np.ndarray) -> dict[str, Any]:
+    """A :class:`sim2real.measurements.PreparedRun` as the mapping :func:`stack_runs` takes."""
+    return {
+        "name": prepared.name, "time": prepared.time, "q": prepared.q, "qd": prepared.qd, "qdd": prepared.qdd,
+        "tau": prepared.tau, "torque_source": prepared.torque_source,
+        "has_commands": prepared.tau_cmd is not None, "noise_floor": noise_floor,
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# Nominal model
+
+
+def resolve_armature(patterns: Mapping[str, float] | None, joint_names: Sequence[str]) -> dict[str, float]:
+    """robot.yaml ``armature`` (joint name or glob -> value; first match wins) per joint."""
+    out: dict[str, float] = {}
+    for joint in joint_names:
+        for pattern, value in (patterns or {}).items():
+            if fnmatch.fnmatchcase(joint, pattern):
+                out[joint] = float(value)
+                break
+    return out
+
+
+def _urdf_link_parameters(urdf_path: Path) -> dict[str, np.ndarray]:
+    """Each URDF link's own dynamic parameters (Pinocchio order, about the link frame)."""
+    out: dict[str, np.ndarray] = {}
+    root = ET.parse(urdf_path).getroot()
+    for link in root.findall("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        mass = float(inertial.find("mass").get("value", "0"))
+        origin = inertial.find("origin")
+        xyz = np.array([float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
+        rpy = np.array([float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()])
+        el = inertial.find("inertia")
+        get = lambda k: float(el.get(k, "0")) if el is not None else 0.0  # noqa: E731
+        inertia = np.array(
+            [[get("ixx"), get("ixy"), get("ixz")], [get("ixy"), get("iyy"), get("iyz")], [get("ixz"), get("iyz"), get("izz")]]
+        )
+        rotation = pin.rpy.rpyToMatrix(rpy)
+        out[link.get("name")] = pin.Inertia(mass, xyz, rotation @ inertia @ rotation.T).toDynamicParameters()
+    return out
+
+
+@dataclass
+class NominalModel:
+    """The URDF model the fit starts from and everything effects need to know about it."""
+
+    dynamics: RigidBodyModel
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def joint_names(self) -> list[str]:
+        return self.dynamics.joint_names
+
+
+def load_nominal(
+    urdf_path: str | Path,
+    joint_names: Sequence[str],
+    armature: Mapping[str, float] | None = None,
+    flange: str | None = None,
+) -> NominalModel:
+    """Nominal model of the measured joints. ``armature``: robot.yaml patterns (the MJCF's armature)."""
+    urdf_path = Path(urdf_path)
+    dynamics = RigidBodyModel(urdf_path, joint_names, armature=resolve_armature(armature, joint_names))
+    model = dynamics.model
+    # Moving body of each joint (tree order) = the URDF child link of that joint.
+    body_links = []
+    for jid in range(1, model.njoints):
+        links = [f.name for f in model.frames if f.parentJoint == jid and f.type == pin.FrameType.BODY]
+        body_links.append(links[0] if links else model.names[jid])
+    last_joint = model.njoints - 1
+    flange_name = flange if flange and model.existFrame(flange) else body_links[-1]
+    placement = model.frames[model.getFrameId(flange_name)].placement
+    if model.frames[model.getFrameId(flange_name)].parentJoint != last_joint:
+        raise InputError(
+            urdf_path, f"flange '{flange_name}'", "is not carried by the last measured joint",
+            "set robot.yaml flange to a link fixed to the last arm link",
+        )
+    info = {
+        "damping": dynamics.damping.copy(),
+        "friction": dynamics.friction.copy(),
+        "armature": dynamics.armature.copy(),
+        "inertial": dynamics.inertial_parameters(),
+        "body_links": body_links,
+        "n_bodies": model.njoints - 1,
+        "last_link": body_links[-1],
+        "flange": flange_name,
+        "flange_rotation": np.asarray(placement.rotation).copy(),
+        "flange_translation": np.asarray(placement.translation).copy(),
+        "link_own_inertial": _urdf_link_parameters(urdf_path),
+    }
+    return NominalModel(dynamics, info)
+
+
+def make_signals(nominal: NominalModel, data: TorqueData) -> Signals:
+    dynamics = nominal.dynamics
+    return Signals(
+        joint_names=list(data.joint_names), time=data.time, q=data.q, qd=data.qd, qdd=data.qdd,
+        tau_nominal=dynamics.inverse_dynamics(data.q, data.qd, data.qdd), segments=data.segments, tau=data.tau,
+        regressor_fn=lambda: dynamics.regressor(data.q, data.qd, data.qdd), nominal=nominal.info,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Fit
+
+
+@dataclass
+class FitResult:
+    effects: list[str]
+    theta: dict[str, np.ndarray]  # linear coefficients per effect
+    nonlinear: dict[str, np.ndarray]
+    states: dict[str, dict[str, Any]]
+    values: dict[str, Any]  # fitted values per effect (total, SI)
+    intervals: dict[str, Any]
+    fit_rmse: dict[str, Any]
+    notes: list[str] = field(default_factory=list)
+    consistency: dict[str, Any] = field(default_factory=dict)
+    unconstrained: FitResult | None = None  # the same rung without the physical constraints
+
+
+class _Problem:
+    """Columns and targets of one model on one data set, for a given nonlinear parameter vector."""
+
+    def __init__(self, effects: list[Effect], signals: Signals, states: dict[str, dict[str, Any]]) -> None:
+        self.effects = effects
+        self.signals = signals
+        self.states = states
+        self.static_columns: dict[str, np.ndarray] = {}
+        for effect in effects:
+            if not effect.time_shift and not effect.nonlinear:
+                self.static_columns[effect.name] = effect.columns(signals, states[effect.name], np.array([]))[0]
+        self.nl_sizes = [len(e.nonlinear_init(signals)) for e in effects]
+
+    def split_nonlinear(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        out, start = {}, 0
+        for effect, size in zip(self.effects, self.nl_sizes, strict=True):
+            out[effect.name] = np.asarray(x[start : start + size], dtype=float)
+            start += size
+        return out
+
+    def delay(self, nonlinear: dict[str, np.ndarray]) -> float:
+        for effect in self.effects:
+            if effect.time_shift:
+                return float(nonlinear[effect.name][0])
+        return 0.0
+
+    def block(self, effect: Effect, nonlinear: dict[str, np.ndarray]) -> np.ndarray:
+        """One effect's columns (N, n, k) at the given nonlinear parameters (before the time shift)."""
+        cols = self.static_columns.get(effect.name)
+        if cols is None:
+            cols = effect.columns(self.signals, self.states[effect.name], nonlinear[effect.name])[0]
+        return cols
+
+    def design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:
+        """Columns (N, n, p) at the given nonlinear parameters (before the time shift) and sizes."""
+        blocks, sizes = [], []
+        for effect in self.effects:
+            if effect.time_shift:
+                sizes.append(0)
+                continue
+            cols = self.block(effect, nonlinear)
+            blocks.append(cols)
+            sizes.append(cols.shape[2])
+        n_samples, n = self.signals.q.shape
+        design = np.concatenate(blocks, axis=2) if blocks else np.zeros((n_samples, n, 0))
+        return design, sizes
+
+    def offsets(self, theta: dict[str, np.ndarray]) -> np.ndarray:
+        total = np.zeros_like(self.signals.tau_nominal)
+        for effect in self.effects:
+            if effect.name in theta:
+                term = effect.offset(self.signals, self.states[effect.name], theta[effect.name])
+                if term is not None:
+                    total = total + term
+        return total
+
+    def predict(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray]) -> np.ndarray:
+        design, sizes = self.design(nonlinear)
+        flat = _flatten_theta(self.effects, theta, sizes)
+        raw = self.signals.tau_nominal + design @ flat + self.offsets(theta)
+        return shift_prediction(raw, self.signals.time, self.signals.segments, self.delay(nonlinear))
+
+
+def _flatten_theta(effects: list[Effect], theta: dict[str, np.ndarray], sizes: list[int]) -> np.ndarray:
+    parts = [theta.get(e.name, np.zeros(s))[:s] for e, s in zip(effects, sizes, strict=True) if s]
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def _split_theta(effects: list[Effect], flat: np.ndarray, sizes: list[int]) -> dict[str, np.ndarray]:
+    out, start = {}, 0
+    for effect, size in zip(effects, sizes, strict=True):
+        out[effect.name] = flat[start : start + size]
+        start += size
+    return out
+
+
+def _solve_linear(design: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Minimum-norm least squares on unit-norm columns (collinear columns share, never blow up).
+
+    Solved through the p x p Gram matrix (pseudo-inverse by SVD): the designs are tall
+    (samples x joints rows, tens of columns), so this is many times faster than a QR of the design.
+    """
+    if design.shape[2] == 0:
+        return np.zeros(0)
+    a = design.reshape(-1, design.shape[2])
+    scale = np.linalg.norm(a, axis=0)
+    scale[scale == 0] = 1.0
+    a = a / scale
+    coef = np.linalg.lstsq(a.T @ a, a.T @ target.reshape(-1), rcond=1e-12)[0]
+    return coef / scale
+
+
+def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndarray], iterations: int = 3):
+    """Linear parameters at fixed nonlinear ones; offsets (payload inertia) by fixed-point iteration."""
+    design, sizes = problem.design(nonlinear)
+    delay = problem.delay(nonlinear)
+    shifted = shift_prediction(design, problem.signals.time, problem.signals.segments, delay)
+    base = shift_prediction(problem.signals.tau_nominal, problem.signals.time, problem.signals.segments, delay)
+    has_offset = any(type(e).offset is not Effect.offset for e in problem.effects)
+    theta: dict[str, np.ndarray] = {}
+    for _ in range(iterations if has_offset else 1):
+        offset = shift_prediction(problem.offsets(theta), problem.signals.time, problem.signals.segments, delay)
+        flat = _solve_linear(shifted, tau - base - offset)
+        theta = _split_theta(problem.effects, flat, sizes)
+    residual = tau - problem.predict(theta, nonlinear)
+    return theta, residual, sizes
+
+
+def _refine_nonlinear(
+    problem: _Problem, tau: np.ndarray, settings: Mapping[str, Any], fixed: Mapping[str, np.ndarray] | None = None
+) -> dict[str, np.ndarray]:
+    """Nonlinear parameters by bounded least squares, the linear ones projected out.
+
+    ``fixed``: nonlinear values of some effects to hold (e.g. the current model's, while the
+    diagnosis tries a candidate on top of it).
+    """
+    signals = problem.signals
+    fixed = dict(fixed or {})
+    x0 = np.concatenate(
+        [np.asarray(fixed.get(e.name, e.nonlinear_init(signals)), dtype=float) for e in problem.effects] or [np.zeros(0)]
+    )
+    if x0.size == 0:
+        return problem.split_nonlinear(x0)
+    lower = np.concatenate([e.nonlinear_bounds(signals)[0] for e in problem.effects])
+    upper = np.concatenate([e.nonlinear_bounds(signals)[1] for e in problem.effects])
+    held = np.concatenate([np.full(s, e.name in fixed) for e, s in zip(problem.effects, problem.nl_sizes, strict=True)])
+    if held.all():
+        return problem.split_nonlinear(x0)
+    # The refinement runs on a subset of whole runs' samples (every k-th: keeps the time grid uniform).
+    n_max = int(settings["refine_max_samples"])
+    step = max(1, int(np.ceil(len(signals.time) / n_max)))
+    rows = np.arange(0, len(signals.time), step)
+    sub_signals = _subset_signals(signals, rows)
+    sub = _Problem(problem.effects, sub_signals, problem.states)
+    sub_tau = tau[rows]
+
+    free = ~held
+
+    def residual_full(x: np.ndarray) -> np.ndarray:
+        return _linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1)[1].reshape(-1)
+
+    def with_free(values: np.ndarray) -> np.ndarray:
+        x = x0.copy()
+        x[free] = values
+        return x
+
+    # A delay has local minima at multiples of the signal's periods: start from a coarse grid.
+    offset = 0
+    for effect, size in zip(problem.effects, problem.nl_sizes, strict=True):
+        if effect.time_shift and effect.name not in fixed:
+            grid = np.linspace(0.0, MAX_DELAY, 41)
+            costs = []
+            for d in grid:
+                x = x0.copy()
+                x[offset] = d
+                costs.append(float(np.sum(residual_full(x) ** 2)))
+            x0[offset] = grid[int(np.argmin(costs))]
+        offset += size
+    # Smoothing velocities span decades: optimise their logarithm.
+    log_mask = np.concatenate(
+        [np.full(s, e.name == "coulomb_friction") for e, s in zip(problem.effects, problem.nl_sizes, strict=True)]
+    )
+
+    def to_z(x: np.ndarray) -> np.ndarray:
+        z = x.copy()
+        z[log_mask] = np.log(x[log_mask])
+        return z
+
+    z_lower, z_upper = to_z(lower)[free], to_z(upper)[free]
+    z0 = np.clip(to_z(x0)[free], z_lower, z_upper)
+    log_free = log_mask[free]
+
+    def to_x_free(z: np.ndarray) -> np.ndarray:
+        values = z.copy()
+        values[log_free] = np.exp(z[log_free])
+        return with_free(values)
+
+    result = optimize.least_squares(
+        lambda z: residual_full(to_x_free(z)), z0, bounds=(z_lower, z_upper), method="trf", x_scale="jac",
+        diff_step=1e-3, max_nfev=60, xtol=1e-4, ftol=1e-6,
+    )
+    return problem.split_nonlinear(to_x_free(result.x))
+
+
+def _subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
+    segments = kept_segments(signals.segments, rows)
+    regressor = signals._regressor[rows] if signals._regressor is not None else None
+    parent = signals
+    return Signals(
+        joint_names=signals.joint_names, time=signals.time[rows], q=signals.q[rows], qd=signals.qd[rows],
+        qdd=signals.qdd[rows], tau_nominal=signals.tau_nominal[rows], segments=segments,
+        tau=None if signals.tau is None else signals.tau[rows],
+        regressor_fn=lambda: parent.regressor[rows], nominal=signals.nominal, _regressor=regressor,
+    )
+
+
+def _values(effects: list[Effect], theta, nonlinear, signals: Signals, states) -> dict[str, Any]:
+    """Structured values; with a torque gain, joint-local effects are rescaled to applied torque."""
+    theta = dict(theta)
+    if "torque_gain" in theta:
+        gain = 1.0 + theta["torque_gain"]
+        for effect in effects:
+            if effect.joint_local and effect.name not in ("torque_gain", "torque_bias") and len(theta[effect.name]):
+                theta[effect.name] = theta[effect.name] / np.where(np.abs(gain) > 1e-6, gain, 1.0)
+    return {e.name: e.values(theta[e.name], nonlinear[e.name], signals, states[e.name]) for e in effects}
+
+
+def _block_bootstrap(
+    problem: _Problem,
+    tau: np.ndarray,
+    nonlinear: dict[str, np.ndarray],
+    theta: dict[str, np.ndarray],
+    sizes: list[int],
+    settings: Mapping[str, Any],
+) -> list[dict[str, np.ndarray]]:
+    """Linear parameters of block-bootstrap replicates (moving blocks of time, all joints together)."""
+    replicates = int(settings["bootstrap_replicates"])
+    if replicates <= 0 or sum(sizes) == 0:
+        return []
+    design, _ = problem.design(nonlinear)
+    delay = problem.delay(nonlinear)
+    signals = problem.signals
+    shifted = shift_prediction(design, signals.time, signals.segments, delay)
+    # Offsets (payload inertia) are held at the estimate: the replicates are linear solves.
+    base = shift_prediction(signals.tau_nominal + problem.offsets(theta), signals.time, signals.segments, delay)
+    target = tau - base
+    p = shifted.shape[2]
+    scale = np.linalg.norm(shifted.reshape(-1, p), axis=0)
+    scale[scale == 0] = 1.0
+    dt = float(np.median(np.diff(signals.time))) if len(signals.time) > 1 else 1.0
+    block = max(2, int(round(float(settings["bootstrap_block_s"]) / dt)))
+    # Gram matrices per block: a replicate is a sum of blocks, solved in p x p.
+    grams, rhs = [], []
+    for seg in signals.segments:
+        for start in range(seg.start, seg.stop, block):
+            stop = min(start + block, seg.stop)
+            a = (shifted[start:stop] / scale).reshape(-1, p)
+            y = target[start:stop].reshape(-1)
+            grams.append(a.T @ a)
+            rhs.append(a.T @ y)
+    grams_arr, rhs_arr = np.asarray(grams), np.asarray(rhs)
+    # Replicates are unconstrained solves; their spread around the full-sample solve is centred on the
+    # estimate (which may be the consistent one), so intervals describe the estimate the rung reports.
+    full = np.linalg.lstsq(grams_arr.sum(axis=0), rhs_arr.sum(axis=0), rcond=1e-12)[0] / scale
+    estimate = _flatten_theta(problem.effects, theta, sizes)
+    rng = np.random.default_rng(int(settings["seed"]))
+    out = []
+    for _ in range(replicates):
+        pick = rng.integers(0, len(grams), size=len(grams))
+        g = grams_arr[pick].sum(axis=0)
+        r = rhs_arr[pick].sum(axis=0)
+        coef = np.linalg.lstsq(g, r, rcond=1e-12)[0] / scale
+        out.append(_split_theta(problem.effects, estimate + coef - full, sizes))
+    return out
+
+
+def _intervals(samples: list[Any], confidence: float) -> Any:
+    """Percentile intervals of every number in a list of like-shaped structures."""
+    first = samples[0]
+    if isinstance(first, dict):
+        return {k: _intervals([s[k] for s in samples], confidence) for k in first}
+    if isinstance(first, list):
+        return [_intervals([s[i] for s in samples], confidence) for i in range(len(first))]
+    if isinstance(first, bool) or not isinstance(first, (int, float)):
+        return None
+    lo, hi = np.percentile(np.asarray(samples, dtype=float), [50 * (1 - confidence), 50 * (1 + confidence)])
+    return [round(float(lo), 6), round(float(hi), 6)]
+
+
+def _prune(tree: Any) -> Any:
+    if isinstance(tree, dict):
+        out = {k: _prune(v) for k, v in tree.items()}
+        return {k: v for k, v in out.items() if v not in (None, {}, [])}
+    return tree
+
+
+def fit(
+    effect_names: Sequence[str],
+    nominal: NominalModel,
+    data: TorqueData,
+    settings: Mapping[str, Any] | None = None,
+    signals: Signals | None = None,
+    uncertainty: bool = True,
+    consistency: bool = True,
+    nonlinear_fixed: Mapping[str, np.ndarray] | None = None,
+) -> FitResult:
+    """Fit the model ``nominal + effect_names`` on ``data`` (the fit runs).
+
+    ``consistency``: solve the rung as one convex program (:mod:`sim2real.inertial`: link inertias
+    physically consistent, friction/armature/payload mass >= 0) and keep the unconstrained fit beside
+    it (``result.unconstrained``); ``uncertainty``: bootstrap intervals; ``nonlinear_fixed``: nonlinear
+    parameters held (the previous rung's: a rung refines only the nonlinear parameters of the effect it
+    adds). The ladder and the diagnosis call this same function with the same arguments, so the fall a
+    candidate promises is the fall its rung delivers.
+    """
+    settings = {**DEFAULT_SETTINGS, **(settings or {})}
+    signals = signals or make_signals(nominal, data)
+    effects = [get_effect(name) for name in effect_names]
+    notes = []
+    for effect in effects:
+        if effect.needs_commands and data.torque_source != "tau_cmd":
+            notes.append(
+                f"{effect.name}: the judged torque is measured ({data.torque_source}); a delay between command "
+                "and applied torque does not show in it, so the torque-domain fit keeps it at 0"
+            )
+    states = {e.name: e.prepare(signals) for e in effects}
+    problem = _Problem(effects, signals, states)
+    nonlinear = _refine_nonlinear(problem, data.tau, settings, nonlinear_fixed)
+    theta, residual, sizes = _linear_fit(problem, data.tau, nonlinear)
+    unconstrained = FitResult(
+        effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=copy.deepcopy(states),
+        values=_values(effects, theta, nonlinear, signals, states), intervals={},
+        fit_rmse=rmse(residual, data.joint_names), notes=list(notes),
+    )
+    record: dict[str, Any] = {}
+    if consistency:
+        theta, residual, record = _consistent_fit(problem, data, nonlinear, theta, settings)
+        notes.extend(record.pop("notes"))
+    values = _values(effects, theta, nonlinear, signals, states)
+    intervals: dict[str, Any] = {}
+    if uncertainty:
+        replicates = _block_bootstrap(problem, data.tau, nonlinear, theta, sizes, settings)
+        if replicates:
+            samples = [_values(effects, rep, nonlinear, signals, states) for rep in replicates]
+            intervals = _prune(_intervals(samples, float(settings["confidence"])))
+    return FitResult(
+        effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=states, values=values,
+        intervals=intervals, fit_rmse=rmse(residual, data.joint_names), notes=notes, consistency=record,
+        unconstrained=unconstrained if consistency else None,
+    )
+
+
+def _consistent_fit(
+    problem: _Problem, data: TorqueData, nonlinear: dict[str, np.ndarray], theta_free: dict[str, np.ndarray],
+    settings: Mapping[str, Any],
+) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, Any]]:
+    """The rung's linear coefficients under the physical constraints; (theta, fit residual, record).
+
+    Link inertias enter as full per-body corrections (the regressor's columns), every other effect
+    with its own columns and lower bounds. Offsets that are not linear (a payload's own inertia) are
+    held at the current estimate and updated by fixed-point iteration, as in the unconstrained fit.
+    """
+    from sim2real.effects.link_inertia import correction_anchors
+    from sim2real.inertial import InertialBlock, InfeasibleFit, physically_consistent, solve_consistent
+
+    signals = problem.signals
+    blocks, lower, inertial = [], [], None
+    start = 0
+    for effect in problem.effects:
+        if effect.time_shift:
+            continue
+        if effect.name == "link_inertia":
+            cols = signals.regressor
+            inertial = InertialBlock(slice(start, start + cols.shape[2]), correction_anchors(signals.nominal))
+            lower.append(np.full(cols.shape[2], -np.inf))
+            problem.states[effect.name]["null_offset"] = np.zeros(cols.shape[2])
+        else:
+            cols = problem.block(effect, nonlinear)
+            lower.append(np.asarray(effect.theta_lower(signals, cols.shape[2]), dtype=float))
+        blocks.append((effect, slice(start, start + cols.shape[2]), cols))
+        start += cols.shape[2]
+    free_residual = data.tau - problem.predict(theta_free, nonlinear)
+    record: dict[str, Any] = {"notes": []}
+    if not blocks:
+        return theta_free, free_residual, record
+    delay = problem.delay(nonlinear)
+    shifted = shift_prediction(np.concatenate([b[2] for b in blocks], axis=2), signals.time, signals.segments, delay)
+    base = shift_prediction(signals.tau_nominal, signals.time, signals.segments, delay)
+    bounds = np.concatenate(lower)
+    floor = float(np.mean(np.asarray(data.noise_floor, dtype=float) ** 2))
+    weight = float(settings["inertia_regularization"]) * max(floor, 1e-12)
+    has_offset = any(type(e).offset is not Effect.offset and e.name != "link_inertia" for e in problem.effects)
+    theta: dict[str, np.ndarray] = {}
+    solve_time = 0.0
+    try:
+        for _ in range(3 if has_offset else 1):
+            offset = shift_prediction(problem.offsets(theta), signals.time, signals.segments, delay)
+            solution = solve_consistent(shifted, data.tau - base - offset, bounds, inertial, weight)
+            solve_time += solution.solve_time_s
+            for effect, cols, _ in blocks:
+                coefficients = solution.coefficients[cols]
+                if effect.name == "link_inertia":
+                    coefficients = effect.set_correction(problem.states[effect.name], coefficients)
+                theta[effect.name] = coefficients
+        for effect in problem.effects:
+            theta.setdefault(effect.name, np.zeros(0))  # a time shift has no linear coefficients
+    except InfeasibleFit as exc:
+        record["status"] = "infeasible"
+        record["notes"].append(
+            f"physical consistency: {exc}; the rung keeps the UNCONSTRAINED fit, which may be non-physical. "
+            "Check the torque signs and units of the runs and the URDF's inertials"
+        )
+        return theta_free, free_residual, record
+    residual = data.tau - problem.predict(theta, nonlinear)
+    record.update({"status": solution.status, "solve_time_s": solve_time})
+    free_physical = _physical(problem, theta_free, signals)
+    record["unconstrained_physical"] = free_physical
+    fit_now, fit_free = float(np.sqrt(np.mean(residual**2))), float(np.sqrt(np.mean(free_residual**2)))
+    noise = float(np.sqrt(floor))
+    if not free_physical and fit_now > 1.1 * fit_free and fit_now - fit_free > 0.1 * noise:
+        # The data pull the model out of the physical set: say so, never hide it behind the nominal model.
+        record["contradiction"] = True
+        record["notes"].append(
+            f"physical consistency: the data contradict a physical model with these effects: the unconstrained fit "
+            f"needs non-physical values ({_violations(problem, theta_free, signals)}) and fits the fit runs to "
+            f"{fit_free:.3g} N*m against {fit_now:.3g} N*m for the best physical fit. An effect is missing, or the "
+            "torque columns' sign or units are wrong"
+        )
+    if inertial is not None:
+        delta = problem.states["link_inertia"]["basis"] @ theta["link_inertia"] + problem.states["link_inertia"]["null_offset"]
+        assert physically_consistent(inertial.anchors.reshape(-1) + delta)
+    return theta, residual, record
+
+
+def _physical(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals) -> bool:
+    """Does a solution satisfy every constraint of the consistent fit?"""
+    return not _violations(problem, theta, signals)
+
+
+def _violations(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals) -> str:
+    """What is non-physical in a solution, in words ('' when nothing)."""
+    from sim2real.effects.link_inertia import correction_anchors
+    from sim2real.inertial import min_eigenvalues
+
+    found = []
+    for effect in problem.effects:
+        coefficients = np.asarray(theta.get(effect.name, []), dtype=float)
+        if effect.time_shift or not coefficients.size:
+            continue
+        if effect.name == "link_inertia":
+            state = problem.states[effect.name]
+            anchors = correction_anchors(signals.nominal)
+            eig = min_eigenvalues(anchors.reshape(-1) + state["basis"] @ coefficients + state["null_offset"])
+            bad = [signals.nominal["body_links"][b] for b in np.flatnonzero(eig <= 0)]
+            if bad:
+                found.append(f"link_inertia: non-physical inertia of {', '.join(bad)}")
+            continue
+        low = effect.theta_lower(signals, coefficients.size)
+        below = np.flatnonzero(coefficients < low - 1e-9)
+        if below.size:
+            found.append(f"{effect.name}: {below.size} value(s) below their physical bound")
+    return "; ".join(found)
+
+
+def predict(result: FitResult, nominal: NominalModel, data: TorqueData, signals: Signals | None = None) -> np.ndarray:
+    """Judged torque the fitted model predicts on ``data`` (e.g. the holdout runs)."""
+    signals = signals or make_signals(nominal, data)
+    effects = [get_effect(name) for name in result.effects]
+    problem = _Problem(effects, signals, result.states)
+    return problem.predict(result.theta, result.nonlinear)
+
+
+def holdout_metrics(result: FitResult, nominal: NominalModel, data: TorqueData, signals: Signals | None = None):
+    """(metrics, residual) on the holdout data: ``{"torque_rmse": rmse shape}``."""
+    residual = data.tau - predict(result, nominal, data, signals)
+    return {"torque_rmse": rmse(residual, data.joint_names)}, residual
+
+
+# --------------------------------------------------------------------------------------------
+# Ladder, documents and the file-level entry point
+
+
