@@ -13,7 +13,7 @@ import pytest
 
 from sim2real import sysid
 from sim2real.effects.link_inertia import correction_anchors
-from sim2real.inertial import physically_consistent
+from sim2real.inertial import inside_ellipsoids, physically_consistent, pseudo_inertia
 from sysid_lab import FAST_FIT, Lab, overall
 
 REALISTIC = ["real_arm_like", "heavy_links_and_armature", "payload_and_armature"]
@@ -78,6 +78,12 @@ def test_identified_link_inertias_are_consistent_and_say_what_moved(lab):
     anchors = correction_anchors(lab.nominal.info)
     assert physically_consistent(anchors.reshape(-1) + delta)
     assert physically_consistent(np.asarray(lab.nominal.info["inertial"]) + delta), "whole bodies too"
+    # Where the CAD link lies inside its collision meshes' ellipsoid, the identified link does too.
+    ellipsoids = lab.nominal.info["ellipsoids"]
+    assert ellipsoids[-1] is None, "the last body carries tools: no mesh bound"
+    bounded = [q if q is not None and np.trace(pseudo_inertia(a) @ q) >= 0 else None for a, q in zip(anchors, ellipsoids)]
+    assert sum(q is not None for q in bounded) >= 2
+    assert all(inside_ellipsoids(anchors.reshape(-1) + delta, bounded))
     assert 0 < values["base_parameters"] < 70
     assert values["condition_number"] > 1
     moved = [link for link, body in values["bodies"].items() if body["moved"]]

@@ -191,6 +191,45 @@ def _urdf_link_parameters(urdf_path: Path) -> dict[str, np.ndarray]:
     return out
 
 
+def _collision_points(urdf_path: Path, link: ET.Element) -> np.ndarray | None:
+    """Vertices of a link's collision meshes in the link frame (None when a mesh cannot be read)."""
+    import trimesh
+
+    from sim2real.urdf import resolve_package_uri
+
+    points = []
+    for collision in link.findall("collision"):
+        mesh = collision.find("geometry/mesh")
+        if mesh is None:
+            return None  # primitives are rare on arms; without a mesh the body keeps the plain LMI
+        try:
+            loaded = trimesh.load(resolve_package_uri(mesh.get("filename", ""), source=urdf_path), force="mesh")
+        except Exception:  # noqa: BLE001 - an unreadable mesh only drops the optional, stronger constraint
+            return None
+        scale = np.array([float(v) for v in mesh.get("scale", "1 1 1").split()])
+        origin = collision.find("origin")
+        xyz = np.array([float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
+        rpy = np.array([float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()])
+        points.append(np.asarray(loaded.vertices) * scale @ pin.rpy.rpyToMatrix(rpy).T + xyz)
+    return np.vstack(points) if points else None
+
+
+def body_ellipsoids(urdf_path: Path, body_links: Sequence[str]) -> list[np.ndarray | None]:
+    """Bounding ellipsoid (``sim2real.inertial`` Q form) of each body's own link, from its collision meshes.
+
+    The last body gets none: tools and payloads are mounted there, so its mass may lie outside its meshes.
+    """
+    from sim2real.inertial import bounding_ellipsoid
+
+    root = ET.parse(urdf_path).getroot()
+    links = {link.get("name"): link for link in root.findall("link")}
+    out: list[np.ndarray | None] = []
+    for index, name in enumerate(body_links):
+        points = _collision_points(urdf_path, links[name]) if name in links and index < len(body_links) - 1 else None
+        out.append(bounding_ellipsoid(points) if points is not None and len(points) >= 4 else None)
+    return out
+
+
 @dataclass
 class NominalModel:
     """The URDF model the fit starts from and everything effects need to know about it."""
@@ -238,6 +277,7 @@ def load_nominal(
         "flange_rotation": np.asarray(placement.rotation).copy(),
         "flange_translation": np.asarray(placement.translation).copy(),
         "link_own_inertial": _urdf_link_parameters(urdf_path),
+        "ellipsoids": body_ellipsoids(urdf_path, body_links),
     }
     return NominalModel(dynamics, info)
 
@@ -612,7 +652,7 @@ def _consistent_fit(
     held at the current estimate and updated by fixed-point iteration, as in the unconstrained fit.
     """
     from sim2real.effects.link_inertia import correction_anchors
-    from sim2real.inertial import InertialBlock, InfeasibleFit, physically_consistent, solve_consistent
+    from sim2real.inertial import InertialBlock, InfeasibleFit, physically_consistent, pseudo_inertia, solve_consistent
 
     signals = problem.signals
     blocks, lower, inertial = [], [], None
@@ -622,7 +662,13 @@ def _consistent_fit(
             continue
         if effect.name == "link_inertia":
             cols = signals.regressor
-            inertial = InertialBlock(slice(start, start + cols.shape[2]), correction_anchors(signals.nominal))
+            anchors = correction_anchors(signals.nominal)
+            # A body's mass must lie inside its meshes' ellipsoid where the CAD link itself does.
+            ellipsoids = [
+                q if q is not None and float(np.trace(pseudo_inertia(a) @ q)) >= 0 else None
+                for a, q in zip(anchors, signals.nominal.get("ellipsoids") or [None] * len(anchors), strict=True)
+            ]
+            inertial = InertialBlock(slice(start, start + cols.shape[2]), anchors, ellipsoids)
             lower.append(np.full(cols.shape[2], -np.inf))
             problem.states[effect.name]["null_offset"] = np.zeros(cols.shape[2])
         else:

@@ -91,6 +91,16 @@ def ellipsoid_matrix(center: np.ndarray, axes: np.ndarray, rotation: np.ndarray)
     return q
 
 
+def bounding_ellipsoid(points: np.ndarray) -> np.ndarray:
+    """Q of an ellipsoid holding every point: the one through the corners of their oriented bounding box."""
+    import trimesh
+
+    to_box, extents = trimesh.bounds.oriented_bounds(np.asarray(points, dtype=float))
+    frame = np.linalg.inv(to_box)
+    axes = np.sqrt(3.0) / 2.0 * np.maximum(np.asarray(extents, dtype=float), 1e-3)
+    return ellipsoid_matrix(frame[:3, 3], axes, frame[:3, :3])
+
+
 def inside_ellipsoids(params: np.ndarray, ellipsoids: Sequence[np.ndarray | None]) -> list[bool]:
     """tr(J Q) >= 0 per body (True where no ellipsoid is known)."""
     bodies = np.asarray(params, dtype=float).reshape(-1, PARAMS_PER_BODY)
