@@ -7,6 +7,10 @@
 # byte-reproducible outputs.
 
 
+localrules:
+    collision_report,
+
+
 rule coacd:
     input:
         coacd_source,
@@ -19,6 +23,10 @@ rule coacd:
         "results/{robot}/benchmarks/coacd/{name}.tsv"
     wildcard_constraints:
         name="[A-Za-z0-9_-]+",
+    threads: 1
+    resources:
+        mem_mb=2048,
+        runtime=15,
     params:
         settings=coacd_settings,
     script:
@@ -44,6 +52,10 @@ rule collision_report:
         "results/{robot}/logs/collision_report.log",
     benchmark:
         "results/{robot}/benchmarks/collision_report.tsv"
+    threads: 1
+    resources:
+        mem_mb=256,
+        runtime=2,
     params:
         names=lambda w: list(coacd_dirs(w.robot)),
         tolerance=lambda w: collision_section(w.robot).get("tolerance") or {},

@@ -5,28 +5,37 @@ import glob
 import os
 
 import sim2real.collision as _sim2real_collision
+import sim2real.fleet as _sim2real_fleet
 import sim2real.io as _sim2real_io
 import sim2real.urdf as _sim2real_urdf
 
 ROBOTS = list(config["robots"])
+# Measurement campaigns per robot: configs/{robot}/measurements.yaml is the default one (reports under
+# results/{robot}/), each configs/{robot}/campaigns/<name>.yaml another (reports under results/{robot}/<name>/).
+CAMPAIGNS = {robot: _sim2real_fleet.robot_campaigns(robot) for robot in ROBOTS}
 
 
 wildcard_constraints:
     robot="|".join(ROBOTS) if ROBOTS else "[^/]+",
     variant="(calibrated/)?",
+    campaign=_sim2real_fleet.wildcard_pattern(
+        [c.name for cs in CAMPAIGNS.values() for c in cs if c.prefix]
+    ),
 
 
-# Each rules file appends a function robot -> list of its final outputs.
+# Each rules file appends a function robot -> list of its final outputs; WORKFLOW_TARGETS holds the
+# outputs over all robots (the fleet view).
 STAGE_TARGETS = []
+WORKFLOW_TARGETS = []
 
 
 def all_targets():
-    """Every output `snakemake all` builds, stage by stage, for every configured robot."""
+    """Every output `snakemake all` builds, stage by stage, for every configured robot, then the fleet."""
     targets = []
     for robot in ROBOTS:
         for stage_targets in STAGE_TARGETS:
             targets.extend(stage_targets(robot))
-    return targets
+    return targets + WORKFLOW_TARGETS
 
 
 # ---- robot sources and settings -------------------------------------------------
@@ -175,6 +184,52 @@ def collision_part_dirs(robot):
 # ---- system identification ------------------------------------------------------
 
 
+def campaign_measurements(wildcards):
+    """The measurement list of the {campaign} wildcard ("" = configs/{robot}/measurements.yaml)."""
+    return _sim2real_fleet.campaign_file(
+        wildcards.robot, _sim2real_fleet.campaign_name(wildcards.campaign)
+    )
+
+
+def campaign_report_targets(robot):
+    """gap.json and gap.md of every campaign of the robot."""
+    return [
+        f"results/{robot}/{c.prefix}{name}"
+        for c in CAMPAIGNS[robot]
+        for name in ("gap.json", "gap.md")
+    ]
+
+
+def campaign_sysid_targets(robot):
+    """The fitted ladder and calibration of every campaign, where the robot has a model ladder."""
+    if not os.path.exists(model_ladder(robot)):
+        return []
+    return [
+        f"results/{robot}/{c.prefix}sysid/{name}"
+        for c in CAMPAIGNS[robot]
+        for name in ("ladder.json", "calibration.yaml")
+    ]
+
+
+def fleet_campaigns():
+    """Every identified campaign of every robot, with the files the fleet view reads."""
+    return [
+        {
+            "robot": c.robot,
+            "campaign": c.name,
+            "arm": c.arm,
+            "date": c.date,
+            "measurements": c.measurements,
+            "report": f"{c.results}gap.md",
+            "ladder": f"{c.results}sysid/ladder.json",
+            "params": f"{c.results}sysid/params.yaml",
+        }
+        for robot in ROBOTS
+        if os.path.exists(model_ladder(robot))
+        for c in CAMPAIGNS[robot]
+    ]
+
+
 def identified_params(wildcards):
     """The calibrated MJCF also takes what the URDF cannot hold (armature, delay, gear) from sysid."""
     return [f"results/{wildcards.robot}/sysid/params.yaml"] if wildcards.variant else []
@@ -190,10 +245,10 @@ def identified_params_if_any(wildcards):
 
 
 def sysid_ladder(wildcards):
-    """The ladder and diagnosis section of the gap report, where the robot is identified."""
+    """The campaign's ladder and diagnosis section of the gap report, where the robot has a model ladder."""
     return (
-        [f"results/{wildcards.robot}/sysid/ladder.json"]
-        if identifies(wildcards.robot)
+        [f"results/{wildcards.robot}/{wildcards.campaign}sysid/ladder.json"]
+        if os.path.exists(model_ladder(wildcards.robot))
         else []
     )
 
@@ -202,11 +257,11 @@ def sysid_ladder(wildcards):
 
 
 def measurement_files(wildcards):
-    """Every run table of measurements.yaml and its metadata YAML (so lab runs get built)."""
+    """Every run table of the campaign's measurement list and its metadata YAML (so lab runs get built)."""
     from sim2real.measurements import load_measurement_list
 
     files = []
-    for entry in load_measurement_list(measurement_list(wildcards.robot)):
+    for entry in load_measurement_list(campaign_measurements(wildcards)):
         files += [entry.path.as_posix(), entry.path.with_suffix(".yaml").as_posix()]
     return files
 

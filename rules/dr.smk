@@ -6,6 +6,11 @@
 # config["dr"]["strict_coverage"]: true turns uncovered identified values into an error.
 
 
+localrules:
+    dr_resolve,
+    dr_summary,
+
+
 rule dr_resolve:
     input:
         config="configs/{robot}/dr.yaml",
@@ -17,6 +22,10 @@ rule dr_resolve:
         "results/{robot}/logs/dr_resolve.log",
     benchmark:
         "results/{robot}/benchmarks/dr_resolve.tsv"
+    threads: 1
+    resources:
+        mem_mb=768,
+        runtime=2,
     params:
         robot="{robot}",
     script:
@@ -47,6 +56,10 @@ rule dr_summary:
         "results/{robot}/logs/dr_summary.log",
     benchmark:
         "results/{robot}/benchmarks/dr_summary.tsv"
+    threads: 1
+    resources:
+        mem_mb=256,
+        runtime=2,
     params:
         strict=config.get("dr", {}).get("strict_coverage", False),
     script:

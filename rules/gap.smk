@@ -1,5 +1,7 @@
 # Gap report: measurements (configs/{robot}/measurements.yaml) vs the model -> gap.json, gap.md, figures.
 # ROS 2 bags under data/{robot}/bags/ are converted to measurement runs first.
+# One report per campaign: {campaign} is "" for measurements.yaml (results/{robot}/gap.json) and
+# "<name>/" for configs/{robot}/campaigns/<name>.yaml (results/{robot}/<name>/gap.json).
 
 
 wildcard_constraints:
@@ -17,6 +19,10 @@ rule bag_to_run:
         "results/{robot}/logs/bag_to_run/{bag}.log",
     benchmark:
         "results/{robot}/benchmarks/bag_to_run/{bag}.tsv"
+    threads: 1
+    resources:
+        mem_mb=1024,
+        runtime=10,
     params:
         joint_topic=lambda w: bag_topics(w)["joint_topic"],
         command_topic=lambda w: bag_topics(w)["command_topic"],
@@ -28,44 +34,46 @@ rule gap_report:
     input:
         urdf="results/{robot}/{robot}.urdf",
         mjcf="results/{robot}/mjcf/{robot}.xml",
-        measurements="configs/{robot}/measurements.yaml",
+        measurements=campaign_measurements,
         runs=measurement_files,
         ladder=sysid_ladder,
     output:
-        json="results/{robot}/gap.json",
-        md="results/{robot}/gap.md",
+        json="results/{robot}/{campaign}gap.json",
+        md="results/{robot}/{campaign}gap.md",
         torque=report(
-            "results/{robot}/gap/torque.png",
+            "results/{robot}/{campaign}gap/torque.png",
             caption="../report/gap_torque.rst",
             category="Gap report",
             subcategory="{robot}",
         ),
         residual_velocity=report(
-            "results/{robot}/gap/residual_velocity.png",
+            "results/{robot}/{campaign}gap/residual_velocity.png",
             caption="../report/gap_residual_velocity.rst",
             category="Gap report",
             subcategory="{robot}",
         ),
         regimes=report(
-            "results/{robot}/gap/regimes.png",
+            "results/{robot}/{campaign}gap/regimes.png",
             caption="../report/gap_regimes.rst",
             category="Gap report",
             subcategory="{robot}",
         ),
         ladder=report(
-            "results/{robot}/gap/ladder.png",
+            "results/{robot}/{campaign}gap/ladder.png",
             caption="../report/gap_ladder.rst",
             category="Gap report",
             subcategory="{robot}",
         ),
     log:
-        "results/{robot}/logs/gap_report.log",
+        "results/{robot}/logs/{campaign}gap_report.log",
     benchmark:
-        "results/{robot}/benchmarks/gap_report.tsv"
+        "results/{robot}/benchmarks/{campaign}gap_report.tsv"
+    threads: 1
+    resources:
+        mem_mb=1024,
+        runtime=5,
     script:
         "../scripts/gap_report.py"
 
 
-STAGE_TARGETS.append(
-    lambda robot: [f"results/{robot}/gap.json", f"results/{robot}/gap.md"]
-)
+STAGE_TARGETS.append(campaign_report_targets)

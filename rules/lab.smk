@@ -7,6 +7,10 @@ wildcard_constraints:
     run="(?!truth$)[A-Za-z0-9_-]+",
 
 
+localrules:
+    lab_truth,
+
+
 rule lab_run:
     input:
         mjcf="results/{robot}/mjcf/{robot}.xml",
@@ -18,6 +22,10 @@ rule lab_run:
         "results/{robot}/logs/lab_run/{scenario}/{run}.log",
     benchmark:
         "results/{robot}/benchmarks/lab_run/{scenario}/{run}.tsv"
+    threads: 1
+    resources:
+        mem_mb=1024,
+        runtime=5,
     script:
         "../scripts/lab_run.py"
 
@@ -32,6 +40,10 @@ rule lab_truth:
         "results/{robot}/logs/lab_truth/{scenario}.log",
     benchmark:
         "results/{robot}/benchmarks/lab_truth/{scenario}.tsv"
+    threads: 1
+    resources:
+        mem_mb=256,
+        runtime=2,
     script:
         "../scripts/lab_truth.py"
 

@@ -3,6 +3,10 @@
 # its source mesh file (and its URI as a param), so URDF edits that keep the mesh URIs rerun no mesh job.
 
 
+localrules:
+    collision_mesh,
+
+
 rule visual_mesh:
     input:
         mesh_source("visual"),
@@ -14,6 +18,10 @@ rule visual_mesh:
         "results/{robot}/benchmarks/visual_mesh/{name}.tsv"
     wildcard_constraints:
         name="[^/]+",
+    threads: 1
+    resources:
+        mem_mb=256,
+        runtime=2,
     params:
         uri=mesh_uri("visual"),
     script:
@@ -31,6 +39,10 @@ rule collision_mesh:
         "results/{robot}/benchmarks/collision_mesh/{name}.tsv"
     wildcard_constraints:
         name="[^/]+",
+    threads: 1
+    resources:
+        mem_mb=256,
+        runtime=1,
     params:
         uri=mesh_uri("collision"),
     script:

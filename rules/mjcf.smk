@@ -17,6 +17,10 @@ rule mjcf:
         "results/{robot}/{variant}logs/mjcf.log",
     benchmark:
         "results/{robot}/{variant}benchmarks/mjcf.tsv"
+    threads: 1
+    resources:
+        mem_mb=1024,
+        runtime=3,
     params:
         collision_dirs=lambda w: collision_part_dirs(w.robot),
     script:

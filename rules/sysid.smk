@@ -2,6 +2,8 @@
 # (role: fit), judged on role: holdout, with the diagnosis of the missing effect; the fitted values
 # become results/{robot}/sysid/calibration.yaml, from which the URDF/MJCF rules build
 # results/{robot}/calibrated/. Never reads the lab's truth.yaml.
+# One job per campaign: {campaign} is "" for configs/{robot}/measurements.yaml (results/{robot}/sysid/)
+# and "<name>/" for configs/{robot}/campaigns/<name>.yaml (results/{robot}/<name>/sysid/).
 
 
 rule sysid:
@@ -9,27 +11,22 @@ rule sysid:
         urdf="results/{robot}/{robot}.urdf",
         robot_config=lambda w: robot_config(w.robot),
         model="configs/{robot}/model.yaml",
-        measurements=lambda w: measurement_list(w.robot),
+        measurements=campaign_measurements,
         runs=measurement_files,
     output:
-        ladder="results/{robot}/sysid/ladder.json",
-        params="results/{robot}/sysid/params.yaml",
-        calibration="results/{robot}/sysid/calibration.yaml",
+        ladder="results/{robot}/{campaign}sysid/ladder.json",
+        params="results/{robot}/{campaign}sysid/params.yaml",
+        calibration="results/{robot}/{campaign}sysid/calibration.yaml",
     log:
-        "results/{robot}/logs/sysid.log",
+        "results/{robot}/logs/{campaign}sysid.log",
     benchmark:
-        "results/{robot}/benchmarks/sysid.tsv"
+        "results/{robot}/benchmarks/{campaign}sysid.tsv"
+    threads: 1
+    resources:
+        mem_mb=768,
+        runtime=5,
     script:
         "../scripts/sysid.py"
 
 
-STAGE_TARGETS.append(
-    lambda robot: (
-        [
-            f"results/{robot}/sysid/ladder.json",
-            f"results/{robot}/sysid/calibration.yaml",
-        ]
-        if identifies(robot)
-        else []
-    )
-)
+STAGE_TARGETS.append(campaign_sysid_targets)

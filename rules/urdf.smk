@@ -17,6 +17,10 @@ checkpoint urdf:
         "results/{robot}/{variant}logs/urdf.log",
     benchmark:
         "results/{robot}/{variant}benchmarks/urdf.tsv"
+    threads: 1
+    resources:
+        mem_mb=512,
+        runtime=2,
     params:
         args=urdf_xacro_args,
     script:

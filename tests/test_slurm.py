@@ -1,0 +1,110 @@
+"""The Panda's MJCF and gap report built through `--profile profiles/slurm` on a real SLURM cluster.
+
+`.ci/slurm-setup` (run by `.ci/run` before pytest) installs Debian's slurm-wlm and munge and starts
+slurmctld + slurmd on localhost. Where SLURM is not there or not running, the test is skipped and
+says why. The assertions read SLURM's own records: every job Snakemake submitted is in SLURM's job
+completion log (JobCompType=jobcomp/filetxt) as COMPLETED on node localhost under this run's job
+name, `scontrol show job` names its rule, and the outputs equal a local build byte for byte.
+"""
+
+from __future__ import annotations
+
+import filecmp
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from buildtree import copy_repo, make_fast, rules_run, run_snakemake
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGETS = ["results/panda/mjcf/panda.xml", "results/panda/gap.json"]
+# At fast settings a mesh or CoACD job takes seconds, far less than a SLURM job's start and status
+# polling: the test sends the whole mesh stage as one SLURM job (a Snakemake job group).
+FAST_GROUPS = ["--groups", "visual_mesh=meshes", "coacd=meshes", "--group-components", "meshes=1000"]
+pytestmark = pytest.mark.slow
+
+
+def _slurm_config() -> dict[str, str]:
+    """`scontrol show config` as a dict; skips the test (saying why) where SLURM is not usable."""
+    missing = [tool for tool in ("sbatch", "squeue", "scontrol", "sinfo") if shutil.which(tool) is None]
+    if missing:
+        pytest.skip(f"SLURM is not installed ({', '.join(missing)} not found): run .ci/slurm-setup as root")
+    done = subprocess.run(["scontrol", "show", "config"], capture_output=True, text=True, timeout=30)
+    if done.returncode != 0:
+        pytest.skip(f"SLURM is installed but slurmctld does not answer ({done.stderr.strip()}): run .ci/slurm-setup")
+    config = dict(re.findall(r"^(\S+)\s*=\s*(.*?)\s*$", done.stdout, flags=re.MULTILINE))
+    state = subprocess.run(["sinfo", "-h", "-o", "%T"], capture_output=True, text=True, timeout=30).stdout.split()
+    if not {"idle", "mixed", "allocated"} & set(state):
+        pytest.skip(f"SLURM runs but no node takes jobs (sinfo: {state or 'no node'}): run .ci/slurm-setup")
+    if config.get("JobCompType") != "jobcomp/filetxt" or not Path(config.get("JobCompLoc", "")).is_file():
+        pytest.skip("SLURM keeps no job completion log (JobCompType=jobcomp/filetxt) to check the jobs against: "
+                    "run .ci/slurm-setup")
+    return config
+
+
+def _completed_jobs(jobcomp_log: Path) -> dict[str, dict[str, str]]:
+    """SLURM's record of every finished job: {JobId: {JobState, Name, NodeList, Partition, ...}}."""
+    jobs = {}
+    for line in jobcomp_log.read_text().splitlines():
+        fields = dict(re.findall(r"(\w+)=(\S*)", line))
+        if "JobId" in fields:
+            jobs[fields["JobId"]] = fields
+    return jobs
+
+
+def _outputs(results: Path) -> list[Path]:
+    skip = {"logs", "benchmarks"}
+    return sorted(p.relative_to(results) for p in results.rglob("*")
+                  if p.is_file() and not skip.intersection(p.relative_to(results).parts))
+
+
+def test_panda_mjcf_and_gap_report_through_the_slurm_profile(tmp_path: Path) -> None:
+    config = _slurm_config()
+    tree = copy_repo(ROOT, tmp_path / "slurm")
+    make_fast(tree)
+    local = copy_repo(ROOT, tmp_path / "local")
+    make_fast(local)
+    # The local reference build runs meanwhile: the SLURM build mostly waits on the scheduler.
+    reference = subprocess.Popen(
+        [sys.executable, "-m", "snakemake", "--cores", "1", *TARGETS], cwd=local, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONHASHSEED": "0"},
+    )
+    try:
+        log = run_snakemake(tree, *TARGETS, "--profile", "profiles/slurm", *FAST_GROUPS,
+                            "--slurm-init-seconds-before-status-checks", "2", timeout=1800)
+    finally:
+        local_log, _ = reference.communicate(timeout=1800)
+    assert reference.returncode == 0, local_log[-4000:]
+
+    submitted = re.findall(r"^Job (\d+) has been submitted with SLURM jobid (\d+)", log, flags=re.MULTILINE)
+    run_names = set(re.findall(r"^\s*(?:rule|checkpoint) (\w+):", log, flags=re.MULTILINE))
+    local_names = set(re.findall(r"^\s*localrule (\w+):", log, flags=re.MULTILINE))
+    assert {"urdf", "visual_mesh", "coacd", "mjcf", "lab_run", "sysid", "gap_report"} <= run_names, run_names
+    assert len(submitted) >= 6, submitted  # urdf, the mesh group, mjcf, two lab runs, sysid, gap report
+    assert local_names <= {"collision_mesh", "collision_report", "lab_truth", "dr_resolve", "dr_summary", "fleet"}
+
+    records = _completed_jobs(Path(config["JobCompLoc"]))
+    run_uuid = {records[slurm_id]["Name"] for _, slurm_id in submitted if slurm_id in records}
+    for _, slurm_id in submitted:
+        record = records.get(slurm_id)
+        assert record is not None, f"SLURM job {slurm_id} is not in SLURM's job completion log"
+        assert record["JobState"] == "COMPLETED" and record["NodeList"] == "localhost", record
+    assert len(run_uuid) == 1, f"one Snakemake run submits every job under its run id, got {run_uuid}"
+    # scontrol still holds the finished jobs (MinJobAge): the comment names the rule that ran.
+    comments = set()
+    for _, slurm_id in submitted:
+        shown = subprocess.run(["scontrol", "show", "job", slurm_id], capture_output=True, text=True).stdout
+        comments.update(re.findall(r"Comment=rule_(\w+?)(?:_wildcards_\S*)?\s", shown))
+    assert {"urdf", "mjcf", "lab_run", "sysid", "gap_report"} <= comments, comments
+
+    assert rules_run(local_log) == run_names | local_names, "both builds ran the same rules"
+    files = _outputs(tree / "results")
+    assert files == _outputs(local / "results")
+    assert {Path(t).relative_to("results") for t in TARGETS} <= set(files)
+    differing = [str(f) for f in files if not filecmp.cmp(tree / "results" / f, local / "results" / f, shallow=False)]
+    assert differing == []
