@@ -15,9 +15,15 @@ ROBOTS = list(config["robots"])
 CAMPAIGNS = {robot: _sim2real_fleet.robot_campaigns(robot) for robot in ROBOTS}
 
 
+# Every global wildcard constraint lives here, before any rule: a `wildcard_constraints:` block in a
+# later file re-applies constraints to the rules defined so far, which under a default storage
+# provider (profiles/kubernetes) loses them on the urdf checkpoint's output.
 wildcard_constraints:
     robot="|".join(ROBOTS) if ROBOTS else "[^/]+",
     variant="(calibrated/)?",
+    scenario="[A-Za-z0-9_-]+",
+    run="(?!truth$)[A-Za-z0-9_-]+",
+    bag="[A-Za-z0-9_.-]+",
     campaign=_sim2real_fleet.wildcard_pattern(
         [c.name for cs in CAMPAIGNS.values() for c in cs if c.prefix]
     ),

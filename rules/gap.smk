@@ -4,10 +4,6 @@
 # "<name>/" for configs/{robot}/campaigns/<name>.yaml (results/{robot}/<name>/gap.json).
 
 
-wildcard_constraints:
-    bag="[A-Za-z0-9_.-]+",
-
-
 rule bag_to_run:
     input:
         bag="data/{robot}/bags/{bag}.mcap",

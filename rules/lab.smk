@@ -2,11 +2,6 @@
 # truth.yaml holds the hidden values; no rule that compares, fits or diagnoses may take it as input.
 
 
-wildcard_constraints:
-    scenario="[A-Za-z0-9_-]+",
-    run="(?!truth$)[A-Za-z0-9_-]+",
-
-
 localrules:
     lab_truth,
 

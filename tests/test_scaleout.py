@@ -68,15 +68,9 @@ def test_slurm_profile_plans_every_job_on_the_slurm_executor() -> None:
 
 
 def test_kubernetes_profile_dry_run_against_local_s3(tmp_path: Path) -> None:
-    """The Kubernetes profile plans the DAG with its S3 default storage (a local S3 endpoint, moto).
-
-    Known failure, kept strict so it flips when fixed: under a default storage provider Snakemake 9
-    drops the wildcard constraints of the `urdf` checkpoint's output (its storage object keeps the
-    local path of the unconstrained pattern), so `{variant}` must be non-empty and nothing produces
-    results/{robot}/{robot}.urdf: the dry run stops with MissingRuleException/MissingInputException.
-    """
+    """The Kubernetes profile plans the whole DAG with its S3 default storage (a local S3 endpoint, moto):
+    every output in the bucket, every job sized by its rule."""
     import boto3
-    import pytest
     from moto.server import ThreadedMotoServer
 
     profile = yaml.safe_load((ROOT / "profiles/kubernetes/config.yaml").read_text())
@@ -104,8 +98,9 @@ def test_kubernetes_profile_dry_run_against_local_s3(tmp_path: Path) -> None:
         server.stop()
     log = done.stdout + done.stderr
     assert "Using profiles profiles/kubernetes" in log
-    assert "(in storage)" in log or ".snakemake/storage/s3/" in log, "outputs are planned in the S3 storage"
-    if done.returncode != 0 and re.search(r"Missing(Rule|Input)Exception", log) and ".urdf" in log:
-        pytest.xfail("Snakemake drops the urdf checkpoint's wildcard constraints under S3 default storage")
     assert done.returncode == 0, log[-3000:]
-    assert re.search(r"^total\s+\d+", log, flags=re.MULTILINE)
+    counts = dict(re.findall(r"^(\w+)\s+(\d+)$", log, flags=re.MULTILINE))
+    assert {"urdf", "mjcf", "lab_run", "sysid", "gap_report", "fleet"} <= set(counts), counts
+    assert re.search(r"s3://sim2real/results/panda/gap\.json \(in storage\)", log), "outputs live in the bucket"
+    urdf_jobs = re.findall(r"^checkpoint urdf:\n(?:    .*\n)*?    resources: (.*)$", log, flags=re.MULTILINE)
+    assert urdf_jobs and all("mem_mb=512" in r and "runtime=2" in r for r in urdf_jobs), urdf_jobs
