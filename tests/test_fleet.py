@@ -81,6 +81,28 @@ def test_identified_values_of_vector_and_global_parameters() -> None:
     assert rows[2]["interval"] == [0.14, 0.16] and rows[3]["unit"] == "kg"
 
 
+def test_identified_link_inertias_are_per_link() -> None:
+    """link_inertia keeps its values per body under `links` (as sysid writes them), with intervals there."""
+    p = {"effects": {"link_inertia": {"base_parameters": 36, "links": {
+            "panda_link1": {"mass": 4.97, "com": [0.0039, 0.0021, -0.0476], "inertia": [0.70, 0.0, 0.0, 0.71, 0.02, 0.01]},
+            "panda_hand": {"mass": 1.08, "com": [0.0, 0.0, 0.03], "inertia": [0.01, 0.0, 0.0, 0.01, 0.0, 0.002]}}}},
+         "intervals": {"link_inertia": {"base_parameters": [36.0, 36.0], "links": {
+            "panda_link1": {"mass": [4.97, 4.97], "com": [[0.0039, 0.0039]] * 3, "inertia": [[0.70, 0.70]] * 6},
+            "panda_hand": {"mass": [1.02, 1.13], "com": [[-0.01, 0.01], [-0.01, 0.01], [0.02, 0.04]],
+                           "inertia": [[0.01, 0.01]] * 6}}}}}
+    rows = identified_values(p)
+    # link1 did not move (zero-width intervals), base_parameters is not a physical parameter
+    assert [(r["joint"], r["parameter"], r["component"]) for r in rows] == [
+        ("panda_hand", "com", 0), ("panda_hand", "com", 1), ("panda_hand", "com", 2), ("panda_hand", "mass", None)]
+    heavier = dict(p, effects={"link_inertia": {"links": {"panda_hand": {"mass": 1.45, "com": [0.0, 0.0, 0.03]}}}},
+                   intervals={"link_inertia": {"links": {"panda_hand": {
+                       "mass": [1.40, 1.50], "com": [[-0.01, 0.01], [-0.01, 0.01], [0.02, 0.04]]}}}})
+    fleet = fleet_document([campaign("panda_2", "2026-10", p), campaign("panda_2", "2026-11", heavier)])
+    (change,) = fleet["arms"][0]["changes"]
+    assert change["text"] == ("panda_2: link_inertia.mass on panda_hand rose from 1.08 [1.02, 1.13] to 1.45 "
+                              "[1.4, 1.5] kg between 2026-10 and 2026-11")
+
+
 def test_overlap_is_closed() -> None:
     assert overlaps([0.0, 1.0], [1.0, 2.0])
     assert overlaps([0.5, 0.6], [0.0, 2.0])

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,6 +35,8 @@ RESERVED_NAMES = frozenset({
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 DATE_PATTERN = re.compile(r"^\d{4}-\d{2}(-\d{2})?$")
 UNIT_TEXT = {"N*m": "N·m", "N*m*s/rad": "N·m·s/rad", "kg*m^2": "kg·m²", "1": ""}
+# Names of the components of vector parameters (payload and link centres of mass, link inertias).
+COMPONENTS = {"com": ("x", "y", "z"), "inertia": ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
 
 
 # --------------------------------------------------------------------------------------------
@@ -148,7 +150,9 @@ def _is_interval(x: Any) -> bool:
                                                         for v in x))
 
 
-def _leaves(value: Any, interval: Any, joint: str | None, component: int | None):
+def _leaves(
+    value: Any, interval: Any, joint: str | None, component: int | None
+) -> Iterator[tuple[str | None, int | None, float, list[float]]]:
     """(joint, component, value, [lo, hi]) of every number that has an interval."""
     if isinstance(value, Mapping) and isinstance(interval, Mapping):
         for key in sorted(value):
@@ -172,19 +176,26 @@ def identified_values(params: Mapping[str, Any]) -> list[dict[str, Any]]:
     effects = params.get("effects") or {}
     intervals = params.get("intervals") or {}
     rows = []
+
+    def add(effect: str, parameter: str, value: Any, interval: Any, where: str | None) -> None:
+        for joint, component, v, (lo, hi) in _leaves(value, interval, where, None):
+            if math.isfinite(lo) and math.isfinite(hi) and hi > lo:
+                rows.append({"effect": effect, "parameter": parameter, "joint": joint, "component": component,
+                             "unit": units[(effect, parameter)], "value": v, "interval": [lo, hi]})
+
     for effect in sorted(effects):
-        for parameter in sorted(effects[effect] or {}):
-            if (effect, parameter) not in units or parameter not in (intervals.get(effect) or {}):
-                continue
-            for joint, component, value, (lo, hi) in _leaves(
-                effects[effect][parameter], intervals[effect][parameter], None, None
-            ):
-                if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
-                    continue
-                rows.append({
-                    "effect": effect, "parameter": parameter, "joint": joint, "component": component,
-                    "unit": units[(effect, parameter)], "value": value, "interval": [lo, hi],
-                })
+        values = effects[effect] or {}
+        bounds = intervals.get(effect) or {}
+        for parameter in sorted(values):
+            if (effect, parameter) in units and parameter in bounds:
+                add(effect, parameter, values[parameter], bounds[parameter], None)
+        # per-body parameters (link inertias): {links: {link: {mass, com, inertia}}}, one row per link
+        links, link_bounds = values.get("links"), bounds.get("links")
+        if isinstance(links, Mapping) and isinstance(link_bounds, Mapping):
+            for link in sorted(links):
+                for parameter in sorted(links[link] or {}):
+                    if (effect, parameter) in units and parameter in (link_bounds.get(link) or {}):
+                        add(effect, parameter, links[link][parameter], link_bounds[link][parameter], link)
     return rows
 
 
@@ -207,7 +218,8 @@ def _where(row: Mapping[str, Any]) -> str:
     if row["joint"]:
         parts.append(f"on {row['joint']}")
     if row["component"] is not None:
-        parts.append(f"component {'xyz'[row['component']] if row['component'] < 3 else row['component']}")
+        names = COMPONENTS.get(row["parameter"], ())
+        parts.append(f"({names[row['component']] if row['component'] < len(names) else row['component']})")
     return (" " + " ".join(parts)) if parts else ""
 
 
