@@ -118,3 +118,13 @@ def test_panda_mjcf_and_gap_report_through_the_slurm_profile(tmp_path: Path) -> 
     assert {Path(t).relative_to("results") for t in TARGETS} <= set(files)
     differing = [str(f) for f in files if not filecmp.cmp(tree / "results" / f, local / "results" / f, shallow=False)]
     assert differing == []
+
+
+def test_slurm_setup_is_idempotent() -> None:
+    """.ci/slurm-setup run again on a running cluster installs, rewrites and restarts nothing."""
+    _slurm_config()
+    if os.geteuid() != 0:
+        pytest.skip(".ci/slurm-setup needs root (it installs packages and starts daemons)")
+    done = subprocess.run(["bash", str(ROOT / ".ci" / "slurm-setup")], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert re.findall(r"^slurm-setup: (\w+)", done.stdout, flags=re.MULTILINE) == ["ready"], done.stdout
