@@ -105,12 +105,15 @@ def test_panda_mjcf_and_gap_report_through_the_slurm_profile(tmp_path: Path) -> 
         assert record is not None, f"SLURM job {slurm_id} is not in SLURM's job completion log"
         assert record["JobState"] == "COMPLETED" and record["NodeList"] == "localhost", record
     assert len(run_uuid) == 1, f"one Snakemake run submits every job under its run id, got {run_uuid}"
-    # scontrol still holds the finished jobs (MinJobAge): the comment names the rule that ran.
-    comments = set()
+    # scontrol still holds the finished jobs (MinJobAge): the comment names the rule that ran. Every
+    # job of these rules that Snakemake started is one SLURM job (the mesh group's are one group job).
+    comments: list[str] = []
     for _, slurm_id in submitted:
         shown = subprocess.run(["scontrol", "show", "job", slurm_id], capture_output=True, text=True).stdout
-        comments.update(re.findall(r"Comment=rule_(\w+?)(?:_wildcards_\S*)?\s", shown))
-    assert {"urdf", "mjcf", "lab_run", "sysid", "gap_report"} <= comments, comments
+        comments += re.findall(r"Comment=rule_(\w+?)(?:_wildcards_\S*)?\s", shown)
+    started = re.findall(r"^\s*(?:rule|checkpoint) (\w+):", log, flags=re.MULTILINE)
+    for rule in ("urdf", "mjcf", "lab_run", "sysid", "gap_report"):
+        assert comments.count(rule) == started.count(rule) >= 1, (rule, comments, started)
 
     assert rules_run(local_log) == run_names | local_names, "both builds ran the same rules"
     files = _outputs(tree / "results")
