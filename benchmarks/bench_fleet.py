@@ -25,24 +25,9 @@ from pathlib import Path
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+from buildtree import copy_repo, edit_yaml  # noqa: E402  (the tests' copy of a clean clone)
 BASE_FRICTION = [0.8, 0.8, 0.6, 0.6, 0.4, 0.4, 0.3]
-
-
-def copy_project(dest: Path) -> Path:
-    listed = subprocess.run(
-        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT, check=True, capture_output=True
-    ).stdout.decode().split("\0")
-    for rel in filter(None, listed):
-        if (ROOT / rel).is_file() and not rel.startswith("results/"):
-            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(ROOT / rel, dest / rel)
-    return dest
-
-
-def edit_yaml(path: Path, edit) -> None:
-    data = yaml.safe_load(path.read_text())
-    edit(data)
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
 
 
 def snakemake(tree: Path, *args: str) -> tuple[float, str]:
@@ -106,7 +91,7 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=8.0, help="seconds of each lab run")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_fleet_") as tmp:
-        tree = copy_project(Path(tmp) / "repo")
+        tree = copy_repo(ROOT, Path(tmp) / "repo")
         edit_yaml(tree / "configs/config.yaml", lambda c: c.update(robots=["panda"]))
         edit_yaml(tree / "configs/panda/model.yaml", lambda m: m.update(effects=["coulomb_friction"]))
         edit_yaml(tree / "configs/panda/robot.yaml",
