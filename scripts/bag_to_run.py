@@ -1,8 +1,8 @@
-"""Snakemake script: ROS 2 bag (MCAP) -> measurement run (sim2real.measurements.mcap_to_run)."""
+"""Snakemake script: ROS 2 bag (MCAP) -> measurement run (sim2real.bags.mcap_to_run)."""
 
 import logging
 
-from sim2real.measurements import mcap_to_run
+from sim2real.bags import mcap_to_run
 
 logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
 mcap_to_run(

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import yaml
 
+from sim2real.bags import mcap_to_run
 from sim2real.errors import InputError
 from sim2real.measurements import (
     estimate_noise_floor,
     load_measurement_list,
     load_prepared_runs,
     load_run,
-    mcap_to_run,
     prepare_run,
     write_run,
 )
