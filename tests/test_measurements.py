@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -85,12 +86,13 @@ def test_messy_real_log_irregular_stamps_repeats_no_commands_no_qd(tmp_path):
     [
         (lambda h, r: r[37].__setitem__(1, float("nan")), ["q.panda_joint1", "row 37", "line 39", "NaN"]),
         (lambda h, r: r[100].__setitem__(0, r[99][0]), ["column 'time'", "row 100", "does not increase"]),
-        (lambda h, r: h.__setitem__(1, "q.elbow"), ["elbow", "unknown joint"]),
+        (lambda h, r: [h.__setitem__(k, h[k].replace("panda_joint1", "elbow")) for k in (1, 3)], ["q.elbow", "unknown joint"]),
+        (lambda h, r: h.__setitem__(1, "q.elbow"), ["tau.<joint>", "missing for elbow; without q for panda_joint1"]),
         (lambda h, r: [row.__setitem__(1, row[1] * 180 / np.pi + 90.0) for row in r], ["q.panda_joint1", "degrees"]),
         (lambda h, r: r.__delitem__(slice(500, None)), ["too short"]),
         (lambda h, r: h.__setitem__(4, "velocity.panda_joint2"), ["velocity.panda_joint2", "not part of"]),
     ],
-    ids=["nan", "time_not_increasing", "unknown_joint", "degrees", "too_short", "bad_column"],
+    ids=["nan", "time_not_increasing", "unknown_joint", "renamed_in_one_column", "degrees", "too_short", "bad_column"],
 )
 def test_bad_input_names_file_column_row(tmp_path, mutate, expected):
     header, rows = good_rows()
@@ -177,6 +179,43 @@ def test_prepared_runs_follow_the_list_and_its_filter_and_share_joints(tmp_path)
     write_csv(tmp_path / "b.csv", [h.replace("panda_joint2", "panda_joint3") for h in header], rows)
     with pytest.raises(InputError, match=r"b\.csv.*joints differ.*panda_joint1, panda_joint2"):
         load_prepared_runs(listing, [*JOINTS, "panda_joint3"], root=tmp_path)
+
+
+def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
+    """sysid and the gap report read every run's table and metadata, and the list, exactly once."""
+    from gap_fixtures import build_dev_panda
+    from sim2real import measurements
+    from sim2real.gap import compute_gap
+    from sim2real.sysid import run_sysid
+    from sysid_synthetic import PANDA_JOINTS, make_run
+
+    urdf, mjcf = build_dev_panda(tmp_path / "panda")
+    for file, seed in (("a.csv", 1), ("b.parquet", 2)):
+        run = make_run(file, {}, seed, duration=4.0)
+        write_run(tmp_path / file, run["time"], PANDA_JOINTS, {"q": run["q"], "tau": run["tau"]}, META)
+    listing = tmp_path / "measurements.yaml"
+    listing.write_text(yaml.safe_dump({"runs": [{"name": "a", "path": "a.csv", "role": "fit"},
+                                                {"name": "b", "path": "b.parquet", "role": "holdout"}]}))
+    (tmp_path / "model.yaml").write_text("effects: []\nfit: {bootstrap_replicates: 5, fit_rate_hz: 100}\n")
+    (tmp_path / "robot.yaml").write_text(yaml.safe_dump({"armature": {"panda_joint*": 0.1}, "flange": "panda_link8"}))
+    reads: Counter[str] = Counter()
+
+    def counting(reader):
+        def read(path, *args, **kwargs):
+            reads[Path(path).name] += 1
+            return reader(path, *args, **kwargs)
+        return read
+
+    monkeypatch.setattr(measurements, "_read_table", counting(measurements._read_table))
+    monkeypatch.setattr(measurements, "read_validated_yaml", counting(measurements.read_validated_yaml))
+    once = {"measurements.yaml": 1, "a.csv": 1, "a.yaml": 1, "b.parquet": 1, "b.yaml": 1}
+    out = tmp_path / "out"
+    run_sysid("panda", urdf, tmp_path / "robot.yaml", tmp_path / "model.yaml", listing,
+              out / "ladder.json", out / "params.yaml", out / "calibration.yaml", root=tmp_path)
+    assert reads == once
+    reads.clear()
+    compute_gap("panda", urdf, mjcf, listing, root=tmp_path)
+    assert reads == once
 
 
 def test_mcap_bag_converts_to_run(tmp_path):

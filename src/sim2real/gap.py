@@ -36,13 +36,7 @@ from mujoco import rollout
 
 from sim2real.dynamics import RigidBodyModel
 from sim2real.io import validate, write_json
-from sim2real.measurements import (
-    PreparedRun,
-    estimate_noise_floor,
-    load_measurement_list,
-    load_prepared_runs,
-    load_run,
-)
+from sim2real.measurements import PreparedRun, estimate_noise_floor, prepare_runs, read_runs
 from sim2real.metrics import rmse
 from sim2real.regimes import REGIME_DEFINITIONS, REGIME_LABELS, REGIMES, regime_masks
 
@@ -372,13 +366,12 @@ def compute_gap(
     root: str | Path = ".", precomputed: Mapping[str, Any] | None = None,
 ) -> tuple[dict[str, Any], list[TorqueComparison]]:
     """The gap.json content (validated) and the per-run comparisons (for figures)."""
-    # joints come from the first run; the model locks everything else
-    entries = load_measurement_list(measurement_list)
-    first = load_run(Path(root) / entries[0].path)
-    armature = model_armature(mjcf_path, first.joint_names) if mjcf_path is not None else None
-    model = RigidBodyModel(urdf_path, first.joint_names, armature=armature)
+    # each run file is read once; joints come from the first run, the model locks everything else
+    entries, runs, settings = read_runs(measurement_list, root)
+    armature = model_armature(mjcf_path, runs[0].joint_names) if mjcf_path is not None else None
+    model = RigidBodyModel(urdf_path, runs[0].joint_names, armature=armature)
     limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(model.joint_names, model.lower, model.upper)}
-    entries, prepared, settings = load_prepared_runs(measurement_list, model.joint_names, root, limits)
+    prepared = prepare_runs(runs, settings, model.joint_names, limits)
     joints = model.joint_names
 
     comparisons = []

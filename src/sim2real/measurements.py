@@ -9,8 +9,11 @@ Format (a contract shared with real robot logs and the virtual lab):
   joints or for none.
 * Beside it ``<stem>.yaml`` validated by ``schemas/measurement.schema.yaml``.
 
-Preparation (``prepare_run``; ``load_prepared_runs`` for every run of a measurement list) for the
-comparisons:
+A rule reads each run file once: ``read_runs`` reads every run of a measurement list, the caller
+builds its model from the runs' joints, and ``prepare_runs`` checks the runs against the model's
+joints and limits and prepares them (``load_prepared_runs`` does both when the joints are known).
+
+Preparation (``prepare_run``, per run) for the comparisons:
 
 1. Consecutive samples with identical positions (a logger faster than the state) are dropped:
    they carry a stale state, and keeping them would put steps into the differentiated signals.
@@ -116,12 +119,12 @@ def _row_label(path: Path, index: int) -> str:
     return f"row {index}"
 
 
-def load_run(
-    path: str | Path,
-    known_joints: Sequence[str] | None = None,
-    position_limits: Mapping[str, tuple[float, float]] | None = None,
-) -> Run:
-    """Load a CSV/Parquet run and its metadata; ``InputError`` (file, column, row) on bad input."""
+def read_run(path: str | Path) -> Run:
+    """Read a CSV/Parquet run and its metadata, checked against the format (not yet against a model).
+
+    ``InputError`` (file, column, row) on bad input. :func:`check_run` checks the joints and their
+    limits once the model is known; :func:`load_run` does both.
+    """
     import pandas as pd
     path = Path(path)
     meta_path = path.with_suffix(".yaml")
@@ -155,24 +158,16 @@ def load_run(
     joints = by_kind["q"]
     if not joints:
         raise InputError(path, "columns q.<joint>", "no joint positions", "add one column q.<joint> per joint")
-    if known_joints is not None:
-        unknown = [j for j in joints if j not in known_joints]
-        for kind in SIGNAL_KINDS:
-            unknown += [j for j in by_kind[kind] if j not in known_joints and j not in unknown]
-        if unknown:
-            raise InputError(
-                path, f"column(s) {', '.join(f'q.{j}' for j in unknown)}", f"unknown joint(s) {', '.join(unknown)}",
-                f"use joint names of the robot description: {', '.join(known_joints)}",
-            )
     for kind in SIGNAL_KINDS[1:]:
         present = by_kind[kind]
         if present and sorted(present) != sorted(joints):
             missing = sorted(set(joints) - set(present))
             extra = sorted(set(present) - set(joints))
-            detail = f"missing for {', '.join(missing)}" if missing else f"without q for {', '.join(extra)}"
+            detail = "; ".join([f"missing for {', '.join(missing)}"] * bool(missing)
+                               + [f"without q for {', '.join(extra)}"] * bool(extra))
             raise InputError(
                 path, f"columns {kind}.<joint>", f"given for some joints only ({detail})",
-                f"give {kind}.<joint> for every joint of q.<joint>, or for none",
+                f"give {kind}.<joint> for every joint of q.<joint>, with the same joint names, or for none",
             )
     if not by_kind["tau"] and not by_kind["tau_cmd"]:
         raise InputError(
@@ -223,23 +218,9 @@ def load_run(
     q = block("q")
     assert q is not None
     for i, joint in enumerate(joints):
-        col = q[:, i]
-        worst = int(np.argmax(np.abs(col)))
-        looks_deg = abs(col[worst]) > DEGREES_THRESHOLD_RAD
-        if position_limits and joint in position_limits and not looks_deg:
-            lo, hi = position_limits[joint]
-            margin = 0.1 * (hi - lo) + 0.05
-            outside = (col < lo - margin) | (col > hi + margin)
-            in_limits_as_deg = np.all((np.deg2rad(col) >= lo - margin) & (np.deg2rad(col) <= hi + margin))
-            if outside.any() and in_limits_as_deg:
-                looks_deg = True
-                worst = int(np.flatnonzero(outside)[0])
-        if looks_deg:
-            raise InputError(
-                path, f"column 'q.{joint}', {_row_label(path, worst)}",
-                f"value {col[worst]:.4g} looks like degrees (outside the joint's range in radians)",
-                "log angles in radians (multiply degrees by pi/180)",
-            )
+        worst = int(np.argmax(np.abs(q[:, i])))
+        if abs(q[worst, i]) > DEGREES_THRESHOLD_RAD:
+            _raise_degrees(path, joint, q[:, i], worst)
 
     contact = None
     if has_contact:
@@ -250,7 +231,55 @@ def load_run(
     )
 
 
-def _robust_white_sigma(x: np.ndarray) -> np.ndarray:
+def _raise_degrees(path: Path, joint: str, col: np.ndarray, row: int) -> None:
+    raise InputError(
+        path, f"column 'q.{joint}', {_row_label(path, row)}",
+        f"value {col[row]:.4g} looks like degrees (outside the joint's range in radians)",
+        "log angles in radians (multiply degrees by pi/180)",
+    )
+
+
+def check_run(
+    run: Run,
+    known_joints: Sequence[str] | None = None,
+    position_limits: Mapping[str, tuple[float, float]] | None = None,
+) -> None:
+    """Check a run read by :func:`read_run` against the model: joints it knows, positions in radians.
+
+    A position outside the joint's limits (with a margin) that would be inside them read as degrees
+    is refused as degrees. ``InputError`` naming the file, the column and the fix.
+    """
+    if known_joints is not None:
+        unknown = [j for j in run.joint_names if j not in known_joints]
+        if unknown:
+            raise InputError(
+                run.path, f"column(s) {', '.join(f'q.{j}' for j in unknown)}", f"unknown joint(s) {', '.join(unknown)}",
+                f"use joint names of the robot description: {', '.join(known_joints)}",
+            )
+    for i, joint in enumerate(run.joint_names):
+        if not position_limits or joint not in position_limits:
+            continue
+        col = run.q[:, i]
+        lo, hi = position_limits[joint]
+        margin = 0.1 * (hi - lo) + 0.05
+        outside = (col < lo - margin) | (col > hi + margin)
+        in_limits_as_deg = np.all((np.deg2rad(col) >= lo - margin) & (np.deg2rad(col) <= hi + margin))
+        if outside.any() and in_limits_as_deg:
+            _raise_degrees(run.path, joint, col, int(np.flatnonzero(outside)[0]))
+
+
+def load_run(
+    path: str | Path,
+    known_joints: Sequence[str] | None = None,
+    position_limits: Mapping[str, tuple[float, float]] | None = None,
+) -> Run:
+    """:func:`read_run` then :func:`check_run`: one run read and checked against the model's joints."""
+    run = read_run(path)
+    check_run(run, known_joints, position_limits)
+    return run
+
+
+def white_noise_sigma(x: np.ndarray) -> np.ndarray:
     """Per-column std of the white part of x from second differences (MAD-based, robust to the signal)."""
     d2 = x[2:] - 2 * x[1:-1] + x[:-2]
     mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
@@ -339,7 +368,7 @@ def prepare_run(
         qdd=qdd_f[sl], tau=tau[sl], torque_source=torque_source,
         tau_cmd=None if tau_cmd is None else tau_cmd[sl], q_cmd=None if q_cmd is None else q_cmd[sl],
         filter=filter_info, qd_measured=None if qd_measured is None else qd_measured[sl], contact=contact,
-        raw_torque_sigma=_robust_white_sigma(raw_torque[keep_raw]),
+        raw_torque_sigma=white_noise_sigma(raw_torque[keep_raw]),
     )
 
 
@@ -355,8 +384,10 @@ def estimate_noise_floor(prepared: PreparedRun) -> np.ndarray:
 
 def load_measurement_list(path: str | Path) -> list[MeasurementEntry]:
     """``configs/{robot}/measurements.yaml`` -> entries (name, path, role), names unique."""
-    path = Path(path)
-    data = read_validated_yaml(path, "measurements.schema.yaml")
+    return _entries(Path(path), read_validated_yaml(path, "measurements.schema.yaml"))
+
+
+def _entries(path: Path, data: Mapping[str, Any]) -> list[MeasurementEntry]:
     entries: list[MeasurementEntry] = []
     seen: set[str] = set()
     for i, item in enumerate(data["runs"]):
@@ -369,7 +400,10 @@ def load_measurement_list(path: str | Path) -> list[MeasurementEntry]:
 
 def measurement_settings(path: str | Path) -> dict[str, Any]:
     """Filter and replay settings of measurements.yaml, with defaults filled in."""
-    data = read_validated_yaml(path, "measurements.schema.yaml")
+    return _settings(read_validated_yaml(path, "measurements.schema.yaml"))
+
+
+def _settings(data: Mapping[str, Any]) -> dict[str, Any]:
     return {
         "cutoff_hz": float(data.get("filter", {}).get("cutoff_hz", DEFAULT_CUTOFF_HZ)),
         "order": int(data.get("filter", {}).get("order", DEFAULT_FILTER_ORDER)),
@@ -377,27 +411,48 @@ def measurement_settings(path: str | Path) -> dict[str, Any]:
     }
 
 
+def read_runs(
+    measurement_list: str | Path, root: str | Path = ".",
+) -> tuple[list[MeasurementEntry], list[Run], dict[str, Any]]:
+    """Every run of a measurement list read once (:func:`read_run`), named as in the list.
+
+    Returns (entries, runs in the same order, settings of :func:`measurement_settings`). Every run must
+    log the same joints; the caller builds its model from ``runs[0].joint_names`` and hands it to
+    :func:`prepare_runs`.
+    """
+    path = Path(measurement_list)
+    data = read_validated_yaml(path, "measurements.schema.yaml")
+    entries = _entries(path, data)
+    runs = [dataclasses.replace(read_run(Path(root) / e.path), name=e.name) for e in entries]
+    joints = runs[0].joint_names
+    for run in runs:
+        if run.joint_names != joints:
+            raise InputError(run.path, "columns q.<joint>", "joints differ from the first run's",
+                             f"log the same joints in every run: {', '.join(joints)}")
+    return entries, runs, _settings(data)
+
+
+def prepare_runs(
+    runs: Sequence[Run], settings: Mapping[str, Any], known_joints: Sequence[str] | None = None,
+    limits: Mapping[str, tuple[float, float]] | None = None,
+) -> list[PreparedRun]:
+    """Runs of :func:`read_runs` checked against the model (:func:`check_run`), then prepared with the
+    list's filter settings (:func:`prepare_run`)."""
+    for run in runs:
+        check_run(run, known_joints, limits)
+    return [prepare_run(run, cutoff_hz=settings["cutoff_hz"], order=settings["order"]) for run in runs]
+
+
 def load_prepared_runs(
     measurement_list: str | Path, known_joints: Sequence[str] | None = None, root: str | Path = ".",
     limits: Mapping[str, tuple[float, float]] | None = None,
 ) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
-    """Every run of a measurement list loaded, validated and prepared with the list's filter settings.
+    """:func:`read_runs` then :func:`prepare_runs`, when the model's joints are known beforehand.
 
     Returns (entries, prepared runs in the same order, settings of :func:`measurement_settings`).
-    ``known_joints`` / ``limits`` are passed to :func:`load_run`; every run must log the same joints.
     """
-    entries = load_measurement_list(measurement_list)
-    settings = measurement_settings(measurement_list)
-    prepared = []
-    for e in entries:
-        run = dataclasses.replace(load_run(Path(root) / e.path, known_joints, limits), name=e.name)
-        prepared.append(prepare_run(run, cutoff_hz=settings["cutoff_hz"], order=settings["order"]))
-    joints = prepared[0].joint_names
-    for e, p in zip(entries, prepared):
-        if p.joint_names != joints:
-            raise InputError(Path(root) / e.path, "columns q.<joint>", "joints differ from the first run's",
-                             f"log the same joints in every run: {', '.join(joints)}")
-    return entries, prepared, settings
+    entries, runs, settings = read_runs(measurement_list, root)
+    return entries, prepare_runs(runs, settings, known_joints, limits), settings
 
 
 DEFAULT_JOINT_TOPIC = "/joint_states"

@@ -173,15 +173,15 @@ def run_sysid(
     """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration."""
     from sim2real.effects import calibration_from_params
     from sim2real.io import read_yaml, write_json, write_yaml
-    from sim2real.measurements import estimate_noise_floor, load_measurement_list, load_prepared_runs, load_run
+    from sim2real.measurements import estimate_noise_floor, prepare_runs, read_runs
 
     model_config = load_model_config(model_config_path)
     robot_config = read_yaml(robot_config_path) or {}
-    entries = load_measurement_list(measurement_list)
-    first = load_run(Path(root) / entries[0].path)
-    probe = RigidBodyModel(urdf_path, first.joint_names)
+    # each run file is read once; the joints and limits to check the runs against come from the first run
+    entries, runs, settings = read_runs(measurement_list, root)
+    probe = RigidBodyModel(urdf_path, runs[0].joint_names)
     limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(probe.joint_names, probe.lower, probe.upper, strict=True)}
-    entries, prepared, _ = load_prepared_runs(measurement_list, probe.joint_names, root, limits)
+    prepared = prepare_runs(runs, settings, probe.joint_names, limits)
     joints = prepared[0].joint_names
     nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"))
     fit_settings = {**DEFAULT_SETTINGS, **model_config["fit"]}
