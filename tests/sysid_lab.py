@@ -6,9 +6,11 @@ never truth.yaml, exactly like the pipeline.
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 import yaml
 
 from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
@@ -43,6 +45,34 @@ class Lab:
         listing = out / "measurements.yaml"
         listing.write_text(yaml.safe_dump({"runs": runs}), encoding="utf-8")
         return listing
+
+    def without_sensor(self, scenario: str) -> Path:
+        """The scenario's runs with their ``tau`` columns removed (an arm without torque sensors)."""
+        source = self.measurement_list(scenario)
+        out = self.dir / f"{scenario}_without_tau"
+        out.mkdir(exist_ok=True)
+        listing = yaml.safe_load(source.read_text(encoding="utf-8"))
+        for run in listing["runs"]:
+            path = Path(run["path"])
+            table = pd.read_csv(path)
+            table.drop(columns=[c for c in table.columns if c.startswith("tau.")]).to_csv(out / path.name, index=False)
+            shutil.copy(path.with_suffix(".yaml"), out / path.with_suffix(".yaml").name)
+            run["path"] = str(out / path.name)
+        target = out / "measurements.yaml"
+        target.write_text(yaml.safe_dump(listing), encoding="utf-8")
+        return target
+
+    def prepared(self, measurement_list: Path) -> dict[str, list[Any]]:
+        """Prepared runs of a measurement list, by role."""
+        entries, prepared, _ = load_prepared_runs(measurement_list, PANDA_JOINTS, "/")
+        return {role: [run for entry, run in zip(entries, prepared, strict=True) if entry.role == role]
+                for role in ("fit", "holdout")}
+
+    def model(self, scenario: str, effects: list[str], with_sensor: bool = True) -> dict[str, Any]:
+        """ladder.json content of both links (``sysid.fit_model``); ``with_sensor=False`` drops tau."""
+        listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
+        document, _ = sysid.fit_model(effects, self.nominal, self.prepared(listing), {"fit": FAST_FIT}, "panda")
+        return document
 
     def data(self, scenario: str) -> tuple[sysid.TorqueData, sysid.TorqueData]:
         if scenario not in self._data:

@@ -77,7 +77,8 @@ def test_demo_friction_follow_the_diagnosis_until_nothing_is_left(lab):
     assert rmse == sorted(rmse, reverse=True)
 
 
-def test_delay_is_not_offered_when_the_torque_is_measured_by_a_sensor(lab):
+def test_actuator_effects_are_not_offered_against_the_motion_when_a_sensor_measures_the_torque(lab):
     diagnosis = lab.ladder("clean", [])["diagnosis"]
-    assert "actuation_delay" not in [c["effect"] for c in diagnosis["candidates"]]
-    assert [s["effect"] for s in diagnosis["skipped"]] == ["actuation_delay"]
+    actuator_effects = {"actuation_delay", "actuator_gain", "command_bias"}
+    assert not actuator_effects & {c["effect"] for c in diagnosis["candidates"]}
+    assert {s["effect"] for s in diagnosis["skipped"]} == actuator_effects

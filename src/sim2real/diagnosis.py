@@ -13,6 +13,10 @@ Each candidate also carries its residual signature (:meth:`sim2real.effects.base
 on the current holdout residual), the joints it acts on (those where it removes a good share of
 that joint's residual), its fitted values and ``add``, the line to add to configs/{robot}/model.yaml.
 
+The diagnosis runs per link of the model (:mod:`sim2real.actuator`): ``candidates`` are the effects
+of that link, and the verdict names the link. Candidates whose holdout predictions agree to within a
+tenth of the noise floor are listed as ``confounded``: these data cannot tell them apart.
+
 When no candidate explains enough, the verdict says so instead of forcing a label:
 ``at_noise_floor`` when the residual is already within ``noise_floor_factor`` of the noise floor,
 ``unexplained`` otherwise. The diagnosis never looks at the lab's truth.yaml: it sees only runs.
@@ -43,6 +47,14 @@ DEFAULT_DIAGNOSIS: dict[str, float] = {
 # Effects that are special cases of another: never tried once the larger one is in the model.
 NESTED_IN: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",)}
 
+# How each link is named in verdicts (sim2real.actuator.LINK_MODES says which links a data set has).
+LINK_TEXT: dict[str, str] = {
+    "body": "the body link (measured torque against the motion)",
+    "actuator": "the actuator link (commanded against measured torque)",
+    "combined": "the commanded torque against the motion (actuator and body together: no torque sensor)",
+}
+CONFOUNDED_NOISE_FRACTION = 0.1  # two candidates whose predictions differ by less: not told apart
+
 
 def add_line(effect: str) -> str:
     """The exact line to add under ``effects:`` in configs/{robot}/model.yaml."""
@@ -70,6 +82,20 @@ def _rank(candidates: list[dict[str, Any]], tolerance: float) -> list[dict[str, 
     return [simplest] + [c for c in ranked if c is not simplest]
 
 
+def _confounded(
+    candidates: Sequence[Mapping[str, Any]], residuals: Mapping[str, np.ndarray], tolerance: float, min_gain: float
+) -> list[tuple[str, str]]:
+    """Pairs of candidates that each remove at least ``min_gain`` of the residual and predict the same
+    holdout torque to within ``tolerance`` (RMS, N*m): on these data one is the other (in ranked order)."""
+    useful = [c["effect"] for c in candidates if c["explained"] >= min_gain]
+    pairs = []
+    for i, a in enumerate(useful):
+        for b in useful[i + 1 :]:
+            if float(np.sqrt(np.mean((residuals[a] - residuals[b]) ** 2))) <= tolerance:
+                pairs.append((a, b))
+    return pairs
+
+
 def diagnose(
     model_effects: Sequence[str],
     nominal: Any,
@@ -81,8 +107,11 @@ def diagnose(
     holdout_signals: Signals | None = None,
     robot: str = "{robot}",
     nonlinear_fixed: Mapping[str, np.ndarray] | None = None,
+    candidates: Sequence[str] | None = None,
+    link: str = "body",
 ) -> dict[str, Any]:
-    """Rank every effect not in ``model_effects`` by the holdout residual it removes.
+    """Rank every effect of ``candidates`` (default: the library) not in ``model_effects`` by the
+    holdout residual it removes; ``link`` names the link of the model judged (:data:`LINK_TEXT`).
 
     ``nominal``, ``fit_data``, ``holdout_data`` are :mod:`sim2real.fitting` objects; the residual is the
     current model's holdout residual (judged minus predicted torque). Each candidate is fitted exactly
@@ -101,19 +130,28 @@ def diagnose(
     floor = np.asarray(holdout_data.noise_floor, dtype=float)
     noise = float(np.sqrt(np.mean(floor**2)))
     excess_now = np.clip(sse_now - holdout_residual.shape[0] * floor**2, 0.0, None)  # per joint
-    candidates, skipped = [], []
-    for name, effect in EFFECTS.items():
+    ranked_candidates, skipped = [], []
+    residuals_after: dict[str, np.ndarray] = {}
+    for name in candidates if candidates is not None else EFFECTS:
+        effect = EFFECTS[name]
         if name in model_effects:
             continue
         holder = next((held for held in model_effects if name in NESTED_IN.get(held, ())), None)
         if holder is not None:
             skipped.append({"effect": name, "reason": f"{holder} in the model already holds it (a special case of it)"})
             continue
-        if effect.needs_commands and holdout_data.torque_source != "tau_cmd":
+        if effect.needs_commands and holdout_data.torque_source != "tau_cmd" and not holdout_signals.forward:
             skipped.append({
                 "effect": name,
                 "reason": "the judged torque is measured by a sensor (tau), which a command delay does not "
                 "change; it needs runs with only tau_cmd, or the state-domain replay",
+            })
+            continue
+        if effect.sensor_side and (holdout_data.torque_source == "tau_cmd" or holdout_signals.forward):
+            skipped.append({
+                "effect": name,
+                "reason": "an error of the torque sensor, and these runs judge the commanded torque (tau_cmd): "
+                "on commands the same column is the actuator's (actuator_gain, command_bias)",
             })
             continue
         result = fitting.fit([*model_effects, name], nominal, fit_data, settings.get("fit"), signals=fit_signals,
@@ -133,8 +171,10 @@ def diagnose(
         evidence["rmse_after"] = round(float(np.sqrt(np.mean(residual**2))), 6)
         evidence["fitted"] = result.values[name]
         evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
-        candidates.append({
+        residuals_after[name] = residual
+        ranked_candidates.append({
             "effect": name,
+            "link": effect.link,
             "joints": acting if decisive else [],
             "explained": round(explained, 4),
             "explained_beyond_noise": round(beyond, 4),
@@ -142,37 +182,44 @@ def diagnose(
             "evidence": evidence,
             "add": add_line(name),
         })
-    candidates = _rank(candidates, float(limits["parsimony_noise_fraction"]) * noise)
+    candidates = _rank(ranked_candidates, float(limits["parsimony_noise_fraction"]) * noise)
+    confounded = _confounded(candidates, residuals_after, CONFOUNDED_NOISE_FRACTION * noise, float(limits["min_gain"]))
     best = candidates[0] if candidates else None
     ratio = rmse_now / noise if noise > 0 else float("inf")
+    where = LINK_TEXT.get(link, link)
     if best is not None and best["decisive"]:
         status = "add_effect"
         joint_text = f" on {', '.join(best['joints'])}" if best["joints"] else ""
+        twins = [b for a, b in confounded if a == best["effect"]] + [a for a, b in confounded if b == best["effect"]]
+        twin_text = (f" These data cannot tell it apart from {', '.join(twins)} (the same prediction to within "
+                     f"{CONFOUNDED_NOISE_FRACTION:g}x the noise floor)." if twins else "")
         verdict = (
-            f"The model is missing {best['effect']}{joint_text}: it explains {best['explained']:.0%} of the holdout "
-            f"residual ({best['explained_beyond_noise']:.0%} of what lies above the noise floor), bringing it from "
-            f"{rmse_now:.3g} to {best['evidence']['rmse_after']:.3g} N*m. "
-            f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml."
+            f"On {where}, the model is missing {best['effect']}{joint_text}: it explains {best['explained']:.0%} of "
+            f"the holdout residual ({best['explained_beyond_noise']:.0%} of what lies above the noise floor), bringing "
+            f"it from {rmse_now:.3g} to {best['evidence']['rmse_after']:.3g} N*m. "
+            f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml.{twin_text}"
         )
     elif ratio <= limits["noise_floor_factor"]:
         status = "at_noise_floor"
         verdict = (
-            f"Nothing to add: the holdout residual ({rmse_now:.3g} N*m) is within {limits['noise_floor_factor']}x "
-            f"the noise floor ({noise:.3g} N*m) and no effect explains more than {limits['min_explained']:.0%} "
-            "of what lies above it."
+            f"Nothing to add on {where}: the holdout residual ({rmse_now:.3g} N*m) is within "
+            f"{limits['noise_floor_factor']}x the noise floor ({noise:.3g} N*m) and no effect explains more than "
+            f"{limits['min_explained']:.0%} of what lies above it."
         )
     else:
         status = "unexplained"
         verdict = (
-            f"No effect in the library explains the residual: it is {ratio:.1f}x the noise floor, but the best "
+            f"No effect in the library explains the residual on {where}: it is {ratio:.1f}x the noise floor, but the best "
             f"candidate ({best['effect'] if best else 'none'}) removes only "
             f"{best['explained_beyond_noise'] if best else 0:.0%} of what lies above it. "
             "Look at the worst windows in the gap report."
         )
     return {
+        "link": link,
         "candidates": candidates,
         "verdict": verdict,
         "status": status,
+        "confounded": [list(pair) for pair in confounded],
         "residual_rmse": round(rmse_now, 6),
         "noise_floor_ratio": round(ratio, 4) if np.isfinite(ratio) else None,
         "skipped": skipped,

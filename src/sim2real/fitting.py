@@ -330,9 +330,11 @@ class _Problem:
         return out
 
     def delay(self, nonlinear: dict[str, np.ndarray]) -> float:
+        """Time shift of the prediction: the command leads what it causes by the actuation delay."""
         for effect in self.effects:
             if effect.time_shift:
-                return float(nonlinear[effect.name][0])
+                delay = float(nonlinear[effect.name][0])
+                return -delay if self.signals.forward else delay
         return 0.0
 
     def block(self, effect: Effect, nonlinear: dict[str, np.ndarray]) -> np.ndarray:
@@ -455,11 +457,13 @@ def _refine_nonlinear(
         x[free] = values
         return x
 
-    # A delay has local minima at multiples of the signal's periods: start from a coarse grid.
+    # A delay has local minima at multiples of the signal's periods, and between samples where the
+    # interpolation averages white noise away: start from a grid no coarser than the sampling step.
     offset = 0
     for effect, size in zip(problem.effects, problem.nl_sizes, strict=True):
         if effect.time_shift and effect.name not in fixed:
-            grid = np.linspace(0.0, MAX_DELAY, 41)
+            dt = float(np.median(np.diff(sub_signals.time))) if len(sub_signals.time) > 1 else MAX_DELAY
+            grid = np.linspace(0.0, MAX_DELAY, max(41, int(round(MAX_DELAY / dt)) + 1))
             costs = []
             for d in grid:
                 x = x0.copy()
@@ -501,17 +505,20 @@ def _subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
         joint_names=signals.joint_names, time=signals.time[rows], q=signals.q[rows], qd=signals.qd[rows],
         qdd=signals.qdd[rows], tau_nominal=signals.tau_nominal[rows], segments=segments,
         tau=None if signals.tau is None else signals.tau[rows],
-        regressor_fn=lambda: parent.regressor[rows], nominal=signals.nominal, _regressor=regressor,
+        regressor_fn=lambda: parent.regressor[rows], nominal=signals.nominal, forward=signals.forward,
+        _regressor=regressor,
     )
 
 
 def _values(effects: list[Effect], theta, nonlinear, signals: Signals, states) -> dict[str, Any]:
-    """Structured values; with a torque gain, joint-local effects are rescaled to applied torque."""
+    """Structured values; with a gain (judged / applied torque), joint-local effects are rescaled to
+    applied torque, except a sensor's own bias, which is added after its gain."""
     theta = dict(theta)
-    if "torque_gain" in theta:
-        gain = 1.0 + theta["torque_gain"]
+    scaling = next((e for e in effects if e.scales_judged and len(theta.get(e.name, []))), None)
+    if scaling is not None and not signals.forward:  # forward, every term is already applied torque
+        gain = 1.0 + theta[scaling.name]
         for effect in effects:
-            if effect.joint_local and effect.name not in ("torque_gain", "torque_bias") and len(theta[effect.name]):
+            if effect.joint_local and not effect.scales_judged and effect.name != "torque_bias" and len(theta[effect.name]):
                 theta[effect.name] = theta[effect.name] / np.where(np.abs(gain) > 1e-6, gain, 1.0)
     return {e.name: e.values(theta[e.name], nonlinear[e.name], signals, states[e.name]) for e in effects}
 
@@ -609,7 +616,7 @@ def fit(
     effects = [get_effect(name) for name in effect_names]
     notes = []
     for effect in effects:
-        if effect.needs_commands and data.torque_source != "tau_cmd":
+        if effect.needs_commands and data.torque_source != "tau_cmd" and not signals.forward:
             notes.append(
                 f"{effect.name}: the judged torque is measured ({data.torque_source}); a delay between command "
                 "and applied torque does not show in it, so the torque-domain fit keeps it at 0"

@@ -13,6 +13,9 @@ joint order or a ``{joint: value}`` map):
   tau_f = phi1/(1+exp(-phi2*(qd+phi3))) - phi1/(1+exp(-phi2*phi3)), applied as a passive torque.
 * ``rotor_inertia`` ``{armature}`` kg*m^2: added to the joint armature.
 * ``actuation_delay`` ``{delay_s}``: the applied torque is the command delayed by delay_s.
+* ``actuator_gain`` ``{gain}`` and ``command_bias`` ``{bias}`` N*m: the motor applies
+  gain * (delayed command) + bias, as a motor constant off by some percent or a drive's current offset
+  would; the torque sensor measures that applied torque.
 * ``payload`` ``{mass, com?, body?}``: a point-ish mass at the flange (last body), added with MjSpec.
 * ``link_inertia`` ``{scale?, mass_scale?, com_offset?}``: the body moved by each joint made heavier or
   lighter (``scale``/``mass_scale``: mass and inertia about the COM multiplied, as a denser or larger
@@ -60,6 +63,8 @@ EFFECTS = (
     "link_inertia",
     "torque_bias",
     "torque_gain",
+    "actuator_gain",
+    "command_bias",
 )
 
 DEFAULTS: dict[str, Any] = {
@@ -352,6 +357,14 @@ def simulate_run(
     if "actuation_delay" in effects:
         delay_steps = int(round(float(effects["actuation_delay"]["delay_s"]) * rate))
         truth["actuation_delay"] = {"delay_s": delay_steps * dt}
+    motor_gain = np.ones(n)
+    motor_bias = np.zeros(n)
+    if "actuator_gain" in effects:
+        motor_gain = _per_joint(effects["actuator_gain"]["gain"], joints, "actuator_gain", path)
+        truth["actuator_gain"] = {"gain": dict(zip(joints, motor_gain.tolist()))}
+    if "command_bias" in effects:
+        motor_bias = _per_joint(effects["command_bias"]["bias"], joints, "command_bias", path)
+        truth["command_bias"] = {"bias": dict(zip(joints, motor_bias.tolist()))}
     gain = np.ones(n)
     bias = np.zeros(n)
     if "torque_gain" in effects:
@@ -388,7 +401,8 @@ def simulate_run(
             gravity = _nominal_torque(nominal, nominal_data, q_meas, np.zeros(n), np.zeros(n), qadr, dadr)
             cmd = kp * (q_des[k] - q_meas) + kd * (qd_des[k] - qd_meas) + gravity
         out_cmd[k] = cmd
-        applied = out_cmd[max(k - delay_steps, 0)]  # actuation delay: the motor applies an older command
+        # Actuation delay: the motor applies an older command, through its own gain and offset.
+        applied = motor_gain * out_cmd[max(k - delay_steps, 0)] + motor_bias
         out_q[k], out_qd[k], out_applied[k] = q_meas, qd_meas, applied
         real_data.ctrl[ctrl_index] = applied
         for _ in range(substeps):
@@ -445,7 +459,7 @@ def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, ou
     dt = 1.0 / float(settings["sample_rate_hz"])
     if "actuation_delay" in effects:
         truth["actuation_delay"] = {"delay_s": round(float(effects["actuation_delay"]["delay_s"]) / dt) * dt}
-    for name, key in (("torque_gain", "gain"), ("torque_bias", "bias")):
+    for name, key in (("torque_gain", "gain"), ("torque_bias", "bias"), ("actuator_gain", "gain"), ("command_bias", "bias")):
         if name in effects:
             truth[name] = {key: dict(zip(joints, _per_joint(effects[name][key], joints, name, None).tolist()))}
     write_yaml(output, {

@@ -3,7 +3,9 @@
 :func:`fit_ladder` composes the fitting core (:mod:`sim2real.fitting`) and the diagnosis
 (:mod:`sim2real.diagnosis`): every rung (nominal, then each effect added in turn, refining only the
 new effect's nonlinear parameters) fitted on the ``role: fit`` runs and judged on the
-``role: holdout`` runs, then the diagnosis of the last rung. It returns the ``ladder.json`` content;
+``role: holdout`` runs, then the diagnosis of the last rung. :func:`fit_model` runs it on each link
+of the model (:mod:`sim2real.actuator`: the actuator and the body, judged apart when the runs log
+both the measured and the commanded torque). It returns the ``ladder.json`` content;
 :func:`params_document` and :func:`sim2real.effects.calibration_from_params` give params.yaml and
 calibration.yaml; :func:`run_sysid` is the files-in, files-out entry point of the rule.
 The fitting core's names are re-exported here (``sysid.fit``, ``sysid.TorqueData``, ...).
@@ -17,14 +19,16 @@ from typing import Any
 
 import numpy as np
 
+from sim2real import actuator
 from sim2real.diagnosis import diagnose as run_diagnosis
 from sim2real.dynamics import RigidBodyModel
-from sim2real.effects import get_effect
+from sim2real.effects import Signals, get_effect
 from sim2real.errors import InputError
 from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
     DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, holdout_metrics, kept_segments, load_nominal,
     make_signals, predict, resolve_armature, run_from_prepared, stack_runs,
 )
+from sim2real.measurements import PreparedRun, estimate_noise_floor
 
 
 def round_floats(tree: Any, digits: int = 6) -> Any:
@@ -66,16 +70,23 @@ def fit_ladder(
     settings: Mapping[str, Any] | None = None,
     robot: str = "{robot}",
     diagnose: bool = True,
+    *,
+    fit_signals: Signals | None = None,
+    holdout_signals: Signals | None = None,
+    link: str = "body",
+    candidates: Sequence[str] | None = None,
 ) -> tuple[dict[str, Any], FitResult]:
     """Every rung (nominal, then each effect added in turn) fitted and judged; diagnosis of the last.
 
     Returns the ``ladder.json`` content (keys ``ladder``, ``diagnosis``, ``noise_floor``,
-    ``state_domain``, ...) and the last rung's fit.
+    ``state_domain``, ...) and the last rung's fit. One link of the model (:mod:`sim2real.actuator`):
+    ``link`` names it in the diagnosis, ``candidates`` are the effects the diagnosis tries, and the
+    signals (default: the nominal model's on the data) say what the judged torque is predicted from.
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
-    fit_signals = make_signals(nominal, fit_data)
-    holdout_signals = make_signals(nominal, holdout_data)
+    fit_signals = fit_signals or make_signals(nominal, fit_data)
+    holdout_signals = holdout_signals or make_signals(nominal, holdout_data)
     rungs = []
     result = None
     residual = None
@@ -123,24 +134,77 @@ def fit_ladder(
             effect_names, nominal, fit_data, holdout_data, residual,
             {"fit": fit_settings, "diagnosis": settings.get("diagnosis", {})},
             fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot, nonlinear_fixed=result.nonlinear,
+            candidates=candidates, link=link,
         )
     return round_floats(document), result
 
 
-def params_document(result: FitResult, nominal: NominalModel, data: TorqueData, robot: str) -> dict[str, Any]:
-    """params.yaml: the last rung's fitted values with their intervals."""
+def fit_model(
+    effect_names: Sequence[str],
+    nominal: NominalModel,
+    runs: Mapping[str, Sequence[PreparedRun]],
+    settings: Mapping[str, Any] | None = None,
+    robot: str = "{robot}",
+) -> tuple[dict[str, Any], list[FitResult]]:
+    """Both links of the model (:mod:`sim2real.actuator`) on prepared runs by role (``fit``, ``holdout``).
+
+    The body link's ladder and diagnosis are the document's ``ladder`` and ``diagnosis`` (on runs
+    without a torque sensor: both links together, judged on the command); with a sensor and commands the
+    actuator link's are under ``actuator``; ``links`` says what these runs can tell apart. Returns the
+    ``ladder.json`` content and the last rung's fit of each link fitted.
+    """
+    settings = dict(settings or {})
+    fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
+    joints = nominal.joint_names
+    mode = actuator.link_mode([*runs["fit"], *runs["holdout"]])
+    body_link = "combined" if mode == "commands_only" else "body"
+    body_effects = list(effect_names) if mode == "commands_only" else actuator.effects_of_link(effect_names, "body")
+    body_data = {
+        role: stack_runs([run_from_prepared(run, estimate_noise_floor(run)) for run in runs[role]], joints,
+                         fit_settings["fit_rate_hz"])
+        for role in ("fit", "holdout")
+    }
+    document, result = fit_ladder(
+        body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
+        candidates=actuator.candidates_of_link("body") if mode == "separate" else None,
+    )
+    results = [result]
+    confounded = list(document.get("diagnosis", {}).get("confounded", []))
+    if mode == "separate":
+        link_data = {role: actuator.actuator_data(runs[role], joints) for role in ("fit", "holdout")}
+        signals = {role: actuator.actuator_signals(*link_data[role]) for role in link_data}
+        link_settings = {**settings, "fit": {**fit_settings, **actuator.ACTUATOR_FIT_SETTINGS}}
+        section, link_result = fit_ladder(
+            actuator.effects_of_link(effect_names, "actuator"), nominal, link_data["fit"][0],
+            link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
+            holdout_signals=signals["holdout"], link="actuator", candidates=actuator.candidates_of_link("actuator"),
+        )
+        document["actuator"] = {
+            "judged": "measured torque (tau) predicted from the commanded torque (tau_cmd); no dynamics",
+            **{key: section[key] for key in ("ladder", "diagnosis", "noise_floor") if key in section},
+        }
+        confounded += section.get("diagnosis", {}).get("confounded", [])
+        results.append(link_result)
+    document["links"] = round_floats(actuator.separability(mode, effect_names, confounded))
+    return document, results
+
+
+def params_document(
+    results: Sequence[FitResult], nominal: NominalModel, data: TorqueData, robot: str
+) -> dict[str, Any]:
+    """params.yaml: the last rung's fitted values of every link (:func:`fit_model`), with their intervals."""
     return round_floats({
         "robot": robot,
-        "effects": result.values,
-        "intervals": result.intervals,
-        "order": result.effects,
+        "effects": {name: values for result in results for name, values in result.values.items()},
+        "intervals": {name: values for result in results for name, values in result.intervals.items()},
+        "order": [name for result in results for name in result.effects],
         "joints": data.joint_names,
         "torque_source": data.torque_source,
         "last_link": nominal.info["last_link"],
         "flange": nominal.info["flange"],
         "uncertainty": "moving-block bootstrap of the fit runs (blocks of time, all joints together), "
         "percentile intervals, conditional on the nonlinear parameters",
-        "notes": result.notes,
+        "notes": [note for result in results for note in result.notes],
     })
 
 
@@ -173,7 +237,7 @@ def run_sysid(
     """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration."""
     from sim2real.effects import calibration_from_params
     from sim2real.io import read_yaml, write_json, write_yaml
-    from sim2real.measurements import estimate_noise_floor, prepare_runs, read_runs
+    from sim2real.measurements import prepare_runs, read_runs
 
     model_config = load_model_config(model_config_path)
     robot_config = read_yaml(robot_config_path) or {}
@@ -184,18 +248,18 @@ def run_sysid(
     prepared = prepare_runs(runs, settings, probe.joint_names, limits)
     joints = prepared[0].joint_names
     nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"))
-    fit_settings = {**DEFAULT_SETTINGS, **model_config["fit"]}
-    by_role: dict[str, list[dict[str, Any]]] = {"fit": [], "holdout": []}
+    by_role: dict[str, list[PreparedRun]] = {"fit": [], "holdout": []}
     for entry, run in zip(entries, prepared, strict=True):
-        by_role[entry.role].append(run_from_prepared(run, estimate_noise_floor(run)))
+        by_role[entry.role].append(run)
     for role in ("fit", "holdout"):
         if not by_role[role]:
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
-    fit_data = stack_runs(by_role["fit"], joints, fit_settings["fit_rate_hz"])
-    holdout_data = stack_runs(by_role["holdout"], joints, fit_settings["fit_rate_hz"])
-    document, result = fit_ladder(model_config["effects"], nominal, fit_data, holdout_data, model_config, robot)
-    params = params_document(result, nominal, fit_data, robot)
+    document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot)
+    fit_settings = {**DEFAULT_SETTINGS, **model_config["fit"]}
+    fit_data = stack_runs([run_from_prepared(run, estimate_noise_floor(run)) for run in by_role["fit"]], joints,
+                          fit_settings["fit_rate_hz"])
+    params = params_document(results, nominal, fit_data, robot)
     write_json(ladder_json, document)
     write_yaml(params_yaml, params)
     write_yaml(calibration_yaml, round_floats(calibration_from_params(params)))

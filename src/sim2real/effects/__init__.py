@@ -16,7 +16,9 @@ from pathlib import Path
 from typing import Any
 
 from sim2real.effects.actuation_delay import ActuationDelay
+from sim2real.effects.actuator_gain import ActuatorGain
 from sim2real.effects.base import ColumnLabel, Effect, ParameterSpec, Signals
+from sim2real.effects.command_bias import CommandBias
 from sim2real.effects.coulomb_friction import CoulombFriction
 from sim2real.effects.link_inertia import LinkInertia
 from sim2real.effects.payload import Payload
@@ -37,6 +39,8 @@ EFFECTS: dict[str, Effect] = {
         LinkInertia(),
         TorqueBias(),
         TorqueGain(),
+        ActuatorGain(),
+        CommandBias(),
     )
 }
 
@@ -71,7 +75,7 @@ def _mjcf_context(spec: Any, params: dict[str, Any]) -> dict[str, Any]:
 def apply_to_spec(spec: Any, params: dict[str, Any], include_urdf_effects: bool = False) -> Any:
     """Write the fitted effects of ``params`` (the content of params.yaml) into ``spec``; returns it.
 
-    By default only the effects the URDF cannot hold (armature, actuation delay, actuator gain):
+    By default only the effects the URDF cannot hold (armature, the actuator link's delay, gain and bias):
     the calibrated MJCF is built from the calibrated URDF, which already carries friction, payload
     and link inertias. ``include_urdf_effects=True`` writes everything (to calibrate a nominal MJCF).
     """

@@ -1,9 +1,11 @@
 """Actuation delay: the torque applied at t is the one commanded at t - d (one global d).
 
-Only observable when the judged torque is the command (``tau_cmd``): a joint torque sensor
-measures the applied torque, which the rigid-body model explains without any delay.
-In the torque domain the prediction of the command at t is the model torque at t + d; d is
-refined by a bounded scalar search around the linear fit (variable projection).
+An effect of the actuator link. Against the motion it is only observable when the judged torque is
+the command (``tau_cmd``): a joint torque sensor measures the applied torque, which the rigid-body
+model explains without any delay; with both logged, the actuator link sees it directly (the measured
+torque at t is the command at t - d, :attr:`Signals.forward`). Against the motion, the prediction
+of the command at t is the model torque at t + d. d is refined by a bounded scalar search around
+the linear fit (variable projection), started from a grid at the sampling step.
 MJCF holds it as actuator ``delay``.
 """
 
@@ -59,6 +61,7 @@ class ActuationDelay(Effect):
     signature = "residual proportional to the time derivative of the torque; commanded torque leads the model"
     nonlinear = (ParameterSpec("delay", "s", 0.0, MAX_DELAY, False, "actuation delay"),)
     time_shift = True
+    link = "actuator"
     needs_commands = True
     joint_local = False
 
@@ -82,9 +85,9 @@ class ActuationDelay(Effect):
             "per_joint": per_joint_dict(signals.joint_names, correlation_per_joint(residual, rate), 3),
         }
         if signals.tau is not None:
-            out["lag_s"] = per_joint_dict(
-                signals.joint_names, best_lag(signals.tau, signals.tau_nominal, signals.time), 4
-            )
+            # The command leads: it is the judged torque, or (forward, the actuator link) the prediction.
+            leading, lagging = (signals.tau_nominal, signals.tau) if signals.forward else (signals.tau, signals.tau_nominal)
+            out["lag_s"] = per_joint_dict(signals.joint_names, best_lag(leading, lagging, signals.time), 4)
         return out
 
     def apply_to_spec(self, spec, values, context):

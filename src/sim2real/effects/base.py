@@ -9,7 +9,12 @@ An effect is a physical phenomenon the nominal rigid-body model lacks. Each one 
 - how it is written into MJCF (:meth:`Effect.apply_to_spec`, MjSpec edits) and into the
   calibration YAML the Xacro reads (:meth:`Effect.calibration`),
 - its residual signature (:meth:`Effect.evidence`): per-joint statistics of a residual that
-  show the effect is there.
+  show the effect is there,
+- its ``link``: ``actuator`` (between the commanded torque and the torque applied to the joint: a
+  delay, a motor gain, a command bias) or ``body`` (between the applied torque and the motion:
+  friction, inertias, payload; and the torque sensor's own gain and bias, which measure that torque).
+  When runs log both the measured and the commanded torque, each link is fitted and judged on its
+  own (:mod:`sim2real.actuator`).
 
 Fitted values always live in one structure, ``{param_name: {joint: value}}`` for per-joint
 parameters and ``{param_name: value}`` for global ones, in SI units, as *total* values (the
@@ -48,6 +53,9 @@ class Signals:
 
     ``segments`` are the run boundaries (a time shift never crosses them).
     ``regressor`` is Pinocchio's joint-torque regressor (N, n, 10*bodies), computed on demand.
+    ``forward``: the judged torque is predicted forward in time from the command that caused it (the
+    actuator link: measured from commanded torque, ``tau_nominal`` holds the command); otherwise it is
+    predicted from the motion through the model (the judged torque is then the cause of the motion).
     """
 
     joint_names: list[str]
@@ -60,6 +68,7 @@ class Signals:
     tau: np.ndarray | None = None  # the judged torque (measured, else commanded)
     regressor_fn: Any = None  # callable () -> (N, n, P)
     nominal: dict[str, Any] = field(default_factory=dict)  # damping, friction, armature, inertial, bodies, ...
+    forward: bool = False
     _regressor: np.ndarray | None = None
 
     @property
@@ -125,7 +134,10 @@ class Effect:
     parameters: ClassVar[tuple[ParameterSpec, ...]] = ()
     nonlinear: ClassVar[tuple[ParameterSpec, ...]] = ()  # refined by nonlinear least squares
     time_shift: ClassVar[bool] = False  # a delay of the whole prediction instead of columns
+    link: ClassVar[str] = "body"  # "actuator": command -> applied torque; "body": applied torque -> motion
     needs_commands: ClassVar[bool] = False  # only observable when the judged torque is the command
+    sensor_side: ClassVar[bool] = False  # an error of the torque sensor: meaningless on runs without one
+    scales_judged: ClassVar[bool] = False  # its coefficient scales the whole judged torque (a gain)
     joint_local: ClassVar[bool] = True  # each parameter acts on its own joint only
     in_urdf: ClassVar[bool] = False  # the calibrated URDF holds it (so the MJCF built from it does too)
 

@@ -17,6 +17,7 @@ class TorqueBias(Effect):
     summary = "constant offset of the measured torque"
     signature = "residual with a nonzero mean, independent of the motion"
     parameters = (ParameterSpec("bias", "N*m", -100.0, 100.0, True, "offset of the judged torque"),)
+    sensor_side = True
 
     def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
         return diagonal_columns(np.ones_like(signals.q)), [ColumnLabel("bias", j) for j in signals.joint_names]

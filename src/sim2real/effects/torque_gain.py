@@ -21,6 +21,8 @@ class TorqueGain(Effect):
     summary = "scale error between judged and applied torque"
     signature = "residual proportional to the nominal torque itself"
     parameters = (ParameterSpec("gain", "1", 0.2, 5.0, True, "judged torque / applied torque"),)
+    sensor_side = True
+    scales_judged = True
 
     def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
         return diagonal_columns(signals.tau_nominal), [ColumnLabel("gain", j) for j in signals.joint_names]
