@@ -1,0 +1,116 @@
+"""The actuator link (issue 10): with a torque sensor beside the command, the actuator is judged apart.
+
+Lab runs log the measured torque (tau) and the command (tau_cmd) with one effect hidden between them
+(a delay, motor gains off, a command bias). The actuator link (tau against tau_cmd) must name it and
+fall to its noise floor once it is added; the body link (tau against the motion) must not change its
+verdict. Without the tau columns the report must say what the commands alone can still tell.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from sysid_lab import Lab, overall
+
+ACTUATOR_SCENARIOS = {
+    "sensor_actuation_delay": "actuation_delay",
+    "sensor_actuator_gain": "actuator_gain",
+    "sensor_command_bias": "command_bias",
+}
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory) -> Lab:
+    return Lab(tmp_path_factory.mktemp("actuator_lab"))
+
+
+def follow_both_links(lab: Lab, scenario: str, with_sensor: bool = True, rounds: int = 6) -> list[dict]:
+    """The user's loop over both links: each round adds the top candidate of every link that asks for one."""
+    effects: list[str] = []
+    documents = [lab.model(scenario, effects, with_sensor)]
+    for _ in range(rounds):
+        sections = [documents[-1], documents[-1].get("actuator") or {}]
+        wanted = [s["diagnosis"]["candidates"][0]["effect"] for s in sections
+                  if s and s["diagnosis"]["status"] == "add_effect"]
+        if not wanted:
+            break
+        effects += wanted
+        documents.append(lab.model(scenario, effects, with_sensor))
+    return documents
+
+
+def floor(section: dict) -> float:
+    return float(section["noise_floor"]["torque_rmse"]["overall"])
+
+
+@pytest.mark.parametrize("scenario", sorted(ACTUATOR_SCENARIOS))
+def test_a_hidden_actuator_effect_is_named_on_the_actuator_link_and_the_body_verdict_is_unchanged(lab, scenario):
+    hidden = ACTUATOR_SCENARIOS[scenario]
+    clean = lab.model("clean", [])
+    document = lab.model(scenario, [])
+    assert document["links"]["mode"] == "separate"
+    diagnosis = document["actuator"]["diagnosis"]
+    assert diagnosis["status"] == "add_effect", diagnosis["verdict"]
+    top = diagnosis["candidates"][0]
+    assert (top["effect"], top["link"]) == (hidden, "actuator")
+    assert "actuator link" in diagnosis["verdict"] and hidden in diagnosis["verdict"]
+    # The body link sees the applied torque: the hidden effect is not its business.
+    assert document["diagnosis"]["status"] == clean["diagnosis"]["status"] == "at_noise_floor"
+    assert not {c["effect"] for c in document["diagnosis"]["candidates"]} & set(ACTUATOR_SCENARIOS.values())
+
+    after = lab.model(scenario, [hidden])
+    link = after["actuator"]
+    assert link["ladder"][-1]["effects"] == [hidden]
+    assert overall(link["ladder"][-1]) <= 1.5 * floor(link), (overall(link["ladder"][-1]), floor(link))
+    assert link["diagnosis"]["status"] == "at_noise_floor", link["diagnosis"]["verdict"]
+    assert after["diagnosis"]["status"] == "at_noise_floor"
+    # What the lab hid (configs/panda/lab.yaml), recovered from tau and tau_cmd alone.
+    values = link["ladder"][-1]["params"][hidden]
+    if hidden == "actuation_delay":
+        assert values["delay"] == pytest.approx(0.006, abs=0.5e-3)
+    elif hidden == "actuator_gain":
+        assert values["gain"]["panda_joint2"] == pytest.approx(0.88, rel=0.01)
+        assert values["gain"]["panda_joint5"] == pytest.approx(1.12, rel=0.01)
+    else:
+        assert values["bias"]["panda_joint2"] == pytest.approx(-0.5, abs=0.02)
+
+
+@pytest.mark.parametrize("scenario", sorted(ACTUATOR_SCENARIOS))
+def test_without_the_sensor_the_report_says_what_the_commands_can_still_tell(lab, scenario):
+    hidden = ACTUATOR_SCENARIOS[scenario]
+    document = lab.model(scenario, [], with_sensor=False)
+    links = document["links"]
+    assert links["mode"] == "commands_only" and "actuator" not in document
+    assert document["diagnosis"]["link"] == "combined"
+    assert document["diagnosis"]["candidates"][0]["effect"] == hidden, document["diagnosis"]["verdict"]
+    told = {effect for fact in links["can_tell"] for effect in fact["effects"]}
+    untold = {effect for fact in links["cannot_tell"] for effect in fact["effects"]}
+    assert {"actuation_delay", "command_bias"} <= told
+    assert {"actuator_gain", "link_inertia"} <= untold  # a common motor gain is the body scaled
+    assert {"torque_gain", "torque_bias"} <= {s["effect"] for s in document["diagnosis"]["skipped"]}
+
+
+def test_friction_and_a_delay_hidden_together_are_both_found_within_two_rounds(lab):
+    documents = follow_both_links(lab, "sensor_delay_and_friction")
+    assert len(documents) <= 3, [d["diagnosis"]["verdict"] for d in documents]
+    first = documents[0]
+    assert first["diagnosis"]["candidates"][0]["effect"] == "coulomb_friction"
+    assert first["actuator"]["diagnosis"]["candidates"][0]["effect"] == "actuation_delay"
+    last = documents[-1]
+    assert {"coulomb_friction", "actuation_delay"} <= set(last["ladder"][-1]["effects"] + last["actuator"]["ladder"][-1]["effects"])
+    assert overall(last["actuator"]["ladder"][-1]) <= 1.5 * floor(last["actuator"])
+    assert overall(last["ladder"][-1]) <= 1.5 * floor(last)
+
+
+def test_on_an_arm_like_a_real_one_both_links_reach_their_noise_floor(lab):
+    """Inertias off, a heavier hand, wrong armature, Gaz friction, stamp jitter, plus a delay and motor gains."""
+    documents = follow_both_links(lab, "real_arm_like_actuator")
+    last = documents[-1]
+    for section in (last, last["actuator"]):
+        assert section["diagnosis"]["status"] == "at_noise_floor", section["diagnosis"]["verdict"]
+        rmse = [overall(rung) for rung in section["ladder"]]
+        assert rmse == sorted(rmse, reverse=True), rmse
+        assert rmse[-1] <= 1.5 * floor(section), (rmse, floor(section))
+    assert set(last["actuator"]["ladder"][-1]["effects"]) == {"actuation_delay", "actuator_gain"}
+    # The body link finds what real_arm_like alone needs first: the actuator effects do not leak into it.
+    assert documents[0]["diagnosis"]["candidates"][0]["effect"] == lab.model("real_arm_like", [])["diagnosis"]["candidates"][0]["effect"]
