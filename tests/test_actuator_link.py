@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from sysid_lab import Lab, overall
+from sysid_lab import FAST_FIT, Lab, overall
 
 ACTUATOR_SCENARIOS = {
     "sensor_actuation_delay": "actuation_delay",
@@ -114,3 +114,55 @@ def test_on_an_arm_like_a_real_one_both_links_reach_their_noise_floor(lab):
     assert set(last["actuator"]["ladder"][-1]["effects"]) == {"actuation_delay", "actuator_gain"}
     # The body link finds what real_arm_like alone needs first: the actuator effects do not leak into it.
     assert documents[0]["diagnosis"]["candidates"][0]["effect"] == lab.model("real_arm_like", [])["diagnosis"]["candidates"][0]["effect"]
+
+
+def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added(lab, tmp_path):
+    import json
+
+    from sim2real import sysid
+    from sim2real.gap import build_gap_report
+
+    def report(listing, effects, name):
+        document, _ = sysid.fit_model(effects, lab.nominal, lab.prepared(listing), {"fit": FAST_FIT}, "panda")
+        out = tmp_path / name
+        out.mkdir()
+        (out / "ladder.json").write_text(json.dumps(document), encoding="utf-8")
+        figures = {k: out / f"{k}.png" for k in ("torque", "residual_velocity", "regimes", "ladder")}
+        gap = build_gap_report("panda", lab.urdf, lab.mjcf, listing, out / "gap.json", out / "gap.md", figures,
+                               out / "ladder.json", "/")
+        return gap, (out / "gap.md").read_text(encoding="utf-8")
+
+    gap, markdown = report(lab.measurement_list("sensor_actuation_delay"), ["actuation_delay"], "sensor")
+    nominal, delayed = (rung["metrics"]["position_rmse"]["overall"] for rung in gap["actuator"]["ladder"])
+    assert delayed < 0.5 * nominal, (nominal, delayed)  # the state domain sees the delay too
+    assert "## Actuator link (commanded against measured torque)" in markdown
+    assert gap["actuator"]["diagnosis"]["verdict"] in markdown and gap["diagnosis"]["verdict"] in markdown
+
+    gap, markdown = report(lab.without_sensor("sensor_actuator_gain"), [], "commands")
+    assert gap["links"]["mode"] == "commands_only" and "actuator" not in gap
+    assert "## What these runs can tell apart" in markdown
+    assert "**Not told apart:** `actuator_gain`, `link_inertia`" in markdown
+
+
+def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
+    from sim2real import sysid
+    from sim2real.effects import apply_to_spec
+    from sim2real.fitting import stack_runs
+    from sim2real.lab import arm_spec
+
+    runs = lab.prepared(lab.measurement_list("sensor_actuator_gain"))
+    document, results = sysid.fit_model(["actuator_gain", "actuation_delay", "command_bias"], lab.nominal, runs,
+                                        {"fit": FAST_FIT}, "panda")
+    data = stack_runs([sysid.run_from_prepared(r, r.raw_torque_sigma) for r in runs["fit"]], lab.nominal.joint_names)
+    params = sysid.params_document(results, lab.nominal, data, "panda")
+    assert set(params["effects"]) == {"actuation_delay", "actuator_gain", "command_bias"}
+    spec = arm_spec(lab.mjcf, lab.nominal.joint_names)  # the dev MJCF driven by joint torque motors
+    apply_to_spec(spec, params)
+    model = spec.compile()
+    assert model.actuator_delay[model.actuator("motor_panda_joint1").id] == pytest.approx(
+        params["effects"]["actuation_delay"]["delay"])
+    motor = model.actuator("motor_panda_joint2").id
+    assert model.actuator_gainprm[motor, 0] == pytest.approx(params["effects"]["actuator_gain"]["gain"]["panda_joint2"])
+    assert model.actuator_gainprm[motor, 0] == pytest.approx(0.88, rel=0.01)
+    bias = params["effects"]["command_bias"]["bias"]["panda_joint2"]
+    assert model.actuator_biasprm[motor, 0] == pytest.approx(bias) and abs(bias) < 0.05  # none hidden

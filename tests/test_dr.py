@@ -360,6 +360,7 @@ def test_coverage_reads_the_sysid_params_shape(tmp_path: Path, mjcf: dict[str, P
         "effects": {"coulomb_friction": {"friction": {"panda_joint1": 0.42, "panda_joint2": 1.3},
                                          "smoothing_velocity": {"panda_joint1": 0.01}},
                     "actuation_delay": {"delay": 0.004},
+                    "actuator_gain": {"gain": {"panda_joint2": 0.88, "panda_joint5": 1.4}},
                     "torque_gain": {"gain": {"panda_joint1": 1.02}}},
         "intervals": {"coulomb_friction": {"friction": {"panda_joint1": [0.40, 0.44], "panda_joint2": [1.2, 1.4]}}},
     }))
@@ -371,7 +372,9 @@ def test_coverage_reads_the_sysid_params_shape(tmp_path: Path, mjcf: dict[str, P
         ("panda_joint1", True, [0.40, 0.44]), ("panda_joint2", False, [1.2, 1.4])]
     # 4 ms identified delay lies below the randomized 10-30 ms on every actuator
     assert len(by_channel["delay"]) == 7 and not any(r["covered"] for r in by_channel["delay"])
-    assert len(summary["warnings"]) == 8
+    # The actuator link's motor gains against the randomized kp (gainprm[0] of the motors, nominal 1, +-30 %)
+    assert [(r["element"], r["covered"]) for r in by_channel["kp"]] == [("panda_joint2", True), ("panda_joint5", False)]
+    assert len(summary["warnings"]) == 9
 
 
 # ---------------------------------------------------------------------------------------------

@@ -16,10 +16,12 @@
   with their stamps.
 * The noise floor: the torque RMS that no model can explain (``estimate_noise_floor``).
 
-The runs are read and prepared by ``sim2real.measurements.load_prepared_runs``.
+Each run file is read once (``sim2real.measurements.read_runs``) and prepared against the model
+(``prepare_runs``).
 
 ``compute_gap`` returns the gap.json content; ``build_gap_report`` writes gap.json, gap.md and the
-figures. An optional precomputed section (``ladder``, ``diagnosis``, from the sysid rule) is merged in.
+figures. An optional precomputed section (``ladder``, ``diagnosis``, ``actuator``, ``links``, from the
+sysid rule) is merged in; each rung of either link is replayed with its fitted effects.
 """
 
 from __future__ import annotations
@@ -111,8 +113,16 @@ def replay(
     starts = np.arange(n_seg) * seg
     for b, start in enumerate(starts):
         mujoco.mj_resetData(model, data)
+        data.time = prepared.time[start]
         data.qpos[qadr] = prepared.q[start]
         data.qvel[dadr] = prepared.qd[start]
+        for index, actuator in enumerate(ctrl_cols):
+            # A delayed actuator starts each segment with the commands logged before it (held before the log).
+            nsample = int(model.actuator_history[actuator, 0])
+            if nsample > 0:
+                rows = start - nsample + np.arange(nsample)
+                mujoco.mj_initCtrlHistory(model, data, int(actuator), prepared.time[0] + prepared.dt * rows,
+                                          prepared.tau_cmd[np.clip(rows, 0, None), index])
         mujoco.mj_getState(model, data, initial[b], spec)
         control[b][:, ctrl_cols] = prepared.tau_cmd[start:start + seg]
     state, _ = rollout.rollout(model, [mujoco.MjData(model) for _ in range(2)], initial, control)
@@ -421,7 +431,7 @@ def compute_gap(
         "noise_floor": noise_floor,
     }
     if precomputed:
-        for key in ("ladder", "diagnosis"):
+        for key in ("ladder", "diagnosis", "actuator", "links"):
             if key in precomputed:
                 gap[key] = json.loads(json.dumps(precomputed[key]))
         if "ladder" in gap and mjcf_path is not None and metrics["state_domain"]["status"] == "computed":
@@ -431,6 +441,15 @@ def compute_gap(
             for rung, position in zip(gap["ladder"], positions):
                 if position is not None:
                     rung["metrics"]["position_rmse"] = position
+            if "actuator" in gap:
+                # The actuator's rungs replayed on the body link's last rung: the commands reach that body.
+                body = gap["ladder"][-1].get("params") or {}
+                rungs = [{**rung, "params": {**body, **(rung.get("params") or {})}} for rung in gap["actuator"]["ladder"]]
+                positions = ladder_position_rmse(mjcf_path, comparisons, settings["horizon_s"], rungs,
+                                                 precomputed.get("torque_source"))
+                for rung, position in zip(gap["actuator"]["ladder"], positions):
+                    if position is not None:
+                        rung["metrics"]["position_rmse"] = position
     gap = json.loads(json.dumps(gap))  # plain JSON types only
     validate(gap, "gap.schema.json", "gap.json")
     return gap, comparisons

@@ -164,6 +164,39 @@ def _identified_markdown(rung: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def _ladder_table(ladder: Sequence[Mapping[str, Any]], floor: float, unconstrained: bool) -> list[str]:
+    """One link's ladder: holdout error per rung, its fall, against the floor, and the replay's position error."""
+    first = ladder[0]["metrics"]["torque_rmse"]["overall"]
+    head = "| rung | effects | holdout torque RMSE [N m] | change from nominal | x noise floor | "
+    head += "unconstrained fit [N m] | " if unconstrained else ""
+    lines = [head + "replay position RMSE [rad] |", "|---|---|---|---|---|" + ("---|" if unconstrained else "") + "---|"]
+    for k, rung in enumerate(ladder):
+        value = rung["metrics"]["torque_rmse"]["overall"]
+        change = f"{100 * (value - first) / first:+.0f}%" if k and first else "–"
+        position = rung["metrics"].get("position_rmse", {}).get("overall")
+        row = f"| {k} | {', '.join(rung['effects']) or 'nominal'} | {value:.3g} | {change} | {value / floor:.2f} | "
+        if unconstrained:
+            free = rung["metrics"].get("unconstrained_torque_rmse", {}).get("overall")
+            physical = rung.get("consistency", {}).get("unconstrained_physical")
+            row += _fmt(free) + (" (non-physical)" if physical is False else "") + " | "
+        lines.append(row + f"{_fmt(position)} |")
+    return lines
+
+
+def _diagnosis_markdown(diagnosis: Mapping[str, Any]) -> list[str]:
+    """The verdict, the three best candidates and the effects not tried, with why."""
+    lines = [diagnosis["verdict"], ""]
+    for cand in diagnosis["candidates"][:3]:
+        beyond = cand.get("explained_beyond_noise")
+        beyond_text = f" ({100 * beyond:.0f}% of what lies above the noise floor)" if beyond is not None else ""
+        lines.append(f"- `{cand['effect']}` on {', '.join(cand['joints']) or 'no joint in particular'}: explains "
+                     f"{100 * cand['explained']:.0f}% of the residual{beyond_text}, holdout RMSE after "
+                     f"{_fmt(cand['evidence'].get('rmse_after'))} N m; add `{cand['add']}`")
+    for skip in diagnosis.get("skipped", []):
+        lines.append(f"- `{skip['effect']}` not tried: {skip['reason']}")
+    return lines
+
+
 def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> str:
     """gap.md: numbers a reviewer reads in a pull request, then the figures."""
     joints = gap["joints"]
@@ -224,22 +257,11 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
         lines.append(f"| {win['run']} | {win['t_start']:.2f} | {win['t_end']:.2f} | {win['rmse']:.3g} | "
                      f"{win['worst_joint']} ({win['worst_joint_rmse']:.3g}) |")
     if "ladder" in gap:
-        first = gap["ladder"][0]["metrics"]["torque_rmse"]["overall"]
-        lines += ["", "## Model ladder", "",
+        separate = gap.get("links", {}).get("mode") == "separate"
+        lines += ["", "## Model ladder" + (" (body link: measured torque against the motion)" if separate else ""), "",
                   "Effects of configs/{robot}/model.yaml added one by one, each rung fitted on the `fit` runs and "
-                  "judged on the `holdout` runs.".replace("{robot}", gap["robot"]), "",
-                  "| rung | effects | holdout torque RMSE [N m] | change from nominal | x noise floor | "
-                  "unconstrained fit [N m] | replay position RMSE [rad] |",
-                  "|---|---|---|---|---|---|---|"]
-        for k, rung in enumerate(gap["ladder"]):
-            value = rung["metrics"]["torque_rmse"]["overall"]
-            change = f"{100 * (value - first) / first:+.0f}%" if k and first else "–"
-            position = rung["metrics"].get("position_rmse", {}).get("overall")
-            free = rung["metrics"].get("unconstrained_torque_rmse", {}).get("overall")
-            physical = rung.get("consistency", {}).get("unconstrained_physical")
-            free_text = _fmt(free) + (" (non-physical)" if physical is False else "")
-            lines.append(f"| {k} | {', '.join(rung['effects']) or 'nominal'} | {value:.3g} | {change} | "
-                         f"{value / floor['overall']:.2f} | {free_text} | {_fmt(position)} |")
+                  "judged on the `holdout` runs.".replace("{robot}", gap["robot"]), ""]
+        lines += _ladder_table(gap["ladder"], floor["overall"], unconstrained=True)
         lines += ["", "Each rung is the physically consistent fit (every body's pseudo-inertia positive definite, "
                   "friction, damping and armature >= 0); the unconstrained column is the same rung without those "
                   "constraints, for comparison."]
@@ -250,15 +272,23 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
         lines += _identified_markdown(gap["ladder"][-1])
         lines += ["", f"![Model ladder]({figures['ladder']})"]
     if "diagnosis" in gap:
-        lines += ["", "## Diagnosis", "", gap["diagnosis"]["verdict"], ""]
-        for cand in gap["diagnosis"]["candidates"][:3]:
-            beyond = cand.get("explained_beyond_noise")
-            beyond_text = f" ({100 * beyond:.0f}% of what lies above the noise floor)" if beyond is not None else ""
-            lines.append(f"- `{cand['effect']}` on {', '.join(cand['joints']) or 'no joint in particular'}: explains "
-                         f"{100 * cand['explained']:.0f}% of the residual{beyond_text}, holdout RMSE after "
-                         f"{_fmt(cand['evidence'].get('rmse_after'))} N m; add `{cand['add']}`")
-        for skip in gap["diagnosis"].get("skipped", []):
-            lines.append(f"- `{skip['effect']}` not tried: {skip['reason']}")
+        lines += ["", "## Diagnosis", ""] + _diagnosis_markdown(gap["diagnosis"])
+    if "actuator" in gap:
+        link = gap["actuator"]
+        link_floor = link["noise_floor"]["torque_rmse"]["overall"]
+        lines += ["", "## Actuator link (commanded against measured torque)", "",
+                  f"The {link['judged']}. Noise floor {link_floor:.3g} N m: the sensor's white noise, what no "
+                  "filter of the command explains. Replay: the commands replayed in MuJoCo on the body link's "
+                  "last rung with each actuator rung's effects.", ""]
+        lines += _ladder_table(link["ladder"], link_floor, unconstrained=False)
+        lines += ["", "### Diagnosis of the actuator link", ""] + _diagnosis_markdown(link["diagnosis"])
+    if "links" in gap:
+        links = gap["links"]
+        lines += ["", "## What these runs can tell apart", "", f"{links['text'][0].upper()}{links['text'][1:]}.", ""]
+        for fact in links["can_tell"]:
+            lines.append(f"- Told apart: {', '.join(f'`{e}`' for e in fact['effects'])}: {fact['why']}.")
+        for fact in links["cannot_tell"]:
+            lines.append(f"- **Not told apart:** {', '.join(f'`{e}`' for e in fact['effects'])}: {fact['why']}.")
     lines += ["", "## Figures", "",
               f"![Measured vs model torque]({figures['torque']})", "",
               f"![Residual vs velocity]({figures['residual_velocity']})", "",

@@ -51,6 +51,7 @@ class IdentifiedValue:
     element: str  # element name, or GLOBAL_ELEMENT for a value shared by all elements
     value: float
     interval: tuple[float, float]  # confidence interval (value, value when none given)
+    relative: bool = False  # a factor of the element's nominal value (a motor gain), not an absolute value
 
 
 def _as_value(entry: Any) -> tuple[float, tuple[float, float]] | None:
@@ -77,7 +78,10 @@ SYSID_QUANTITIES: dict[tuple[str, str], str] = {
     ("coulomb_friction", "friction"): "frictionloss",
     ("rotor_inertia", "armature"): "armature",
     ("actuation_delay", "delay"): "delay",
+    # A motor gain scales its actuator's gainprm[0] (a servo's kp), which the kp channel randomizes.
+    ("actuator_gain", "gain"): "kp",
 }
+RELATIVE_QUANTITIES = {("actuator_gain", "gain")}  # identified as a factor of the nominal value
 
 
 def _read_sysid_effects(params: Mapping[str, Any]) -> list[IdentifiedValue]:
@@ -100,7 +104,8 @@ def _read_sysid_effects(params: Mapping[str, Any]) -> list[IdentifiedValue]:
                     continue
                 ci = quantity_intervals.get(element) if isinstance(quantity_intervals, Mapping) else quantity_intervals
                 interval = (float(min(ci)), float(max(ci))) if isinstance(ci, list) and len(ci) == 2 else (float(value), float(value))
-                found.append(IdentifiedValue(f"{effect}.{quantity}", channel, str(element), float(value), interval))
+                found.append(IdentifiedValue(f"{effect}.{quantity}", channel, str(element), float(value), interval,
+                                             (str(effect), str(quantity)) in RELATIVE_QUANTITIES))
     return found
 
 
@@ -162,15 +167,17 @@ def check_coverage(resolved: Mapping[str, Any], identified: Sequence[IdentifiedV
                 if item.element != GLOBAL_ELEMENT and item.element not in names:
                     continue
                 lo, hi = target["range"][0]
-                covered = lo <= item.interval[0] and item.interval[1] <= hi
+                scale = float(target["nominal"][0]) if item.relative else 1.0
+                value, interval = item.value * scale, sorted((item.interval[0] * scale, item.interval[1] * scale))
+                covered = lo <= interval[0] and interval[1] <= hi
                 records.append(
                     {
                         "term": channel["term"],
                         "channel": channel["channel"],
                         "element": target["name"],
                         "identified_as": item.parameter,
-                        "value": item.value,
-                        "interval": list(item.interval),
+                        "value": value,
+                        "interval": list(interval),
                         "range": [lo, hi],
                         "covered": covered,
                     }

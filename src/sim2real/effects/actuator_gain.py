@@ -4,8 +4,8 @@ A motor constant or current-loop gain other than the controller assumes. On the 
 column is the command and the coefficient g - 1 (:attr:`Signals.forward`). On runs without a torque
 sensor the command is judged against the nominal model's torque: ``tau_cmd = k * tau_applied`` with
 k = 1/g, and the other joint-local effects are divided by k afterwards (``sim2real.fitting._values``).
-MJCF holds it as the actuator's ``gainprm[0]`` (scaled by g), which domain randomization's ``kp``
-channel randomizes.
+MJCF holds it as the actuator's ``gainprm[0]`` (scaled by g, with a servo's feedback terms
+``biasprm[1:3]``), which domain randomization's ``kp`` channel randomizes.
 """
 
 from __future__ import annotations
@@ -40,3 +40,8 @@ class ActuatorGain(TorqueGain):
                 gainprm = list(act.gainprm)
                 gainprm[0] = float(gainprm[0]) * float(gain)
                 act.gainprm = gainprm
+                # A servo's position and velocity feedback (biasprm[1:3]) passes through the same motor;
+                # biasprm[0] is a constant torque (command_bias), not scaled.
+                biasprm = list(act.biasprm)
+                biasprm[1:3] = [float(v) * float(gain) for v in biasprm[1:3]]
+                act.biasprm = biasprm
