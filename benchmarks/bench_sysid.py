@@ -59,9 +59,11 @@ The time ratio is printed only when both methods give every parameter a finite i
 intervals overlap (per parameter, 95 %); otherwise what differs is printed instead, with the gap in
 units of our interval's half-width.
 
-Usage: ``.venv/bin/python benchmarks/bench_sysid.py [--case friction|delay|ladder|all] [--repeats 3]
-[--lab-dir DIR]`` (``--lab-dir`` keeps the simulated runs between invocations). ``ladder`` times our
-whole ladder with the diagnosis (what ``sim2real sysid`` runs) once. Sections are functions registered
+Usage: ``.venv/bin/python benchmarks/bench_sysid.py [--case friction|delay|ladder|consistent|actuator|all]
+[--repeats 3] [--lab-dir DIR]`` (``--lab-dir`` keeps the simulated runs between invocations). ``ladder``
+times our whole ladder with the diagnosis (what ``sim2real sysid`` runs) once; ``consistent`` the physically
+consistent inertial fit beside the unconstrained one; ``actuator`` the actuator link's fit (the measured
+torque against the command, :mod:`sim2real.actuator`) per rung, with and without its bootstrap. Sections are functions registered
 in ``SECTIONS``: add one there (e.g. the timing of a physically consistent inertial fit) without
 touching the others.
 """
@@ -803,32 +805,79 @@ def section_ladder(ctx: Context) -> None:
     print(f"  diagnosis: {status}; wall time {seconds:.2f} s (one run, both runs prepared inside the timing)")
 
 
-def section_consistent(ctx: Context) -> None:
-    """Issue 11: time of the physically consistent rung beside the unconstrained one (Panda, real_arm_like)."""
+def prepared_scenario_runs(directory: Path, scenario: str, duration_s: float = 20.0):
+    """One scenario of configs/panda/lab.yaml simulated on the dev Panda: (URDF, prepared runs by role)."""
     from gap_fixtures import short_lab_config
 
-    from sim2real import fitting
     from sim2real.measurements import load_prepared_runs
+
+    urdf, mjcf = build_dev_panda(directory)
+    lab_config = short_lab_config(directory, duration_s=duration_s)
+    runs = []
+    for run in scenario_runs(lab_config, scenario):
+        path = directory / f"{run['name']}.csv"
+        run_lab_scenario_run(mjcf, lab_config, "panda", scenario, run["name"], path)
+        runs.append({"name": run["name"], "path": str(path), "role": run["role"]})
+    listing = directory / "measurements.yaml"
+    listing.write_text(yaml.safe_dump({"runs": runs}), encoding="utf-8")
+    entries, prepared, _ = load_prepared_runs(listing, PANDA_JOINTS, "/")
+    return urdf, {role: [run for entry, run in zip(entries, prepared, strict=True) if entry.role == role]
+                  for role in ("fit", "holdout")}
+
+
+def section_actuator(ctx: Context) -> None:
+    """Issue 10: the actuator link's fit (tau against tau_cmd, every sample, no dynamics), per rung, timed."""
+    from sim2real import actuator, fitting
+
+    print("\n== Actuator link: measured torque against the command (Panda, lab scenario real_arm_like_actuator, "
+          "20 s runs at 1 kHz; hidden: 5 ms delay, motor gains 0.90-1.08, and the real_arm_like body) ==")
+    with tempfile.TemporaryDirectory() as tmp:
+        _, prepared = prepared_scenario_runs(Path(tmp), "real_arm_like_actuator")
+        started = time.perf_counter()
+        link = {role: actuator.actuator_data(runs, PANDA_JOINTS) for role, runs in prepared.items()}
+        signals = {role: actuator.actuator_signals(*data) for role, data in link.items()}
+        prepare_s = time.perf_counter() - started
+        settings = {**fitting.DEFAULT_SETTINGS, **actuator.ACTUATOR_FIT_SETTINGS}
+        fit_data, holdout = link["fit"][0], link["holdout"][0]
+        floor = float(np.sqrt(np.mean(holdout.noise_floor**2)))
+        print(f"data: {fit_data.n_samples} fit samples x {len(PANDA_JOINTS)} joints; noise floors and stacking "
+              f"{prepare_s:.2f} s; holdout noise floor {floor:.4f} N*m")
+        print(f"{'rung':<40} {'fit [s]':>8} {'with bootstrap [s]':>19}  holdout RMSE  x floor  values")
+        held = None
+        for effects in ([], ["actuator_gain"], ["actuator_gain", "actuation_delay"]):
+            times, boot = [], []
+            for _ in range(ctx.repeats):
+                for uncertainty, bucket in ((False, times), (True, boot)):
+                    started = time.perf_counter()
+                    result = fitting.fit(effects, None, fit_data, settings, signals=signals["fit"],
+                                         uncertainty=uncertainty, nonlinear_fixed=held)
+                    bucket.append(time.perf_counter() - started)
+            held = result.nonlinear
+            rmse = fitting.holdout_metrics(result, None, holdout, signals["holdout"])[0]["torque_rmse"]["overall"]
+            shown = []
+            if "actuation_delay" in result.values:
+                shown.append(f"delay {1e3 * result.values['actuation_delay']['delay']:.2f} ms")
+            if "actuator_gain" in result.values:
+                gains = result.values["actuator_gain"]["gain"]
+                shown.append("gain " + " ".join(f"{gains[j]:.3f}" for j in PANDA_JOINTS))
+            print(f"{' + '.join(['nominal', *effects]):<40} {statistics.median(times):>8.2f} "
+                  f"{statistics.median(boot):>19.2f}  {rmse:>10.4f}  {rmse / floor:>6.2f}  {'; '.join(shown)}")
+        print("lab truth: delay 5.00 ms, gain 0.930 0.920 1.060 0.950 1.080 0.940 0.900 "
+              f"(medians of {ctx.repeats} runs; bootstrap: {settings['bootstrap_replicates']} replicates)")
+
+
+def section_consistent(ctx: Context) -> None:
+    """Issue 11: time of the physically consistent rung beside the unconstrained one (Panda, real_arm_like)."""
+    from sim2real import fitting
 
     repeats = ctx.repeats
 
     print("\n== Physically consistent inertial fit vs unconstrained (Panda, lab scenario real_arm_like, 20 s runs) ==")
     with tempfile.TemporaryDirectory() as tmp:
-        directory = Path(tmp)
-        urdf, mjcf = build_dev_panda(directory)
-        lab_config = short_lab_config(directory, duration_s=20.0)
-        runs = []
-        for run in scenario_runs(lab_config, "real_arm_like"):
-            path = directory / f"{run['name']}.csv"
-            run_lab_scenario_run(mjcf, lab_config, "panda", "real_arm_like", run["name"], path)
-            runs.append({"name": run["name"], "path": str(path), "role": run["role"]})
-        listing = directory / "measurements.yaml"
-        listing.write_text(yaml.safe_dump({"runs": runs}), encoding="utf-8")
-        entries, prepared, _ = load_prepared_runs(listing, PANDA_JOINTS, "/")
+        urdf, prepared = prepared_scenario_runs(Path(tmp), "real_arm_like")
         nominal = fitting.load_nominal(urdf, PANDA_JOINTS)
-        by_role = {"fit": [], "holdout": []}
-        for entry, run in zip(entries, prepared, strict=True):
-            by_role[entry.role].append(fitting.run_from_prepared(run, estimate_noise_floor(run)))
+        by_role = {role: [fitting.run_from_prepared(run, estimate_noise_floor(run)) for run in runs]
+                   for role, runs in prepared.items()}
         settings = {**fitting.DEFAULT_SETTINGS, "bootstrap_replicates": 0}
         fit_data = fitting.stack_runs(by_role["fit"], PANDA_JOINTS, settings["fit_rate_hz"])
         holdout = fitting.stack_runs(by_role["holdout"], PANDA_JOINTS, settings["fit_rate_hz"])
@@ -859,6 +908,7 @@ SECTIONS: dict[str, Callable[[Context], None]] = {
     "delay": section_delay,
     "ladder": section_ladder,
     "consistent": section_consistent,
+    "actuator": section_actuator,
 }
 
 

@@ -14,8 +14,8 @@ from sysid_lab import FAST_FIT, Lab, overall
 
 ACTUATOR_SCENARIOS = {
     "sensor_actuation_delay": "actuation_delay",
-    "sensor_actuator_gain": "actuator_gain",
-    "sensor_command_bias": "command_bias",
+    "actuator_gain": "actuator_gain",
+    "command_bias": "command_bias",
 }
 
 
@@ -138,7 +138,7 @@ def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added
     assert "## Actuator link (commanded against measured torque)" in markdown
     assert gap["actuator"]["diagnosis"]["verdict"] in markdown and gap["diagnosis"]["verdict"] in markdown
 
-    gap, markdown = report(lab.without_sensor("sensor_actuator_gain"), [], "commands")
+    gap, markdown = report(lab.without_sensor("actuator_gain"), [], "commands")
     assert gap["links"]["mode"] == "commands_only" and "actuator" not in gap
     assert "## What these runs can tell apart" in markdown
     assert "**Not told apart:** `actuator_gain`, `link_inertia`" in markdown
@@ -150,7 +150,7 @@ def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
     from sim2real.fitting import stack_runs
     from sim2real.lab import arm_spec
 
-    runs = lab.prepared(lab.measurement_list("sensor_actuator_gain"))
+    runs = lab.prepared(lab.measurement_list("actuator_gain"))
     document, results = sysid.fit_model(["actuator_gain", "actuation_delay", "command_bias"], lab.nominal, runs,
                                         {"fit": FAST_FIT}, "panda")
     data = stack_runs([sysid.run_from_prepared(r, r.raw_torque_sigma) for r in runs["fit"]], lab.nominal.joint_names)

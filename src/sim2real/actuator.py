@@ -84,9 +84,10 @@ def command_noise_floor(run: PreparedRun) -> np.ndarray:
     rows = len(d2_tau) - lags
     floor = np.empty(run.tau.shape[1])
     for j in range(run.tau.shape[1]):
-        design = np.column_stack([d2_cmd[lags - lag : lags - lag + rows, j] for lag in range(lags)])
+        # Row i holds the command's differences at lags 0..lags-1 before sample lags + i (a view, no copy).
+        design = np.lib.stride_tricks.sliding_window_view(d2_cmd[:, j], lags)[1 : rows + 1, ::-1]
         target = d2_tau[lags:, j]
-        coef = np.linalg.lstsq(design, target, rcond=None)[0]
+        coef = np.linalg.lstsq(design.T @ design, design.T @ target, rcond=None)[0]
         left = target - design @ coef
         floor[j] = 1.4826 * np.median(np.abs(left - np.median(left))) / np.sqrt(6.0)
     return floor
