@@ -264,6 +264,24 @@ def _apply_spec_effects(spec: mujoco.MjSpec, joints: Sequence[str], effects: Map
     return truth
 
 
+# Per-joint gains and offsets: (effect, its key, the value when absent). The motor's act on the command
+# before the joint, the sensor's on the measured torque after it.
+GAINS_AND_BIASES = (("actuator_gain", "gain", 1.0), ("command_bias", "bias", 0.0),
+                    ("torque_gain", "gain", 1.0), ("torque_bias", "bias", 0.0))
+
+
+def _gains_and_biases(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None,
+                      truth: dict[str, Any]) -> dict[str, np.ndarray]:
+    """Each of :data:`GAINS_AND_BIASES` per joint; the hidden ones are recorded in ``truth``."""
+    out = {}
+    for name, key, absent in GAINS_AND_BIASES:
+        out[name] = np.full(len(joints), absent)
+        if name in effects:
+            out[name] = _per_joint(effects[name][key], joints, name, path)
+            truth[name] = {key: dict(zip(joints, out[name].tolist()))}
+    return out
+
+
 def gaz_friction(qd: np.ndarray, phi1: np.ndarray, phi2: np.ndarray, phi3: np.ndarray) -> np.ndarray:
     """Friction torque of Gaz et al. 2019 (zero at rest), per joint."""
     return phi1 / (1.0 + np.exp(-phi2 * (qd + phi3))) - phi1 / (1.0 + np.exp(-phi2 * phi3))
@@ -357,22 +375,9 @@ def simulate_run(
     if "actuation_delay" in effects:
         delay_steps = int(round(float(effects["actuation_delay"]["delay_s"]) * rate))
         truth["actuation_delay"] = {"delay_s": delay_steps * dt}
-    motor_gain = np.ones(n)
-    motor_bias = np.zeros(n)
-    if "actuator_gain" in effects:
-        motor_gain = _per_joint(effects["actuator_gain"]["gain"], joints, "actuator_gain", path)
-        truth["actuator_gain"] = {"gain": dict(zip(joints, motor_gain.tolist()))}
-    if "command_bias" in effects:
-        motor_bias = _per_joint(effects["command_bias"]["bias"], joints, "command_bias", path)
-        truth["command_bias"] = {"bias": dict(zip(joints, motor_bias.tolist()))}
-    gain = np.ones(n)
-    bias = np.zeros(n)
-    if "torque_gain" in effects:
-        gain = _per_joint(effects["torque_gain"]["gain"], joints, "torque_gain", path)
-        truth["torque_gain"] = {"gain": dict(zip(joints, gain.tolist()))}
-    if "torque_bias" in effects:
-        bias = _per_joint(effects["torque_bias"]["bias"], joints, "torque_bias", path)
-        truth["torque_bias"] = {"bias": dict(zip(joints, bias.tolist()))}
+    scales = _gains_and_biases(effects, joints, path, truth)
+    motor_gain, motor_bias = scales["actuator_gain"], scales["command_bias"]
+    gain, bias = scales["torque_gain"], scales["torque_bias"]
 
     sensors = scenario["sensors"]
     controller = scenario["controller"]
@@ -459,9 +464,7 @@ def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, ou
     dt = 1.0 / float(settings["sample_rate_hz"])
     if "actuation_delay" in effects:
         truth["actuation_delay"] = {"delay_s": round(float(effects["actuation_delay"]["delay_s"]) / dt) * dt}
-    for name, key in (("torque_gain", "gain"), ("torque_bias", "bias"), ("actuator_gain", "gain"), ("command_bias", "bias")):
-        if name in effects:
-            truth[name] = {key: dict(zip(joints, _per_joint(effects[name][key], joints, name, None).tolist()))}
+    _gains_and_biases(effects, joints, Path(lab_config), truth)
     write_yaml(output, {
         "scenario": scenario,
         "joints": joints,
