@@ -594,7 +594,7 @@ def _prune(tree: Any) -> Any:
 
 def fit(
     effect_names: Sequence[str],
-    nominal: NominalModel,
+    nominal: NominalModel | None,
     data: TorqueData,
     settings: Mapping[str, Any] | None = None,
     signals: Signals | None = None,
@@ -608,11 +608,14 @@ def fit(
     physically consistent, friction/armature/payload mass >= 0) and keep the unconstrained fit beside
     it (``result.unconstrained``); ``uncertainty``: bootstrap intervals; ``nonlinear_fixed``: nonlinear
     parameters held (the previous rung's: a rung refines only the nonlinear parameters of the effect it
-    adds). The ladder and the diagnosis call this same function with the same arguments, so the fall a
-    candidate promises is the fall its rung delivers.
+    adds); ``signals``: what the judged torque is predicted from (default: the nominal model on ``data``;
+    the actuator link passes its own and no nominal model). The ladder and the diagnosis call this same
+    function with the same arguments, so the fall a candidate promises is the fall its rung delivers.
     """
     settings = {**DEFAULT_SETTINGS, **(settings or {})}
-    signals = signals or make_signals(nominal, data)
+    if signals is None:
+        assert nominal is not None, "give the nominal model or the signals (the actuator link has no nominal model)"
+        signals = make_signals(nominal, data)
     effects = [get_effect(name) for name in effect_names]
     notes = []
     for effect in effects:
@@ -766,15 +769,21 @@ def _violations(problem: _Problem, theta: dict[str, np.ndarray], signals: Signal
     return "; ".join(found)
 
 
-def predict(result: FitResult, nominal: NominalModel, data: TorqueData, signals: Signals | None = None) -> np.ndarray:
-    """Judged torque the fitted model predicts on ``data`` (e.g. the holdout runs)."""
-    signals = signals or make_signals(nominal, data)
+def predict(
+    result: FitResult, nominal: NominalModel | None, data: TorqueData, signals: Signals | None = None
+) -> np.ndarray:
+    """Judged torque the fitted model predicts on ``data`` (e.g. the holdout runs).
+
+    ``nominal`` may be None when ``signals`` are given (the actuator link, :mod:`sim2real.actuator`)."""
+    if signals is None:
+        assert nominal is not None
+        signals = make_signals(nominal, data)
     effects = [get_effect(name) for name in result.effects]
     problem = _Problem(effects, signals, result.states)
     return problem.predict(result.theta, result.nonlinear)
 
 
-def holdout_metrics(result: FitResult, nominal: NominalModel, data: TorqueData, signals: Signals | None = None):
+def holdout_metrics(result: FitResult, nominal: NominalModel | None, data: TorqueData, signals: Signals | None = None):
     """(metrics, residual) on the holdout data: ``{"torque_rmse": rmse shape}``."""
     residual = data.tau - predict(result, nominal, data, signals)
     return {"torque_rmse": rmse(residual, data.joint_names)}, residual
