@@ -55,6 +55,18 @@ def test_diff_marks_regressions_and_improvements() -> None:
     assert "| j2 | 3 | 2 | 🟢 -1 (-33.3%) | 0.06 |" in better
 
 
+def test_diff_shows_the_actuator_link_when_the_runs_have_one() -> None:
+    base = _report([([], [1.0, 2.0])], top=None)
+    head = _report([([], [1.0, 2.0])], top=None)
+    base["actuator"] = _report([([], [0.08, 0.09])], top="actuation_delay")
+    head["actuator"] = _report([([], [0.08, 0.09]), (["actuation_delay"], [0.02, 0.02])], top=None)
+    text = gap_diff_markdown(base, head)
+    link = text[text.index("Actuator link"):]
+    assert "| + actuation_delay | – | 0.02 N·m | new |" in link
+    assert "actuator link** — base: `actuation_delay` on j2 (explains 80%); this branch: residual at the noise floor" in link
+    assert "Actuator link" not in gap_diff_markdown(base, _report([([], [1.0, 2.0])], top=None))
+
+
 def test_cli_without_base_report(tmp_path: Path) -> None:
     head = tmp_path / "gap.json"
     head.write_text(json.dumps(_report([([], [1.0, 2.0])], top="payload")))

@@ -1,8 +1,9 @@
 """Markdown summary of what changed between two gap reports (base branch vs pull request).
 
 Reads only the stable keys of ``gap.json`` (``robot``, ``ladder[].effects``,
-``ladder[].metrics.torque_rmse``, ``noise_floor``, ``diagnosis.candidates``), so reviewers see
-per rung and per joint whether the model got closer to the measurements or further away.
+``ladder[].metrics.torque_rmse``, ``noise_floor``, ``diagnosis.candidates``, and the same of the
+``actuator`` link where the runs have one), so reviewers see per rung and per joint whether the model
+got closer to the measurements or further away.
 """
 
 from __future__ import annotations
@@ -76,16 +77,7 @@ def gap_diff_markdown(base: GapReport | None, head: GapReport) -> str:
     base_ladder = list((base or {}).get("ladder") or [])
     base_by_label = {_rung_label(r): r for r in base_ladder}
     if head_ladder:
-        lines += ["| rung | holdout torque RMSE (base) | (this branch) | change |", "|---|---|---|---|"]
-        for rung in head_ladder:
-            label = _rung_label(rung)
-            b = _torque_rmse(base_by_label.get(label)).get("overall")
-            h = _torque_rmse(rung).get("overall")
-            lines.append(f"| {label} | {_fmt(b, ' N·m')} | {_fmt(h, ' N·m')} | {_delta(b, h)} |")
-        for label in base_by_label:
-            if label not in {_rung_label(r) for r in head_ladder}:
-                lines.append(f"| {label} | {_fmt(_torque_rmse(base_by_label[label]).get('overall'), ' N·m')} | removed | – |")
-        lines.append("")
+        lines += _rung_rows(head_ladder, base_ladder) + [""]
         last = head_ladder[-1]
         base_last = base_by_label.get(_rung_label(last))
         head_joints = _torque_rmse(last).get("per_joint", {})
@@ -107,7 +99,28 @@ def gap_diff_markdown(base: GapReport | None, head: GapReport) -> str:
         f"**Top diagnosis** — base: {_top_candidate(base)}; this branch: {_top_candidate(head)}",
         "",
     ]
+    if head.get("actuator"):
+        base_link = (base or {}).get("actuator")
+        lines += ["Actuator link (measured against commanded torque):", ""]
+        lines += _rung_rows(head["actuator"].get("ladder") or [], (base_link or {}).get("ladder") or []) + [""]
+        lines += [f"**Top diagnosis, actuator link** — base: {_top_candidate(base_link)}; this branch: "
+                  f"{_top_candidate(head['actuator'])}", ""]
     return "\n".join(lines)
+
+
+def _rung_rows(head_ladder: Sequence[Mapping[str, Any]], base_ladder: Sequence[Mapping[str, Any]]) -> list[str]:
+    """One row per rung of this branch against the base's rung with the same effects; removed rungs last."""
+    base_by_label = {_rung_label(r): r for r in base_ladder}
+    lines = ["| rung | holdout torque RMSE (base) | (this branch) | change |", "|---|---|---|---|"]
+    for rung in head_ladder:
+        label = _rung_label(rung)
+        b = _torque_rmse(base_by_label.get(label)).get("overall")
+        h = _torque_rmse(rung).get("overall")
+        lines.append(f"| {label} | {_fmt(b, ' N·m')} | {_fmt(h, ' N·m')} | {_delta(b, h)} |")
+    for label in base_by_label:
+        if label not in {_rung_label(r) for r in head_ladder}:
+            lines.append(f"| {label} | {_fmt(_torque_rmse(base_by_label[label]).get('overall'), ' N·m')} | removed | – |")
+    return lines
 
 
 def main(argv: Sequence[str] | None = None) -> int:
