@@ -135,7 +135,7 @@ def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added
     gap, markdown = report(lab.measurement_list("sensor_actuation_delay"), ["actuation_delay"], "sensor")
     nominal, delayed = (rung["metrics"]["position_rmse"]["overall"] for rung in gap["actuator"]["ladder"])
     assert delayed < 0.5 * nominal, (nominal, delayed)  # the state domain sees the delay too
-    assert "## Actuator link (commanded against measured torque)" in markdown
+    assert "## Actuator link (measured against commanded torque)" in markdown
     assert gap["actuator"]["diagnosis"]["verdict"] in markdown and gap["diagnosis"]["verdict"] in markdown
 
     gap, markdown = report(lab.without_sensor("actuator_gain"), [], "commands")

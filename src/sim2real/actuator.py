@@ -38,7 +38,7 @@ from sim2real.measurements import PreparedRun
 
 LINK_MODES: dict[str, str] = {
     "separate": "the runs log the measured torque (tau) and the command (tau_cmd): the actuator link is judged "
-    "on tau_cmd against tau, the body link on tau against the motion",
+    "on tau against tau_cmd, the body link on tau against the motion",
     "commands_only": "the runs log only the command (tau_cmd): the actuator and the body are judged together, "
     "on tau_cmd against the motion",
     "sensor_only": "the runs log only the measured torque (tau): the body link is judged on tau against the "
@@ -123,7 +123,7 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
     if mode == "separate":
         out["can_tell"] = [
             {"effects": ["actuation_delay", "actuator_gain", "command_bias"],
-             "why": "judged on the command against the measured torque: no body effect enters that link"},
+             "why": "judged on the measured torque against the command: no body effect enters that link"},
             {"effects": [n for n, e in EFFECTS.items() if e.link == "body"],
              "why": "judged on the measured torque against the motion: no actuator effect enters that link"},
         ]

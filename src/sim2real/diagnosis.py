@@ -50,7 +50,7 @@ NESTED_IN: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",)}
 # How each link is named in verdicts (sim2real.actuator.LINK_MODES says which links a data set has).
 LINK_TEXT: dict[str, str] = {
     "body": "the body link (measured torque against the motion)",
-    "actuator": "the actuator link (commanded against measured torque)",
+    "actuator": "the actuator link (measured against commanded torque)",
     "combined": "the commanded torque against the motion (actuator and body together: no torque sensor)",
 }
 CONFOUNDED_NOISE_FRACTION = 0.1  # two candidates whose predictions differ by less: not told apart

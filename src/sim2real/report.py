@@ -276,7 +276,7 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
     if "actuator" in gap:
         link = gap["actuator"]
         link_floor = link["noise_floor"]["torque_rmse"]["overall"]
-        lines += ["", "## Actuator link (commanded against measured torque)", "",
+        lines += ["", "## Actuator link (measured against commanded torque)", "",
                   f"The {link['judged']}. Noise floor {link_floor:.3g} N m: the sensor's white noise, what no "
                   "filter of the command explains. Replay: the commands replayed in MuJoCo on the body link's "
                   "last rung with each actuator rung's effects.", ""]
