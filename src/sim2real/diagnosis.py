@@ -143,8 +143,8 @@ def diagnose(
         if effect.needs_commands and holdout_data.torque_source != "tau_cmd" and not holdout_signals.forward:
             skipped.append({
                 "effect": name,
-                "reason": "the judged torque is measured by a sensor (tau), which a command delay does not "
-                "change; it needs runs with only tau_cmd, or the state-domain replay",
+                "reason": "an effect of the actuator link (command -> applied torque), and the torque judged here "
+                "is measured by a sensor (tau) after it; runs that also log tau_cmd judge it on the actuator link",
             })
             continue
         if effect.sensor_side and (holdout_data.torque_source == "tau_cmd" or holdout_signals.forward):
