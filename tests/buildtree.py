@@ -50,8 +50,26 @@ def edit_yaml(path: Path, edit: Callable[[dict], None]) -> None:
     path.write_text(yaml.safe_dump(data, sort_keys=False))
 
 
-def make_fast(tree: Path) -> None:
-    """Settings for tests: the same DAG with cheap decomposition and short lab runs."""
+def make_fast(tree: Path, lab_duration_s: float | None = None) -> None:
+    """Settings for tests: the same DAG with cheap decomposition and short lab runs.
+
+    ``lab_duration_s``: also shorten every lab run to this and bootstrap the fits with few replicates,
+    for tests of the DAG itself (caching, reproducibility) rather than of what the fits find.
+    """
+    if lab_duration_s is not None:
+        def short_runs(data: dict) -> None:
+            data.setdefault("defaults", {})["duration_s"] = lab_duration_s
+            for scenario in (data.get("scenarios") or {}).values():
+                if scenario and "duration_s" in scenario:
+                    scenario["duration_s"] = lab_duration_s
+
+        def few_replicates(data: dict) -> None:
+            data.setdefault("fit", {})["bootstrap_replicates"] = 20
+
+        for lab in sorted((tree / "configs").glob("*/lab.yaml")):
+            edit_yaml(lab, short_runs)
+        for model in sorted((tree / "configs").glob("*/model.yaml")):
+            edit_yaml(model, few_replicates)
     for robot_cfg in sorted((tree / "configs").glob("*/robot.yaml")):
         def fast_collision(data: dict) -> None:
             collision = data.get("collision")

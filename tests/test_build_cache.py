@@ -17,6 +17,8 @@ from pathlib import Path
 import pytest
 
 from buildtree import FAST_BUILD_TARGET, copy_repo, make_fast, rules_run
+
+LAB_DURATION_S = 6.0  # the cache and reproducibility do not depend on what the fits find: short lab runs
 from buildtree import run_snakemake as _snakemake
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,7 +32,7 @@ def _jobs_run(log: str) -> list[str]:
 @pytest.fixture(scope="module")
 def first_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
     tree = copy_repo(ROOT, tmp_path_factory.mktemp("build_a") / "repo")
-    make_fast(tree)
+    make_fast(tree, LAB_DURATION_S)
     _snakemake(tree, FAST_BUILD_TARGET)
     return tree
 
@@ -46,7 +48,7 @@ def _comparable_files(results: Path) -> list[Path]:
 
 def test_two_clean_builds_are_byte_identical(first_build: Path, tmp_path: Path) -> None:
     second = copy_repo(ROOT, tmp_path / "repo")
-    make_fast(second)
+    make_fast(second, LAB_DURATION_S)
     _snakemake(second, FAST_BUILD_TARGET)
     files_a = _comparable_files(first_build / "results")
     files_b = _comparable_files(second / "results")
@@ -58,7 +60,7 @@ def test_two_clean_builds_are_byte_identical(first_build: Path, tmp_path: Path) 
 
 def test_restored_cache_runs_nothing_and_an_inertial_edit_reruns_only_its_dependents(first_build: Path, tmp_path: Path) -> None:
     fresh = copy_repo(ROOT, tmp_path / "repo")
-    make_fast(fresh)
+    make_fast(fresh, LAB_DURATION_S)
     # The workflow's restore step: results/ and Snakemake's metadata, file times as archived.
     shutil.copytree(first_build / "results", fresh / "results", copy_function=shutil.copy2)
     shutil.copytree(first_build / ".snakemake" / "metadata", fresh / ".snakemake" / "metadata", copy_function=shutil.copy2)
