@@ -147,14 +147,12 @@ def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added
 def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
     from sim2real import sysid
     from sim2real.effects import apply_to_spec
-    from sim2real.fitting import stack_runs
     from sim2real.lab import arm_spec
 
     runs = lab.prepared(lab.measurement_list("actuator_gain"))
     document, results = sysid.fit_model(["actuator_gain", "actuation_delay", "command_bias"], lab.nominal, runs,
                                         {"fit": FAST_FIT}, "panda")
-    data = stack_runs([sysid.run_from_prepared(r, r.raw_torque_sigma) for r in runs["fit"]], lab.nominal.joint_names)
-    params = sysid.params_document(results, lab.nominal, data, "panda")
+    params = sysid.params_document(results, lab.nominal, document["torque_source"], "panda")
     assert set(params["effects"]) == {"actuation_delay", "actuator_gain", "command_bias"}
     spec = arm_spec(lab.mjcf, lab.nominal.joint_names)  # the dev MJCF driven by joint torque motors
     apply_to_spec(spec, params)

@@ -190,16 +190,19 @@ def fit_model(
 
 
 def params_document(
-    results: Sequence[FitResult], nominal: NominalModel, data: TorqueData, robot: str
+    results: Sequence[FitResult], nominal: NominalModel, torque_source: str, robot: str
 ) -> dict[str, Any]:
-    """params.yaml: the last rung's fitted values of every link (:func:`fit_model`), with their intervals."""
+    """params.yaml: the last rung's fitted values of every link (:func:`fit_model`), with their intervals.
+
+    ``torque_source``: the body link's judged torque (``tau`` or ``tau_cmd``; ladder.json's ``torque_source``).
+    """
     return round_floats({
         "robot": robot,
         "effects": {name: values for result in results for name, values in result.values.items()},
         "intervals": {name: values for result in results for name, values in result.intervals.items()},
         "order": [name for result in results for name in result.effects],
-        "joints": data.joint_names,
-        "torque_source": data.torque_source,
+        "joints": nominal.joint_names,
+        "torque_source": torque_source,
         "last_link": nominal.info["last_link"],
         "flange": nominal.info["flange"],
         "uncertainty": "moving-block bootstrap of the fit runs (blocks of time, all joints together), "
@@ -256,10 +259,7 @@ def run_sysid(
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
     document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot)
-    fit_settings = {**DEFAULT_SETTINGS, **model_config["fit"]}
-    fit_data = stack_runs([run_from_prepared(run, estimate_noise_floor(run)) for run in by_role["fit"]], joints,
-                          fit_settings["fit_rate_hz"])
-    params = params_document(results, nominal, fit_data, robot)
+    params = params_document(results, nominal, document["torque_source"], robot)
     write_json(ladder_json, document)
     write_yaml(params_yaml, params)
     write_yaml(calibration_yaml, round_floats(calibration_from_params(params)))
