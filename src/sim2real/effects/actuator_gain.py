@@ -21,8 +21,7 @@ class ActuatorGain(TorqueGain):
     signature = "residual proportional to the commanded torque itself"
     link = "actuator"
     needs_commands = True
-    sensor_side = False
-    scales_judged = True
+    sensor_side = False  # inherits the gain column (and scales_judged) of the sensor's gain
 
     def values(self, theta, nonlinear, signals, state):
         ratio = 1.0 + np.asarray(theta, dtype=float)  # judged / predicted torque
