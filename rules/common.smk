@@ -274,22 +274,20 @@ def measurement_files(wildcards):
 
 def bag_topics(wildcards):
     """ROS 2 topics of configs/{robot}/measurements.yaml (`ros2:`), with the package defaults."""
-    from sim2real.measurements import ros2_topics
+    from sim2real.bags import ros2_topics
 
     return ros2_topics(measurement_list(wildcards.robot))
 
 
-def lab_config(robot):
-    return f"configs/{robot}/lab.yaml"
+def lab_truth_targets(robot):
+    """truth.yaml of every lab scenario the robot's campaigns measure (no comparing rule reads it)."""
+    from sim2real.measurements import load_measurement_list
 
-
-def lab_demo_targets(robot):
-    """The demo scenario's runs and truth, when the robot has a lab."""
-    from sim2real.lab import scenario_runs
-
-    if not os.path.exists(lab_config(robot)):
-        return []
-    runs = scenario_runs(lab_config(robot), "demo")
-    return [f"results/{robot}/lab/demo/{r['name']}.parquet" for r in runs] + [
-        f"results/{robot}/lab/demo/truth.yaml"
-    ]
+    prefix = f"results/{robot}/lab/"
+    scenarios = {
+        entry.path.as_posix()[len(prefix) :].split("/")[0]
+        for c in CAMPAIGNS[robot]
+        for entry in load_measurement_list(c.measurements)
+        if entry.path.as_posix().startswith(prefix)
+    }
+    return [f"{prefix}{scenario}/truth.yaml" for scenario in sorted(scenarios)]

@@ -46,4 +46,4 @@ rule lab_truth:
 ruleorder: lab_truth > lab_run
 
 
-STAGE_TARGETS.append(lab_demo_targets)
+STAGE_TARGETS.append(lab_truth_targets)

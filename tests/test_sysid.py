@@ -45,6 +45,23 @@ def test_per_joint_effects_are_recovered_inside_their_intervals(nominal, effect,
         assert hi - lo < 0.2 * abs(truth) + 0.02
 
 
+def test_bootstrap_intervals_widen_for_few_blocks_and_uneven_ones():
+    from scipy import stats
+
+    from sim2real.fitting import small_sample_stretch
+
+    # 20 equal blocks: the bootstrap variance is short by 19/20 and the t quantile with 19 dof replaces z.
+    expected = np.sqrt(20 / 19) * stats.t.ppf(0.975, 19) / stats.norm.ppf(0.975)
+    assert small_sample_stretch(np.ones(20), 0.95) == pytest.approx(expected)
+    assert small_sample_stretch(np.ones(5), 0.95) > small_sample_stretch(np.ones(20), 0.95) > \
+        small_sample_stretch(np.ones(2000), 0.95) > 1.0
+    assert small_sample_stretch(np.ones(2000), 0.95) == pytest.approx(1.0, abs=2e-3)
+    # 20 blocks of which 10 are cut short hold less information than 20 full ones.
+    uneven = np.r_[np.ones(10), np.full(10, 0.1)]
+    assert small_sample_stretch(uneven, 0.95) > small_sample_stretch(np.ones(20), 0.95)
+    assert small_sample_stretch(np.ones(1), 0.95) == 1.0
+
+
 def test_payload_and_delay_are_recovered(nominal):
     payload = sysid.fit(["payload"], nominal, _data({"payload": (1.2, [0.02, 0.0, 0.12])}, [3]), FAST)
     assert payload.values["payload"]["mass"] == pytest.approx(1.2, rel=0.02)

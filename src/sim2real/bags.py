@@ -2,7 +2,7 @@
 
 :func:`mcap_to_run` reads the joint states (and optionally the commands) of a bag and writes a run in
 the measurement format of :mod:`sim2real.measurements` (table + metadata), which the rules then read
-like any other log. The bag's topics come from measurements.yaml (:func:`sim2real.measurements.ros2_topics`).
+like any other log. The bag's topics come from measurements.yaml (:func:`ros2_topics`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,19 @@ from typing import Any
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.measurements import DEFAULT_JOINT_TOPIC, write_run
+from sim2real.io import read_validated_yaml
+from sim2real.measurements import write_run
+
+DEFAULT_JOINT_TOPIC = "/joint_states"
+
+
+def ros2_topics(path: str | Path) -> dict[str, str | None]:
+    """ROS 2 bag topics of measurements.yaml (`ros2: {joint_topic, command_topic}`), with defaults."""
+    ros2 = read_validated_yaml(path, "measurements.schema.yaml").get("ros2", {})
+    return {
+        "joint_topic": ros2.get("joint_topic", DEFAULT_JOINT_TOPIC),
+        "command_topic": ros2.get("command_topic"),
+    }
 
 
 def mcap_to_run(

@@ -455,18 +455,6 @@ def load_prepared_runs(
     return entries, prepare_runs(runs, settings, known_joints, limits), settings
 
 
-DEFAULT_JOINT_TOPIC = "/joint_states"
-
-
-def ros2_topics(path: str | Path) -> dict[str, str | None]:
-    """ROS 2 bag topics of measurements.yaml (`ros2: {joint_topic, command_topic}`), with defaults."""
-    ros2 = read_validated_yaml(path, "measurements.schema.yaml").get("ros2", {})
-    return {
-        "joint_topic": ros2.get("joint_topic", DEFAULT_JOINT_TOPIC),
-        "command_topic": ros2.get("command_topic"),
-    }
-
-
 def write_run(
     path: str | Path, time: np.ndarray, joint_names: Sequence[str], signals: Mapping[str, np.ndarray],
     meta: Mapping[str, Any],

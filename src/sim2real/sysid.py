@@ -205,8 +205,9 @@ def params_document(
         "torque_source": torque_source,
         "last_link": nominal.info["last_link"],
         "flange": nominal.info["flange"],
-        "uncertainty": "moving-block bootstrap of the fit runs (blocks of time, all joints together), "
-        "percentile intervals, conditional on the nonlinear parameters",
+        "uncertainty": "block bootstrap of the fit runs (blocks of time, all joints together), "
+        "percentile intervals with a small-sample correction for the number of blocks, conditional on the "
+        "nonlinear parameters",
         "notes": [note for result in results for note in result.notes],
     })
 
