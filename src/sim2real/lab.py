@@ -15,7 +15,7 @@ joint order or a ``{joint: value}`` map):
 * ``actuation_delay`` ``{delay_s}``: the applied torque is the command delayed by delay_s.
 * ``actuator_gain`` ``{gain}`` and ``command_bias`` ``{bias}`` N*m: the motor applies
   gain * (delayed command) + bias, as a motor constant off by some percent or a drive's current offset
-  would; the torque sensor measures that applied torque.
+  would; a motor-side torque sensor measures that applied torque (a link-side one what reaches the link).
 * ``payload`` ``{mass, com?, body?}``: a point-ish mass at the flange (last body), added with MjSpec.
 * ``link_inertia`` ``{scale?, mass_scale?, com_offset?}``: the body moved by each joint made heavier or
   lighter (``scale``/``mass_scale``: mass and inertia about the COM multiplied, as a denser or larger
@@ -29,8 +29,19 @@ Column semantics of the written runs:
 * ``qd.<j>``: the velocity the controller uses: true velocity plus ``sensors.velocity_noise_std``.
 * ``tau_cmd.<j>``: the controller's command at that stamp (PD + gravity or computed torque, both on
   the NOMINAL model, fed by the noisy sensors).
-* ``tau.<j>``: the joint torque sensor: applied torque (the command after any delay) times
-  ``torque_gain`` plus ``torque_bias`` plus white noise ``sensors.torque_noise_std``.
+* ``tau.<j>``: the joint torque sensor: the torque it sees times ``torque_gain`` plus ``torque_bias``
+  plus white noise ``sensors.torque_noise_std``. Where it sits is ``sensors.torque_sensor``:
+
+  - ``motor`` (the default, every scenario but ``link_side_sensor``): at the motor output, it sees the
+    applied torque (the command after any delay, through the motor's gain and offset), before the
+    joint's rotor inertia, damping and friction (a motor-current estimate).
+  - ``link`` (``link_side_sensor``; the Panda's ``tau_J``, a KUKA iiwa's sensors): after the gearbox,
+    it sees the torque transmitted to the link, the rigid-body inverse dynamics of the real arm (its
+    hidden link inertias and payload included) at the true state and acceleration of the sample,
+    without the drive terms: the applied torque minus armature * qdd, damping * qd and the joint's
+    friction (frictionloss, Gaz). Rotor inertia and joint friction then lie between ``tau_cmd`` and ``tau``.
+
+  The run's metadata says which (``torque_sensor: motor|link``) whenever it logs ``tau``.
 * ``time``: the logger's stamps: the sample instants plus Gaussian ``sensors.stamp_jitter_s`` (kept
   increasing), like a real log whose stamps wander around the control period.
 * ``q_cmd.<j>``: the desired trajectory.
@@ -79,7 +90,8 @@ DEFAULTS: dict[str, Any] = {
         "position_fraction": 0.6,
         "velocity_fraction": 0.6,
     },
-    "sensors": {"torque_noise_std": 0.05, "encoder_resolution_rad": 1.0e-6, "velocity_noise_std": 0.002},
+    "sensors": {"torque_noise_std": 0.05, "encoder_resolution_rad": 1.0e-6, "velocity_noise_std": 0.002,
+                "torque_sensor": "motor"},
     "effects": {},
 }
 
@@ -325,6 +337,32 @@ def fourier_excitation(
 # simulation
 
 
+TORQUE_SENSORS = ("motor", "link")
+
+
+def _torque_sensor(scenario: Mapping[str, Any], path: Path | None) -> str:
+    """``sensors.torque_sensor`` of a scenario: ``motor`` (the default) or ``link``."""
+    where = str(scenario.get("sensors", {}).get("torque_sensor", "motor"))
+    if where not in TORQUE_SENSORS:
+        raise InputError(path, "sensors/torque_sensor", f"unknown torque sensor '{where}'",
+                         f"use one of {', '.join(TORQUE_SENSORS)}")
+    return where
+
+
+def _link_side_model(mjcf_path: str | Path, joints: Sequence[str], effects: Mapping[str, Any],
+                     path: Path | None) -> mujoco.MjModel:
+    """The real arm (hidden effects included) without its drive terms: no armature, damping or
+    frictionloss on the measured joints. Its inverse dynamics is the torque transmitted to the links."""
+    spec = arm_spec(mjcf_path, joints)
+    _apply_spec_effects(spec, joints, effects, path)
+    for name in joints:
+        joint = spec.joint(name)
+        joint.armature = 0.0
+        joint.damping = np.zeros_like(np.array(joint.damping, dtype=float).reshape(-1))
+        joint.frictionloss = 0.0
+    return compile_arm(spec, joints)[0]
+
+
 def _nominal_torque(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray, qd: np.ndarray,
                     qdd: np.ndarray, qadr: np.ndarray, dadr: np.ndarray) -> np.ndarray:
     data.qpos[qadr] = q
@@ -380,6 +418,14 @@ def simulate_run(
     gain, bias = scales["torque_gain"], scales["torque_bias"]
 
     sensors = scenario["sensors"]
+    # A link-side torque sensor: the rigid-body inverse dynamics of the real arm without its drive terms,
+    # at each sample's true state and acceleration (two MuJoCo calls per sample, only when tau is logged).
+    link_side = _torque_sensor(scenario, path) == "link" and "tau" in scenario["columns"]
+    if link_side:
+        real_link = _link_side_model(mjcf_path, joints, effects, path)
+        link_data = mujoco.MjData(real_link)
+        dadr_l = np.array([real_link.jnt_dofadr[real_link.joint(j).id] for j in joints])
+        out_link = np.empty((steps, n))
     controller = scenario["controller"]
     kp = _per_joint(controller["kp"], joints, "controller/kp", path)
     kd = _per_joint(controller["kd"], joints, "controller/kd", path)
@@ -410,12 +456,22 @@ def simulate_run(
         applied = motor_gain * out_cmd[max(k - delay_steps, 0)] + motor_bias
         out_q[k], out_qd[k], out_applied[k] = q_meas, qd_meas, applied
         real_data.ctrl[ctrl_index] = applied
+        if link_side:
+            if gaz is not None:
+                real_data.qfrc_applied[dadr_r] = -gaz_friction(real_data.qvel[dadr_r], *gaz)
+            mujoco.mj_forward(real, real_data)  # the acceleration the step below integrates
+            link_data.qpos[:] = real_data.qpos
+            link_data.qvel[:] = real_data.qvel
+            link_data.qacc[:] = real_data.qacc
+            mujoco.mj_inverse(real_link, link_data)
+            out_link[k] = link_data.qfrc_inverse[dadr_l]
         for _ in range(substeps):
             if gaz is not None:
                 real_data.qfrc_applied[dadr_r] = -gaz_friction(real_data.qvel[dadr_r], *gaz)
             mujoco.mj_step(real, real_data)
 
-    tau_sensor = gain * out_applied + bias + float(sensors["torque_noise_std"]) * rng.standard_normal((steps, n))
+    seen = out_link if link_side else out_applied
+    tau_sensor = gain * seen + bias + float(sensors["torque_noise_std"]) * rng.standard_normal((steps, n))
     signals = {"q": out_q, "qd": out_qd, "tau": tau_sensor, "tau_cmd": out_cmd, "q_cmd": q_des}
     columns = set(scenario["columns"])
     jitter = float(sensors.get("stamp_jitter_s", 0.0))
@@ -443,6 +499,7 @@ def run_lab_scenario_run(
         "source": "synthetic",
         "control_mode": "torque",
         "sample_rate_hz": float(settings["sample_rate_hz"]),
+        **({"torque_sensor": _torque_sensor(settings, Path(lab_config))} if "tau" in signals else {}),
         "notes": f"virtual lab scenario '{scenario}', run '{run}' (seed {runs[run]['seed']}); "
                  "hidden effects are in truth.yaml, which no comparison reads",
     }
