@@ -116,6 +116,52 @@ def test_on_an_arm_like_a_real_one_both_links_reach_their_noise_floor(lab):
     assert documents[0]["diagnosis"]["candidates"][0]["effect"] == lab.model("real_arm_like", [])["diagnosis"]["candidates"][0]["effect"]
 
 
+DRIVE = {"rotor_inertia", "coulomb_friction", "viscous_friction"}
+
+
+def test_behind_a_link_side_sensor_the_drive_is_found_on_the_actuator_link(lab, tmp_path):
+    """real_arm_like measured after the gearbox (the Panda's tau_J): rotor inertia and joint friction lie
+    between the command and tau. The loop finds them on the actuator link, the body needs its inertias
+    only, both links reach their floors, and the armature comes back as the lab hid it."""
+    import json
+
+    import yaml
+
+    from sim2real.gap import build_gap_report
+
+    documents = follow_both_links(lab, "link_side_sensor")
+    first, last = documents[0], documents[-1]
+    assert first["links"]["torque_sensor"] == "link"
+    assert first["diagnosis"]["candidates"][0]["effect"] == "link_inertia"
+    assert not {c["effect"] for c in first["diagnosis"]["candidates"]} & DRIVE  # not the body's
+    top = first["actuator"]["diagnosis"]["candidates"][0]
+    assert (top["effect"], top["link"]) == ("coulomb_friction", "actuator"), first["actuator"]["diagnosis"]["verdict"]
+    assert not set(last["ladder"][-1]["effects"]) & DRIVE
+    assert {"coulomb_friction", "rotor_inertia"} <= set(last["actuator"]["ladder"][-1]["effects"])
+    for section in (last, last["actuator"]):
+        assert section["diagnosis"]["status"] == "at_noise_floor", section["diagnosis"]["verdict"]
+        rmse = [overall(rung) for rung in section["ladder"]]
+        assert rmse == sorted(rmse, reverse=True), rmse
+        assert rmse[-1] <= 1.5 * floor(section), (rmse, floor(section))
+    hidden = yaml.safe_load(lab.lab_config.read_text(encoding="utf-8"))["scenarios"]["link_side_sensor"]["effects"]
+    armature = last["actuator"]["ladder"][-1]["params"]["rotor_inertia"]["armature"]
+    for joint, truth in zip(lab.nominal.joint_names, hidden["rotor_inertia"]["armature"], strict=True):
+        assert armature[joint] == pytest.approx(truth, rel=0.15), (joint, armature[joint], truth)
+
+    # gap.md says which sensor it assumed, and replays the drive on the actuator link.
+    listing = lab.measurement_list("link_side_sensor")
+    out = tmp_path / "gap"
+    out.mkdir()
+    (out / "ladder.json").write_text(json.dumps(last), encoding="utf-8")
+    figures = {k: out / f"{k}.png" for k in ("torque", "residual_velocity", "regimes", "ladder")}
+    gap = build_gap_report("panda", lab.urdf, lab.mjcf, listing, out / "gap.json", out / "gap.md", figures,
+                           out / "ladder.json", "/")
+    assert gap["links"]["torque_sensor"] == "link"
+    assert "The torque sensor is link-side" in (out / "gap.md").read_text(encoding="utf-8")
+    replayed = [rung["metrics"]["position_rmse"]["overall"] for rung in gap["actuator"]["ladder"]]
+    assert replayed[-1] < replayed[0], replayed  # the drive's effects move the replayed arm too
+
+
 def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added(lab, tmp_path):
     import json
 

@@ -15,6 +15,16 @@ how the links can be judged (:func:`link_mode`):
   without a sensor. The command is known exactly, so the noise is all in the judged torque and the
   least squares are unbiased. The link is fitted on every sample (no decimation): a delay of a few ms
   is a few samples.
+
+  Where the sensor sits decides where the drive's effects go (:func:`effect_link`). A motor-side
+  sensor (run metadata ``torque_sensor: motor``, the default: a motor-current estimate) measures the
+  torque before the rotor inertia and the joint friction, which are then the body's. A link-side
+  sensor (``torque_sensor: link``: the Panda's tau_J, a KUKA iiwa's) measures after them, so they
+  join the actuator link, predicted from the motion and not delayed::
+
+      tau(t) = g * tau_cmd(t - d) + b - (I_a * qdd + D * qd + F_c * tanh(qd / v_s))(t) + sensor noise
+
+  and the body link is the rigid body alone (:func:`sim2real.fitting.make_signals`).
 * ``commands_only``: no torque sensor (most arms). One ladder on ``tau_cmd`` against the motion holds
   both links; :func:`separability` says what these data can and cannot tell apart.
 * ``sensor_only``: no commands. The body link only; the actuator cannot be seen.
@@ -33,7 +43,8 @@ import numpy as np
 
 from sim2real.effects import EFFECTS, Signals, get_effect
 from sim2real.effects.actuation_delay import MAX_DELAY
-from sim2real.fitting import TorqueData, run_from_prepared, stack_runs
+from sim2real.errors import InputError
+from sim2real.fitting import NominalModel, TorqueData, link_side, run_from_prepared, stack_runs
 from sim2real.measurements import PreparedRun
 
 LINK_MODES: dict[str, str] = {
@@ -58,14 +69,32 @@ def link_mode(runs: Sequence[PreparedRun]) -> str:
     return "sensor_only" if has_sensor else "commands_only"
 
 
-def effects_of_link(effect_names: Sequence[str], link: str) -> list[str]:
+def effect_link(name: str, torque_sensor: str = "motor") -> str:
+    """The link an effect lies on. The drive's effects (rotor inertia, joint friction and damping) sit
+    between the motor and the link: behind a motor-side sensor they are the body's, in front of a
+    link-side sensor (``torque_sensor: link``) the actuator's."""
+    effect = get_effect(name)
+    return "actuator" if effect.drive and torque_sensor == "link" else effect.link
+
+
+def effects_of_link(effect_names: Sequence[str], link: str, torque_sensor: str = "motor") -> list[str]:
     """The effects of ``link`` among ``effect_names``, in their order."""
-    return [name for name in effect_names if get_effect(name).link == link]
+    return [name for name in effect_names if effect_link(name, torque_sensor) == link]
 
 
-def candidates_of_link(link: str) -> list[str]:
+def candidates_of_link(link: str, torque_sensor: str = "motor") -> list[str]:
     """The library's effects the diagnosis tries on ``link`` (``combined``: all of them)."""
-    return [name for name, effect in EFFECTS.items() if link == "combined" or effect.link == link]
+    return [name for name in EFFECTS if link == "combined" or effect_link(name, torque_sensor) == link]
+
+
+def torque_sensor(runs: Sequence[PreparedRun]) -> str:
+    """Where the runs' ``tau`` is measured (their metadata ``torque_sensor``); one place for all runs."""
+    places = {run.torque_sensor for run in runs if run.torque_source == "tau"}
+    if len(places) > 1:
+        listing = ", ".join(f"{run.name}: {run.torque_sensor}" for run in runs if run.torque_source == "tau")
+        raise InputError(None, "torque_sensor", f"the runs mix torque sensor positions ({listing})",
+                         "set the same `torque_sensor` (motor or link) in every run's metadata YAML")
+    return places.pop() if places else "motor"
 
 
 def command_noise_floor(run: PreparedRun) -> np.ndarray:
@@ -106,26 +135,44 @@ def actuator_data(runs: Sequence[PreparedRun], joint_names: Sequence[str]) -> tu
     return stack_runs(judged, joint_names, rate), stack_runs(commands, joint_names, rate).tau
 
 
-def actuator_signals(data: TorqueData, commands: np.ndarray) -> Signals:
-    """Signals of the actuator link: the command stands where the body link has the nominal model."""
+def actuator_signals(data: TorqueData, commands: np.ndarray, nominal: NominalModel | None = None) -> Signals:
+    """Signals of the actuator link: the command stands where the body link has the nominal model.
+
+    Behind a link-side sensor (``data.torque_sensor == "link"``, ``nominal`` given) the link also holds
+    the drive: tau = g * tau_cmd(t - d) + b - (armature * qdd + damping * qd + friction * sign(qd)), the
+    nominal drive terms undelayed (``Signals.unshifted``) and the drive effects' columns negated.
+    """
+    drive = None
+    if link_side(data):
+        if nominal is None:
+            raise ValueError("a link-side sensor's actuator link needs the nominal model (its drive terms)")
+        drive = -nominal.dynamics.drive_torque(data.qd, data.qdd)
     return Signals(
         joint_names=list(data.joint_names), time=data.time, q=data.q, qd=data.qd, qdd=data.qdd,
-        tau_nominal=commands, segments=data.segments, tau=data.tau, regressor_fn=None, nominal={}, forward=True,
+        tau_nominal=commands, segments=data.segments, tau=data.tau, regressor_fn=None,
+        nominal=nominal.info if drive is not None and nominal is not None else {}, forward=True, unshifted=drive,
     )
 
 
-def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[Sequence[str]]) -> dict[str, Any]:
+def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[Sequence[str]],
+                 sensor: str = "motor") -> dict[str, Any]:
     """What the runs can tell apart (``links`` of ladder.json): the mode in words, then the facts.
 
-    ``confounded``: the pairs the diagnosis found predicting the same torque on these data.
+    ``confounded``: the pairs the diagnosis found predicting the same torque on these data; ``sensor``:
+    where ``tau`` is measured (:func:`torque_sensor`).
     """
-    out: dict[str, Any] = {"mode": mode, "text": LINK_MODES[mode], "can_tell": [], "cannot_tell": []}
+    out: dict[str, Any] = {"mode": mode, "text": LINK_MODES[mode], "torque_sensor": sensor,
+                           "can_tell": [], "cannot_tell": []}
     if mode == "separate":
         out["can_tell"] = [
-            {"effects": ["actuation_delay", "actuator_gain", "command_bias"],
-             "why": "judged on the measured torque against the command: no body effect enters that link"},
-            {"effects": [n for n, e in EFFECTS.items() if e.link == "body"],
-             "why": "judged on the measured torque against the motion: no actuator effect enters that link"},
+            {"effects": candidates_of_link("actuator", sensor),
+             "why": "judged on the measured torque against the command: no body effect enters that link"
+             + (" (the sensor is link-side: the drive's rotor inertia and friction lie before it)"
+                if sensor == "link" else "")},
+            {"effects": candidates_of_link("body", sensor),
+             "why": "judged on the measured torque against the motion: no actuator effect enters that link"
+             + (" (the sensor is motor-side: the drive's rotor inertia and friction lie after it)"
+                if sensor == "motor" else "")},
         ]
     elif mode == "commands_only":
         out["can_tell"] = [
@@ -146,10 +193,10 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
         ]
     else:
         out["cannot_tell"] = [
-            {"effects": [n for n, e in EFFECTS.items() if e.link == "actuator"],
+            {"effects": candidates_of_link("actuator", sensor),
              "why": "the runs log no command (tau_cmd), so the actuator link is not seen: not fitted, not tried"},
         ]
-        dropped = [n for n in model_effects if get_effect(n).link == "actuator"]
+        dropped = [n for n in model_effects if effect_link(n, sensor) == "actuator"]
         if dropped:
             out["cannot_tell"][0]["dropped_from_model"] = dropped
     for pair in confounded:

@@ -174,7 +174,7 @@ def diagnose(
         residuals_after[name] = residual
         ranked_candidates.append({
             "effect": name,
-            "link": effect.link,
+            "link": effect.link if link == "combined" else link,  # a drive effect's follows the torque sensor
             "joints": acting if decisive else [],
             "explained": round(explained, 4),
             "explained_beyond_noise": round(beyond, 4),

@@ -101,6 +101,14 @@ class RigidBodyModel:
             tau[k] = np.asarray(t)[self._perm]
         return tau + self.damping * qd + self.friction * np.sign(qd)
 
+    def drive_torque(self, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """The drive's part of :meth:`inverse_dynamics` (N, n): armature * qdd + damping * qd + friction * sign(qd).
+
+        What a link-side torque sensor does not see: it sits between the gearbox and the link.
+        """
+        qd, qdd = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (qd, qdd))
+        return self.armature * qdd + self.damping * qd + self.friction * np.sign(qd)
+
     def gravity(self, q: np.ndarray) -> np.ndarray:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         out = np.empty_like(q)

@@ -22,7 +22,7 @@ parameters ``theta_e``, ``nl_e`` its few nonlinear parameters (a friction smooth
 4. judgement on the ``role: holdout`` runs (:func:`holdout_metrics`).
 
 The ladder (:mod:`sim2real.sysid`) and the diagnosis (:mod:`sim2real.diagnosis`) both call this
-module; it imports neither. It is one piece (~700 lines) because the fit, its consistent variant and
+module; it imports neither. It is one piece (~850 lines) because the fit, its consistent variant and
 the bootstrap share the private ``_Problem`` (the design at given nonlinear parameters).
 """
 
@@ -90,6 +90,7 @@ class TorqueData:
     torque_source: str  # "tau" (sensor) or "tau_cmd" (command)
     has_commands: bool
     noise_floor: np.ndarray  # per joint, RMS of torque no model can explain
+    torque_sensor: str = "motor"  # where tau is measured: "motor" (before the drive's terms) or "link" (after)
 
     @property
     def n_samples(self) -> int:
@@ -101,7 +102,7 @@ class TorqueData:
         segments = kept_segments(self.segments, rows)
         return TorqueData(
             self.joint_names, self.time[rows], self.q[rows], self.qd[rows], self.qdd[rows], self.tau[rows],
-            segments, self.run_names, self.torque_source, self.has_commands, self.noise_floor,
+            segments, self.run_names, self.torque_source, self.has_commands, self.noise_floor, self.torque_sensor,
         )
 
 
@@ -120,6 +121,13 @@ def stack_runs(
         raise InputError(
             None, "runs", f"runs mix judged torque sources {sorted(sources)}",
             "give every run the same torque columns (all tau, or all tau_cmd only)",
+        )
+    sensors = {r.get("torque_sensor", "motor") for r in runs}
+    if len(sensors) > 1:
+        names = ", ".join(f"{r['name']} ({r.get('torque_sensor', 'motor')})" for r in runs)
+        raise InputError(
+            None, "runs", f"runs mix torque sensor positions: {names}",
+            "fit runs of one arm's sensor together: every run's metadata `torque_sensor` the same (motor or link)",
         )
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("time", "q", "qd", "qdd", "tau")}
     segments, floors, counts, names = [], [], [], []
@@ -143,7 +151,7 @@ def stack_runs(
     return TorqueData(
         list(joint_names), *(np.concatenate(parts[k]) for k in ("time", "q", "qd", "qdd", "tau")),
         segments=segments, run_names=names, torque_source=sources.pop(),
-        has_commands=all(bool(r.get("has_commands")) for r in runs), noise_floor=noise,
+        has_commands=all(bool(r.get("has_commands")) for r in runs), noise_floor=noise, torque_sensor=sensors.pop(),
     )
 
 
@@ -153,6 +161,7 @@ def run_from_prepared(prepared: Any, noise_floor: np.ndarray) -> dict[str, Any]:
         "name": prepared.name, "time": prepared.time, "q": prepared.q, "qd": prepared.qd, "qdd": prepared.qdd,
         "tau": prepared.tau, "torque_source": prepared.torque_source,
         "has_commands": prepared.tau_cmd is not None, "noise_floor": noise_floor,
+        "torque_sensor": getattr(prepared, "torque_sensor", "motor"),
     }
 
 
@@ -284,11 +293,24 @@ def load_nominal(
     return NominalModel(dynamics, info)
 
 
+def link_side(data: TorqueData) -> bool:
+    """The judged torque is measured after the drive (a link-side sensor): it does not hold the drive's terms."""
+    return data.torque_source == "tau" and data.torque_sensor == "link"
+
+
 def make_signals(nominal: NominalModel, data: TorqueData) -> Signals:
+    """The body link's signals: the judged torque predicted from the motion by the nominal model.
+
+    A link-side sensor measures what the links need, without the drive's rotor inertia, damping and
+    friction (those lie on the actuator link, :func:`sim2real.actuator.actuator_signals`).
+    """
     dynamics = nominal.dynamics
+    tau_nominal = dynamics.inverse_dynamics(data.q, data.qd, data.qdd)
+    if link_side(data):
+        tau_nominal = tau_nominal - dynamics.drive_torque(data.qd, data.qdd)
     return Signals(
         joint_names=list(data.joint_names), time=data.time, q=data.q, qd=data.qd, qdd=data.qdd,
-        tau_nominal=dynamics.inverse_dynamics(data.q, data.qd, data.qdd), segments=data.segments, tau=data.tau,
+        tau_nominal=tau_nominal, segments=data.segments, tau=data.tau,
         regressor_fn=lambda: dynamics.regressor(data.q, data.qd, data.qdd), nominal=nominal.info,
     )
 
@@ -344,7 +366,31 @@ class _Problem:
         cols = self.static_columns.get(effect.name)
         if cols is None:
             cols = effect.columns(self.signals, self.states[effect.name], nonlinear[effect.name])[0]
+        if self.signals.forward and effect.drive:
+            cols = -cols  # forward, the drive's terms are taken from the command before the link-side sensor
         return cols
+
+    def shift(self, columns: np.ndarray, effects: Sequence[Effect], sizes: Sequence[int],
+              nonlinear: dict[str, np.ndarray]) -> np.ndarray:
+        """Columns as they enter the prediction: shifted by the delay, except a drive's on the actuator link
+        (the command is delayed; the rotor inertia and friction act on the motion as it is)."""
+        delay = self.delay(nonlinear)
+        shifted = shift_prediction(columns, self.signals.time, self.signals.segments, delay)
+        if delay != 0.0 and self.signals.forward:
+            held = np.concatenate([np.full(size, effect.drive) for effect, size in zip(effects, sizes, strict=True)]
+                                  or [np.zeros(0, dtype=bool)])
+            shifted[:, :, held] = columns[:, :, held]
+        return shifted
+
+    def shifted_design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:
+        design, sizes = self.design(nonlinear)
+        return self.shift(design, self.effects, sizes, nonlinear), sizes
+
+    def base(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray]) -> np.ndarray:
+        """The prediction without the linear columns: nominal and offsets, shifted; plus the unshifted term."""
+        out = shift_prediction(self.signals.tau_nominal + self.offsets(theta), self.signals.time,
+                               self.signals.segments, self.delay(nonlinear))
+        return out if self.signals.unshifted is None else out + self.signals.unshifted
 
     def design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:
         """Columns (N, n, p) at the given nonlinear parameters (before the time shift) and sizes."""
@@ -370,10 +416,8 @@ class _Problem:
         return total
 
     def predict(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray]) -> np.ndarray:
-        design, sizes = self.design(nonlinear)
-        flat = _flatten_theta(self.effects, theta, sizes)
-        raw = self.signals.tau_nominal + design @ flat + self.offsets(theta)
-        return shift_prediction(raw, self.signals.time, self.signals.segments, self.delay(nonlinear))
+        design, sizes = self.shifted_design(nonlinear)
+        return self.base(theta, nonlinear) + design @ _flatten_theta(self.effects, theta, sizes)
 
 
 def _flatten_theta(effects: list[Effect], theta: dict[str, np.ndarray], sizes: list[int]) -> np.ndarray:
@@ -407,15 +451,11 @@ def _solve_linear(design: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndarray], iterations: int = 3):
     """Linear parameters at fixed nonlinear ones; offsets (payload inertia) by fixed-point iteration."""
-    design, sizes = problem.design(nonlinear)
-    delay = problem.delay(nonlinear)
-    shifted = shift_prediction(design, problem.signals.time, problem.signals.segments, delay)
-    base = shift_prediction(problem.signals.tau_nominal, problem.signals.time, problem.signals.segments, delay)
+    shifted, sizes = problem.shifted_design(nonlinear)
     has_offset = any(type(e).offset is not Effect.offset for e in problem.effects)
     theta: dict[str, np.ndarray] = {}
     for _ in range(iterations if has_offset else 1):
-        offset = shift_prediction(problem.offsets(theta), problem.signals.time, problem.signals.segments, delay)
-        flat = _solve_linear(shifted, tau - base - offset)
+        flat = _solve_linear(shifted, tau - problem.base(theta, nonlinear))
         theta = _split_theta(problem.effects, flat, sizes)
     residual = tau - problem.predict(theta, nonlinear)
     return theta, residual, sizes
@@ -508,7 +548,7 @@ def _subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
         qdd=signals.qdd[rows], tau_nominal=signals.tau_nominal[rows], segments=segments,
         tau=None if signals.tau is None else signals.tau[rows],
         regressor_fn=lambda: parent.regressor[rows], nominal=signals.nominal, forward=signals.forward,
-        _regressor=regressor,
+        unshifted=None if signals.unshifted is None else signals.unshifted[rows], _regressor=regressor,
     )
 
 
@@ -537,13 +577,10 @@ def _block_bootstrap(
     replicates = int(settings["bootstrap_replicates"])
     if replicates <= 0 or sum(sizes) == 0:
         return []
-    design, _ = problem.design(nonlinear)
-    delay = problem.delay(nonlinear)
     signals = problem.signals
-    shifted = shift_prediction(design, signals.time, signals.segments, delay)
+    shifted, _ = problem.shifted_design(nonlinear)
     # Offsets (payload inertia) are held at the estimate: the replicates are linear solves.
-    base = shift_prediction(signals.tau_nominal + problem.offsets(theta), signals.time, signals.segments, delay)
-    target = tau - base
+    target = tau - problem.base(theta, nonlinear)
     p = shifted.shape[2]
     scale = np.linalg.norm(shifted.reshape(-1, p), axis=0)
     scale[scale == 0] = 1.0
@@ -715,9 +752,8 @@ def _consistent_fit(
     record: dict[str, Any] = {"notes": []}
     if not blocks:
         return theta_free, free_residual, record
-    delay = problem.delay(nonlinear)
-    shifted = shift_prediction(np.concatenate([b[2] for b in blocks], axis=2), signals.time, signals.segments, delay)
-    base = shift_prediction(signals.tau_nominal, signals.time, signals.segments, delay)
+    shifted = problem.shift(np.concatenate([b[2] for b in blocks], axis=2), [b[0] for b in blocks],
+                            [b[2].shape[2] for b in blocks], nonlinear)
     bounds = np.concatenate(lower)
     floor = float(np.mean(np.asarray(data.noise_floor, dtype=float) ** 2))
     weight = float(settings["inertia_regularization"]) * max(floor, 1e-12)
@@ -726,8 +762,7 @@ def _consistent_fit(
     solve_time = 0.0
     try:
         for _ in range(3 if has_offset else 1):
-            offset = shift_prediction(problem.offsets(theta), signals.time, signals.segments, delay)
-            solution = solve_consistent(shifted, data.tau - base - offset, bounds, inertial, weight)
+            solution = solve_consistent(shifted, data.tau - problem.base(theta, nonlinear), bounds, inertial, weight)
             solve_time += solution.solve_time_s
             for effect, cols, _ in blocks:
                 coefficients = solution.coefficients[cols]

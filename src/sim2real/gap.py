@@ -387,6 +387,8 @@ def compute_gap(
     comparisons = []
     for e, p in zip(entries, prepared):
         model_tau = model.inverse_dynamics(p.q, p.qd, p.qdd)
+        if p.torque_source == "tau" and p.torque_sensor == "link":  # measured after the drive: the links alone
+            model_tau = model_tau - model.drive_torque(p.qd, p.qdd)
         comparisons.append(TorqueComparison(run=p, role=e.role, model_tau=model_tau, residual=p.tau - model_tau,
                                             gravity=model.gravity(p.q)))
     measured = np.concatenate([c.run.tau for c in comparisons])

@@ -50,6 +50,9 @@ A scenario lists the columns it writes (e.g. a delay scenario writes only ``tau_
 without torque sensors). Contacts are disabled: lab runs are free-space identification motions.
 The excitation is a finite Fourier series (Swevers et al.): 5 harmonics of base 0.15*pi rad/s by
 default, scaled to stay inside the position and velocity limits.
+
+One piece (~530 lines): the hidden effects, the controller and the sensors act inside one simulation
+loop (:func:`simulate_run`) on the same models and state, and the config's validation names their keys.
 """
 
 from __future__ import annotations

@@ -85,6 +85,7 @@ class PreparedRun:
     tau_cmd: np.ndarray | None
     q_cmd: np.ndarray | None
     filter: dict
+    torque_sensor: str = "motor"  # where tau is measured (metadata `torque_sensor`): "motor" or "link"
     qd_measured: np.ndarray | None = None  # logged velocity on the grid (unfiltered), if any
     contact: np.ndarray | None = None
     raw_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per-joint white-noise std
@@ -369,6 +370,7 @@ def prepare_run(
         tau_cmd=None if tau_cmd is None else tau_cmd[sl], q_cmd=None if q_cmd is None else q_cmd[sl],
         filter=filter_info, qd_measured=None if qd_measured is None else qd_measured[sl], contact=contact,
         raw_torque_sigma=white_noise_sigma(raw_torque[keep_raw]),
+        torque_sensor=str(run.meta.get("torque_sensor", "motor")) if run.tau is not None else "motor",
     )
 
 

@@ -19,6 +19,16 @@ PNG_METADATA = {"Software": None}
 MAX_PLOT_S = 10.0
 SCATTER_POINTS = 2500
 
+# Where the runs' tau is measured (run metadata `torque_sensor`), as gap.md says it.
+SENSOR_TEXT = {
+    "motor": "The torque sensor is taken to be motor-side (run metadata `torque_sensor: motor`, the default): "
+    "`tau` is the torque the drive applies, so the rotor inertia and joint friction are the body link's. "
+    "If `tau` is measured after the gearbox (the Panda's tau_J), set `torque_sensor: link`.",
+    "link": "The torque sensor is link-side (run metadata `torque_sensor: link`): `tau` is measured after the "
+    "gearbox, so the rotor inertia and joint friction lie between the command and `tau`, on the actuator link, "
+    "and the body link is the rigid body alone.",
+}
+
 
 def _save(fig: plt.Figure, target: str | Path) -> None:
     with atomic_path(target) as tmp:
@@ -285,6 +295,8 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
     if "links" in gap:
         links = gap["links"]
         lines += ["", "## What these runs can tell apart", "", f"{links['text'][0].upper()}{links['text'][1:]}.", ""]
+        if links["mode"] != "commands_only":
+            lines += [SENSOR_TEXT[links.get("torque_sensor", "motor")], ""]
         for fact in links["can_tell"]:
             lines.append(f"- Told apart: {', '.join(f'`{e}`' for e in fact['effects'])}: {fact['why']}.")
         for fact in links["cannot_tell"]:

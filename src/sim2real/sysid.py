@@ -157,8 +157,10 @@ def fit_model(
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
     joints = nominal.joint_names
     mode = actuator.link_mode([*runs["fit"], *runs["holdout"]])
+    sensor = actuator.torque_sensor([*runs["fit"], *runs["holdout"]])
     body_link = "combined" if mode == "commands_only" else "body"
-    body_effects = list(effect_names) if mode == "commands_only" else actuator.effects_of_link(effect_names, "body")
+    body_effects = (list(effect_names) if mode == "commands_only"
+                    else actuator.effects_of_link(effect_names, "body", sensor))
     body_data = {
         role: stack_runs([run_from_prepared(run, estimate_noise_floor(run)) for run in runs[role]], joints,
                          fit_settings["fit_rate_hz"])
@@ -166,26 +168,29 @@ def fit_model(
     }
     document, result = fit_ladder(
         body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
-        candidates=actuator.candidates_of_link("body") if mode == "separate" else None,
+        candidates=actuator.candidates_of_link("body", sensor) if mode == "separate" or sensor == "link" else None,
     )
     results = [result]
     confounded = list(document.get("diagnosis", {}).get("confounded", []))
     if mode == "separate":
         link_data = {role: actuator.actuator_data(runs[role], joints) for role in ("fit", "holdout")}
-        signals = {role: actuator.actuator_signals(*link_data[role]) for role in link_data}
+        signals = {role: actuator.actuator_signals(*link_data[role], nominal) for role in link_data}
         link_settings = {**settings, "fit": {**fit_settings, **actuator.ACTUATOR_FIT_SETTINGS}}
         section, link_result = fit_ladder(
-            actuator.effects_of_link(effect_names, "actuator"), nominal, link_data["fit"][0],
+            actuator.effects_of_link(effect_names, "actuator", sensor), nominal, link_data["fit"][0],
             link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
-            holdout_signals=signals["holdout"], link="actuator", candidates=actuator.candidates_of_link("actuator"),
+            holdout_signals=signals["holdout"], link="actuator",
+            candidates=actuator.candidates_of_link("actuator", sensor),
         )
         document["actuator"] = {
-            "judged": "measured torque (tau) predicted from the commanded torque (tau_cmd); no dynamics",
+            "judged": "measured torque (tau) predicted from the commanded torque (tau_cmd); no dynamics"
+            if sensor == "motor" else "link-side measured torque (tau) predicted from the commanded torque "
+            "(tau_cmd) less the drive's rotor inertia, damping and friction on the measured motion",
             **{key: section[key] for key in ("ladder", "diagnosis", "noise_floor") if key in section},
         }
         confounded += section.get("diagnosis", {}).get("confounded", [])
         results.append(link_result)
-    document["links"] = round_floats(actuator.separability(mode, effect_names, confounded))
+    document["links"] = round_floats(actuator.separability(mode, effect_names, confounded, sensor))
     return document, results
 
 

@@ -14,7 +14,9 @@ An effect is a physical phenomenon the nominal rigid-body model lacks. Each one 
   delay, a motor gain, a command bias) or ``body`` (between the applied torque and the motion:
   friction, inertias, payload; and the torque sensor's own gain and bias, which measure that torque).
   When runs log both the measured and the commanded torque, each link is fitted and judged on its
-  own (:mod:`sim2real.actuator`).
+  own (:mod:`sim2real.actuator`). A ``drive`` effect (rotor inertia, joint friction and damping) sits
+  in the drive between the motor and the link: on the body link behind a motor-side sensor, on the
+  actuator link in front of a link-side one (:func:`sim2real.actuator.effect_link`).
 
 Fitted values always live in one structure, ``{param_name: {joint: value}}`` for per-joint
 parameters and ``{param_name: value}`` for global ones, in SI units, as *total* values (the
@@ -69,6 +71,9 @@ class Signals:
     regressor_fn: Any = None  # callable () -> (N, n, P)
     nominal: dict[str, Any] = field(default_factory=dict)  # damping, friction, armature, inertial, bodies, ...
     forward: bool = False
+    # Forward, behind a link-side sensor: the nominal drive terms (minus armature * qdd + ...), which act
+    # on the motion now, so the delay that shifts the command does not shift them.
+    unshifted: np.ndarray | None = None
     _regressor: np.ndarray | None = None
 
     @property
@@ -135,6 +140,7 @@ class Effect:
     nonlinear: ClassVar[tuple[ParameterSpec, ...]] = ()  # refined by nonlinear least squares
     time_shift: ClassVar[bool] = False  # a delay of the whole prediction instead of columns
     link: ClassVar[str] = "body"  # "actuator": command -> applied torque; "body": applied torque -> motion
+    drive: ClassVar[bool] = False  # in the drive (motor to link): its link follows the torque sensor's position
     needs_commands: ClassVar[bool] = False  # only observable when the judged torque is the command
     sensor_side: ClassVar[bool] = False  # an error of the torque sensor: meaningless on runs without one
     scales_judged: ClassVar[bool] = False  # its coefficient scales the whole judged torque (a gain)

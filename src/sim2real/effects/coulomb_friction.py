@@ -20,6 +20,7 @@ DEFAULT_SMOOTHING = 0.02  # rad/s: start value of the refinement
 
 
 class CoulombFriction(Effect):
+    drive = True
     in_urdf = True
     name = "coulomb_friction"
     summary = "Coulomb (dry) joint friction, constant magnitude opposing the motion"

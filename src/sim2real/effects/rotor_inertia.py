@@ -12,6 +12,7 @@ from sim2real.effects.base import (
 
 
 class RotorInertia(Effect):
+    drive = True
     name = "rotor_inertia"
     summary = "reflected rotor inertia (armature), torque proportional to joint acceleration"
     signature = "residual proportional to joint acceleration"

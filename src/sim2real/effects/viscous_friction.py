@@ -12,6 +12,7 @@ from sim2real.effects.base import (
 
 
 class ViscousFriction(Effect):
+    drive = True
     in_urdf = True
     name = "viscous_friction"
     summary = "viscous joint friction, torque proportional to joint velocity"
