@@ -22,6 +22,7 @@ rule bag_to_run:
     params:
         joint_topic=lambda w: bag_topics(w)["joint_topic"],
         command_topic=lambda w: bag_topics(w)["command_topic"],
+        torque_sensor=lambda w: bag_topics(w)["torque_sensor"],
     script:
         "../scripts/bag_to_run.py"
 

@@ -11,4 +11,5 @@ mcap_to_run(
     robot=snakemake.wildcards.robot,
     joint_topic=snakemake.params.joint_topic,
     command_topic=snakemake.params.command_topic,
+    torque_sensor=snakemake.params.torque_sensor,
 )

@@ -251,8 +251,10 @@ def test_mcap_bag_converts_to_run(tmp_path):
                 "name": JOINTS, "position": list(q[k]), "velocity": list(qd[k]), "effort": list(2.0 * qdd[k] + 0.1),
             }, log_time=ns)
         writer.finish()
-    out = mcap_to_run(bag, tmp_path / "arm.parquet", robot="panda", command_topic="/effort_controller/commands")
+    out = mcap_to_run(bag, tmp_path / "arm.parquet", robot="panda", command_topic="/effort_controller/commands",
+                      torque_sensor="link")
     run = load_run(out, known_joints=JOINTS)
     assert run.meta["source"] == "real" and run.meta["control_mode"] == "torque"
+    assert run.meta["torque_sensor"] == "link"  # a Panda's effort is tau_J, measured after the gearbox
     assert run.time[0] == 0.0 and run.time.size == t.size
     assert np.allclose(run.q, q) and np.allclose(run.tau_cmd, 2.0 * qdd) and np.allclose(run.tau, 2.0 * qdd + 0.1)

@@ -26,12 +26,13 @@ def ros2_topics(path: str | Path) -> dict[str, str | None]:
     return {
         "joint_topic": ros2.get("joint_topic", DEFAULT_JOINT_TOPIC),
         "command_topic": ros2.get("command_topic"),
+        "torque_sensor": ros2.get("torque_sensor", "motor"),
     }
 
 
 def mcap_to_run(
     bag_path: str | Path, output: str | Path, robot: str, joint_topic: str = DEFAULT_JOINT_TOPIC,
-    command_topic: str | None = None, joints: Sequence[str] | None = None,
+    command_topic: str | None = None, joints: Sequence[str] | None = None, torque_sensor: str = "motor",
 ) -> Path:
     """Convert a ROS 2 bag (MCAP) to a measurement run (table + metadata) at ``output``.
 
@@ -40,7 +41,9 @@ def mcap_to_run(
     ``sensor_msgs/msg/JointState`` (effort -> tau_cmd, position -> q_cmd) or
     ``std_msgs/msg/Float64MultiArray`` (data -> tau_cmd in joint order); the last command at or before
     each state stamp is used (zero-order hold), states before the first command are dropped.
-    Stamps are the message header stamps (the log time when a header is zero).
+    Stamps are the message header stamps (the log time when a header is zero). ``torque_sensor``: where
+    the effort is measured, written to the run's metadata (``link`` for a Panda's franka_ros2 joint
+    states, whose effort is the link-side tau_J).
     """
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
@@ -120,6 +123,7 @@ def mcap_to_run(
             signals["q_cmd"] = q_cmd
     time = time - time[0]
     meta = {"robot": robot, "source": "real", "control_mode": "torque" if "tau_cmd" in signals else "position",
+            **({"torque_sensor": torque_sensor} if "tau" in signals else {}),
             "notes": f"converted from ROS 2 bag {bag_path.name} (joint topic {joint_topic}, "
                      f"command topic {command_topic or 'none'})"}
     write_run(output, time, names, signals, meta)
