@@ -12,9 +12,8 @@ virtual lab (:mod:`sim2real.lab`, which implements its hidden effects itself):
 The methods:
 
 * ours: ``sim2real.sysid.fit([effect])`` on the prepared runs (zero-phase filtered, 200 Hz grid) with
-  the package's 95 % moving-block bootstrap intervals. That bootstrap is conditional on the nonlinear
-  parameters, so it gives no interval for the delay; here the same kind of interval is made by
-  resampling 1 s blocks of the linearised delay fit (:func:`delay_block_bootstrap`), and timed as ours.
+  the package's 95 % block-bootstrap intervals (1 s blocks; the delay by a linearised step per
+  replicate from the same blocks).
   For the friction, each joint's value and interval come from ``sysid.fit`` on the samples where that
   joint slides (|qd| >= 0.1 rad/s), the smoothing velocity held at 1 mrad/s (``nonlinear_fixed``):
   seven fits, all timed as ours (:func:`_friction_ours`). On all samples our tanh(qd / v_s) cannot
@@ -98,7 +97,6 @@ sys.path.insert(0, str(REPO / "tests"))
 from gap_fixtures import PANDA_JOINTS, build_dev_panda  # noqa: E402
 
 from sim2real import sysid  # noqa: E402
-from sim2real.fitting import small_sample_stretch  # noqa: E402
 from sim2real.lab import (  # noqa: E402
     arm_spec, load_lab_config, run_lab_scenario_run, scenario_runs, simulate_run, write_truth,
 )
@@ -317,7 +315,7 @@ def _delay_truth(lab: BenchLab) -> np.ndarray:
 def _delay_ours(nominal, data):
     result = sysid.fit(["actuation_delay"], nominal, data)
     value = float(result.values["actuation_delay"]["delay"])
-    return result, np.array([value]), np.array([delay_block_bootstrap(result, nominal, data)])
+    return result, np.array([value]), np.array([result.intervals["actuation_delay"]["delay"]])
 
 
 def _delay_with(result, nominal, values) -> sysid.FitResult:
@@ -385,41 +383,6 @@ class Estimate:
     bounds: np.ndarray
     seconds: float
     detail: Any = None
-
-
-def delay_block_bootstrap(result: sysid.FitResult, nominal: sysid.NominalModel, data: sysid.TorqueData) -> list[float]:
-    """95 % interval of our fitted delay: 1 s blocks of the fit run resampled, Gauss-Newton step per replicate.
-
-    Around the fitted delay d0 the residual is r(d) ~ r0 + g (d - d0) with g = dr/dd (central difference of
-    our own predictor); each replicate sums the blocks' g.g and g.r0 and takes one Gauss-Newton step, the
-    way the package's bootstrap solves its linear parameters from per-block Gram matrices.
-    """
-    make_signals = getattr(sysid, "make_signals", None)
-    signals = make_signals(nominal, data) if make_signals else None
-    delay = float(result.nonlinear["actuation_delay"][0])
-
-    def residual(d: float) -> np.ndarray:
-        trial = dataclasses.replace(result, nonlinear={**result.nonlinear, "actuation_delay": np.array([d])})
-        return sysid.holdout_metrics(trial, nominal, data, signals)[1]
-
-    r0 = residual(delay)
-    low, high = max(delay - 2e-4, 0.0), delay + 2e-4
-    slope = (residual(high) - residual(low)) / (high - low)
-    gram, cross = [], []
-    for seg in data.segments:
-        t = data.time[seg]
-        block = np.floor((t - t[0]) / BOOTSTRAP["block_s"]).astype(int)
-        for b in np.unique(block):
-            rows = np.arange(seg.start, seg.stop)[block == b]
-            gram.append(float(np.sum(slope[rows] ** 2)))
-            cross.append(float(np.sum(slope[rows] * r0[rows])))
-    gram_arr, cross_arr = np.asarray(gram), np.asarray(cross)
-    rng = np.random.default_rng(BOOTSTRAP["seed"])
-    picks = rng.integers(0, len(gram_arr), size=(BOOTSTRAP["replicates"], len(gram_arr)))
-    stretch = small_sample_stretch(gram_arr, BOOTSTRAP["confidence"])  # the package's few-blocks correction
-    replicates = delay - stretch * cross_arr[picks].sum(axis=1) / gram_arr[picks].sum(axis=1)
-    tail = 50.0 * (1.0 - BOOTSTRAP["confidence"])
-    return [float(v) for v in np.percentile(replicates, [tail, 100.0 - tail])]
 
 
 def fit_ours(case: Case, lab: BenchLab) -> Estimate:
@@ -764,7 +727,7 @@ def print_metrics(case: Case, lab: BenchLab, ours: Timed, theirs: Timed, truth: 
         own = t.last.detail.get("own_half_widths") if isinstance(t.last.detail, dict) else None
         if own is not None:
             outside = int(np.count_nonzero(np.abs(t.last.values - truth) > own))
-            print(f"    (its intervals: chunk-clustered; calculate_intervals' own half-widths, "
+            print("    (its intervals: chunk-clustered; calculate_intervals' own half-widths, "
                   + ", ".join(f"{h * case.scale:.2g}" for h in own) + f" {case.unit}, leave the truth outside for "
                   f"{outside} of {len(truth)})")
 
@@ -798,7 +761,7 @@ def print_verdict(case: Case, ours: Timed, theirs: Timed, truth: np.ndarray) -> 
     print(f"both methods recover the same {len(case.labels)} parameter(s) within their simultaneous 95 % intervals")
     each = (a.bounds[:, 0] <= b.bounds[:, 1]) & (b.bounds[:, 0] <= a.bounds[:, 1])
     if not each.all():  # say what the simultaneous intervals absorb
-        print(f"  (their per-parameter 95 % intervals do not overlap on "
+        print("  (their per-parameter 95 % intervals do not overlap on "
               + ", ".join(case.labels[i] for i in np.flatnonzero(~each))
               + f"; over {len(case.labels)} parameters, per-parameter 95 % intervals miss somewhere "
               f"{100 * (1 - 0.95 ** len(case.labels)):.0f} % of the time)")

@@ -68,6 +68,8 @@ def test_a_hidden_actuator_effect_is_named_on_the_actuator_link_and_the_body_ver
     values = link["ladder"][-1]["params"][hidden]
     if hidden == "actuation_delay":
         assert values["delay"] == pytest.approx(0.006, abs=0.5e-3)
+        lo, hi = after["actuator"]["ladder"][-1]["intervals"]["actuation_delay"]["delay"]
+        assert lo <= 0.006 <= hi and hi - lo < 0.5e-3  # every sample at 1 kHz: the interval holds the truth
     elif hidden == "actuator_gain":
         assert values["gain"]["panda_joint2"] == pytest.approx(0.88, rel=0.01)
         assert values["gain"]["panda_joint5"] == pytest.approx(1.12, rel=0.01)

@@ -71,6 +71,11 @@ def test_payload_and_delay_are_recovered(nominal):
     assert delayed.torque_source == "tau_cmd"
     delay = sysid.fit(["actuation_delay"], nominal, delayed, FAST)
     assert delay.values["actuation_delay"]["delay"] == pytest.approx(0.012, abs=0.002)
+    # The delay has an interval like the linear parameters (a linearised step per bootstrap replicate). It
+    # is statistical: on this 100 Hz grid the linear interpolation of the shift biases the delay ~0.2 ms.
+    lo, hi = delay.intervals["actuation_delay"]["delay"]
+    assert lo < delay.values["actuation_delay"]["delay"] < hi
+    assert 0.0 < hi - lo < 0.002
 
 
 def test_ladder_falls_rung_by_rung_and_is_deterministic(nominal):

@@ -17,8 +17,9 @@ parameters ``theta_e``, ``nl_e`` its few nonlinear parameters (a friction smooth
    inertias as base parameters) and the physically consistent fit (:mod:`sim2real.inertial`: one
    convex program with the pseudo-inertia LMIs and sign bounds), which the rung reports;
 3. uncertainty by a block bootstrap of the fit samples (residuals are correlated in time, so whole
-   blocks of time are resampled), conditional on the nonlinear parameters, with a small-sample
-   correction for the few blocks a run has (:func:`small_sample_stretch`);
+   blocks of time are resampled), the delay by a linearised step per replicate, the other nonlinear
+   parameters held, with a small-sample correction for the few blocks a run has
+   (:func:`small_sample_stretch`);
 4. judgement on the ``role: holdout`` runs (:func:`holdout_metrics`).
 
 The ladder (:mod:`sim2real.sysid`) and the diagnosis (:mod:`sim2real.diagnosis`) both call this
@@ -45,6 +46,8 @@ from sim2real.effects import Effect, Signals, get_effect
 from sim2real.effects.actuation_delay import MAX_DELAY, shift_prediction
 from sim2real.errors import InputError
 from sim2real.metrics import rmse
+
+DELAY_STEP_S = 2e-4  # half-step of the central difference of the prediction in the delay (bootstrap)
 
 DEFAULT_SETTINGS: dict[str, Any] = {
     "fit_rate_hz": 200.0,  # fit and judge on a decimated grid: the filtered signals are smooth
@@ -572,44 +575,63 @@ def _block_bootstrap(
     theta: dict[str, np.ndarray],
     sizes: list[int],
     settings: Mapping[str, Any],
-) -> list[dict[str, np.ndarray]]:
-    """Linear parameters of block-bootstrap replicates (blocks of time resampled, all joints together)."""
+) -> list[tuple[dict[str, np.ndarray], dict[str, np.ndarray]]]:
+    """(linear, nonlinear) parameters of block-bootstrap replicates (blocks of time resampled, all joints
+    together). The linear ones are solved again on each resample; a delay moves by one Gauss-Newton step
+    of the prediction linearised about the estimate, from the same resampled blocks, so it has an
+    interval too. Other nonlinear parameters (friction smoothing) are held."""
     replicates = int(settings["bootstrap_replicates"])
-    if replicates <= 0 or sum(sizes) == 0:
+    shift = next((e for e in problem.effects if e.time_shift), None)
+    if replicates <= 0 or (sum(sizes) == 0 and shift is None):
         return []
     signals = problem.signals
     shifted, _ = problem.shifted_design(nonlinear)
     # Offsets (payload inertia) are held at the estimate: the replicates are linear solves.
     target = tau - problem.base(theta, nonlinear)
-    p = shifted.shape[2]
-    scale = np.linalg.norm(shifted.reshape(-1, p), axis=0)
+    rows, p = shifted.shape[0] * shifted.shape[1], shifted.shape[2]
+    scale = np.linalg.norm(shifted.reshape(rows, p), axis=0)
     scale[scale == 0] = 1.0
+    if shift is not None:
+        delay = float(nonlinear[shift.name][0])
+        low, high = max(delay - DELAY_STEP_S, 0.0), delay + DELAY_STEP_S
+        slope = (problem.predict(theta, {**nonlinear, shift.name: np.array([high])})
+                 - problem.predict(theta, {**nonlinear, shift.name: np.array([low])})) / (high - low)
+        left = tau - problem.predict(theta, nonlinear)
     dt = float(np.median(np.diff(signals.time))) if len(signals.time) > 1 else 1.0
     block = max(2, int(round(float(settings["bootstrap_block_s"]) / dt)))
     # Gram matrices per block: a replicate is a sum of blocks, solved in p x p.
-    grams, rhs = [], []
+    grams, rhs, delay_grams, delay_rhs = [], [], [], []
     for seg in signals.segments:
         for start in range(seg.start, seg.stop, block):
             stop = min(start + block, seg.stop)
-            a = (shifted[start:stop] / scale).reshape(-1, p)
+            a = (shifted[start:stop] / scale).reshape((stop - start) * shifted.shape[1], p)
             y = target[start:stop].reshape(-1)
             grams.append(a.T @ a)
             rhs.append(a.T @ y)
+            if shift is not None:
+                delay_grams.append(float(np.sum(slope[start:stop] ** 2)))
+                delay_rhs.append(float(np.sum(slope[start:stop] * left[start:stop])))
     grams_arr, rhs_arr = np.asarray(grams), np.asarray(rhs)
+    delay_grams_arr, delay_rhs_arr = np.asarray(delay_grams), np.asarray(delay_rhs)
     # Replicates are unconstrained solves; their spread around the full-sample solve is centred on the
     # estimate (which may be the consistent one), so intervals describe the estimate the rung reports.
     full = np.linalg.lstsq(grams_arr.sum(axis=0), rhs_arr.sum(axis=0), rcond=1e-12)[0] / scale
     estimate = _flatten_theta(problem.effects, theta, sizes)
-    stretch = (small_sample_stretch(np.trace(grams_arr, axis1=1, axis2=2), float(settings["confidence"]))
+    weights = np.trace(grams_arr, axis1=1, axis2=2) if p else delay_grams_arr
+    stretch = (small_sample_stretch(weights, float(settings["confidence"]))
                if settings.get("bootstrap_few_blocks_correction", True) else 1.0)
+    # The delay's steps are centred like the linear solves: the refinement ran on a subset of the samples.
+    full_step = delay_rhs_arr.sum() / delay_grams_arr.sum() if shift is not None and delay_grams_arr.sum() > 0 else 0.0
     rng = np.random.default_rng(int(settings["seed"]))
     out = []
     for _ in range(replicates):
         pick = rng.integers(0, len(grams), size=len(grams))
-        g = grams_arr[pick].sum(axis=0)
-        r = rhs_arr[pick].sum(axis=0)
-        coef = np.linalg.lstsq(g, r, rcond=1e-12)[0] / scale
-        out.append(_split_theta(problem.effects, estimate + stretch * (coef - full), sizes))
+        coef = np.linalg.lstsq(grams_arr[pick].sum(axis=0), rhs_arr[pick].sum(axis=0), rcond=1e-12)[0] / scale
+        replicate_nonlinear = dict(nonlinear)
+        if shift is not None and delay_grams_arr[pick].sum() > 0:
+            step = delay_rhs_arr[pick].sum() / delay_grams_arr[pick].sum() - full_step
+            replicate_nonlinear[shift.name] = np.array([float(np.clip(delay + stretch * step, 0.0, MAX_DELAY))])
+        out.append((_split_theta(problem.effects, estimate + stretch * (coef - full), sizes), replicate_nonlinear))
     return out
 
 
@@ -704,7 +726,7 @@ def fit(
     if uncertainty:
         replicates = _block_bootstrap(problem, data.tau, nonlinear, theta, sizes, settings)
         if replicates:
-            samples = [_values(effects, rep, nonlinear, signals, states) for rep in replicates]
+            samples = [_values(effects, rep, rep_nonlinear, signals, states) for rep, rep_nonlinear in replicates]
             intervals = _prune(_intervals(samples, float(settings["confidence"])))
     return FitResult(
         effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=states, values=values,
