@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from sim2real.errors import InputError
+from sim2real.io import validate
 from sim2real.fleet import (
     DEFAULT_CAMPAIGN,
     campaign_names,
@@ -137,6 +138,22 @@ def test_fleet_names_the_drifted_parameter_in_words() -> None:
     assert "panda_3: no identified value changed between 2026-10 and 2026-11" in md
     assert "| panda_2-2026-10 | 2026-10 | 0.300 | 0.060 | 0.040 | 0.030 |" in md
     assert "| coulomb_friction.friction on j2 | N·m | 0.61 [0.58, 0.64] | 0.83 [0.79, 0.86] |" in md
+
+
+def test_the_actuator_link_has_its_own_holdout_table() -> None:
+    with_link = campaign("panda_2", "2026-11", params(BASE))
+    with_link["ladder"] = {**ladder([0.3, 0.06]), "actuator": {
+        "ladder": [{"effects": [], "metrics": {"torque_rmse": {"overall": 0.08}}},
+                   {"effects": ["actuation_delay"], "metrics": {"torque_rmse": {"overall": 0.021}}}],
+        "noise_floor": {"torque_rmse": {"overall": 0.02}}}}
+    fleet = fleet_document([campaign("panda_2", "2026-10", params(BASE)), with_link])
+    validate(fleet, "fleet.schema.json")
+    older, newer = fleet["arms"][0]["campaigns"]
+    assert older["actuator_holdout"] is None
+    assert [r["label"] for r in newer["actuator_holdout"]["rungs"]] == ["nominal", "+ actuation_delay"]
+    md = render_fleet_markdown(fleet)
+    assert "| panda_2-2026-11 | 2026-11 | 0.080 | 0.021 | 0.020 |" in md
+    assert "actuator link (measured against commanded torque)" in md and "per rung of configs/panda/model.yaml, body link." in md
 
 
 def test_undated_default_campaign_is_listed_not_compared() -> None:

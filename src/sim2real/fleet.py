@@ -10,9 +10,12 @@ directory for the same fit (:func:`sim2real.sysid.run_sysid`) and report
 (:func:`sim2real.gap.build_gap_report`).
 
 The fleet view (``results/fleet.json``, ``fleet.md``, a figure) reads every campaign's sysid
-``ladder.json`` (holdout error per rung) and ``params.yaml`` (identified values and their bootstrap
-intervals). Between consecutive dated campaigns of the same arm, a value counts as changed only when
-its two intervals do not overlap.
+``ladder.json`` (holdout error per rung of each link) and ``params.yaml`` (identified values and their
+bootstrap intervals). Between consecutive dated campaigns of the same arm, a value counts as changed
+only when its two intervals do not overlap.
+
+One piece (~520 lines): the campaign files, the wildcard pattern the rules build from their names and
+the fleet view all read the same :class:`Campaign` records.
 """
 
 from __future__ import annotations
@@ -317,6 +320,7 @@ def fleet_document(campaigns: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
             campaigns_out.append({
                 "campaign": item["campaign"], "date": item["date"], "measurements": item["measurements"],
                 "report": item["report"], "holdout": holdout_summary(item["ladder"]),
+                "actuator_holdout": holdout_summary(item["ladder"]["actuator"]) if item["ladder"].get("actuator") else None,
                 "identified": identified_values(item["params"]),
             })
         comparisons = []
@@ -342,6 +346,24 @@ def fleet_document(campaigns: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "summary": {"arms": len(arms_out), "campaigns": sum(len(a["campaigns"]) for a in arms_out),
                     "changes": n_changes, "drifted_arms": sorted(a["arm"] for a in arms_out if a["changes"])},
     }
+
+
+def _actuator_table(campaigns: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The actuator link's holdout RMSE per rung, for the campaigns whose runs log tau and tau_cmd."""
+    linked = [c for c in campaigns if c.get("actuator_holdout")]
+    if not linked:
+        return []
+    labels = list(dict.fromkeys(r["label"] for c in linked for r in c["actuator_holdout"]["rungs"]))
+    lines = ["", "| campaign | date | " + " | ".join(labels) + " | noise floor |",
+             "|---|---|" + "---|" * len(labels) + "---|"]
+    for c in linked:
+        by_label = {r["label"]: r["torque_rmse"] for r in c["actuator_holdout"]["rungs"]}
+        floor = c["actuator_holdout"]["noise_floor"]
+        lines.append(f"| {c['campaign']} | {c['date'] or '–'} | "
+                     + " | ".join(f"{by_label[label]:.3f}" if label in by_label else "–" for label in labels)
+                     + f" | {'–' if floor is None else f'{floor:.3f}'} |")
+    lines += ["", "Holdout torque RMSE [N·m] per rung, actuator link (measured against commanded torque)."]
+    return lines
 
 
 def render_fleet_markdown(fleet: Mapping[str, Any], figure: str | None = None) -> str:
@@ -383,7 +405,9 @@ def render_fleet_markdown(fleet: Mapping[str, Any], figure: str | None = None) -
             lines.append(f"| {c['campaign']} | {c['date'] or '–'} | " + " | ".join(cells)
                          + f" | {'–' if floor is None else f'{floor:.3f}'} | {c['report']} |")
         lines.append("")
-        lines.append("Holdout torque RMSE [N·m] per rung of configs/" + arm["robot"] + "/model.yaml.")
+        lines.append("Holdout torque RMSE [N·m] per rung of configs/" + arm["robot"] + "/model.yaml"
+                     + (", body link." if any(c.get("actuator_holdout") for c in arm["campaigns"]) else "."))
+        lines += _actuator_table(arm["campaigns"])
         rows = {}
         for c in arm["campaigns"]:
             for r in c["identified"]:
