@@ -952,13 +952,13 @@ def section_calibration(ctx: Context) -> None:
             below, above = values - bounds[:, 0], bounds[:, 1] - values
             # The error in units of the interval's side it falls on: <= 1 is inside.
             scores[name].append(np.where(values > truth, (values - truth) / below, (truth - values) / above))
-    print(f"{'':44s}" + "".join(f"{j.removeprefix('panda_'):>8s}" for j in JOINTS) + "     all")
+    print(f"{'':52s}" + "".join(f"{j.removeprefix('panda_'):>8s}" for j in JOINTS) + "     all")
     for name, rows in scores.items():
         score = np.abs(np.asarray(rows))
         inside = score <= 1.0
-        print(f"{'truth inside [%], ' + name:44s}" + "".join(f"{100 * v:8.1f}" for v in inside.mean(axis=0))
+        print(f"{'truth inside [%], ' + name:52s}" + "".join(f"{100 * v:8.1f}" for v in inside.mean(axis=0))
               + f"{100 * inside.mean():8.1f}")
-        print(f"{'  rms error / half-width':44s}" + "".join(f"{v:8.2f}" for v in np.sqrt(np.mean(score**2, axis=0)))
+        print(f"{'  rms error / half-width':52s}" + "".join(f"{v:8.2f}" for v in np.sqrt(np.mean(score**2, axis=0)))
               + f"{np.sqrt(np.mean(score**2)):8.2f}")
     spread = 1.96 * np.sqrt(0.05 * 0.95 / inside.size)
     print(f"  (honest 95 % intervals: inside 95 % +- {100 * spread:.1f} over all {inside.size}, "
