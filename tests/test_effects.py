@@ -13,8 +13,8 @@ from gap_fixtures import build_dev_panda
 from sim2real.effects import EFFECTS, apply_to_spec, calibration_from_params, get_effect, spec_edit_from_params
 from sim2real.errors import InputError
 
-VOCABULARY = {"viscous_friction", "coulomb_friction", "rotor_inertia", "actuation_delay", "payload",
-              "link_inertia", "torque_bias", "torque_gain"}
+VOCABULARY = {"viscous_friction", "coulomb_friction", "asymmetric_friction", "stribeck_friction", "rotor_inertia",
+              "actuation_delay", "payload", "link_inertia", "torque_bias", "torque_gain"}
 JOINTS = [f"panda_joint{i}" for i in range(1, 8)]
 
 
@@ -110,3 +110,147 @@ def test_spec_edit_from_params_reads_params_yaml(tmp_path, dev_mjcf):
     spec = dev_mjcf.copy()
     spec_edit_from_params(path)(spec)
     assert np.isclose(spec.joint("panda_joint1").armature, 0.25)
+
+
+# --- friction as real arms show it: Gaz's asymmetric sigmoid, the Stribeck hump ----------------------------
+
+
+@pytest.fixture(scope="module")
+def motion():
+    """One 20 s Fourier excitation of the Panda at 200 Hz: (time, q, qd, qdd)."""
+    from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, fourier_trajectory
+    from sim2real.dynamics import RigidBodyModel
+
+    return fourier_trajectory(RigidBodyModel(PANDA_URDF, PANDA_JOINTS), 20.0, 200.0, seed=1)
+
+
+def friction_data(motion, friction, noise=0.01):
+    """TorqueData and Signals whose judged torque is ``friction(qd)`` plus white noise (nominal model: 0)."""
+    from sim2real.effects import Signals
+    from sim2real.fitting import TorqueData
+
+    t, q, qd, qdd = motion
+    tau = friction(qd) + np.random.default_rng(0).normal(scale=noise, size=qd.shape)
+    segments = [slice(0, len(t))]
+    data = TorqueData(JOINTS, t, q, qd, qdd, tau, segments, ["r1"], "tau", False, np.full(len(JOINTS), noise))
+    signals = Signals(JOINTS, t, q, qd, qdd, np.zeros_like(tau), segments, tau=tau, nominal={})
+    return data, signals
+
+
+def per_joint(values):
+    return np.array([values[j] for j in JOINTS])
+
+
+PHI1 = np.array([0.5, 0.9, 0.6, 1.2, 0.8, 0.3, 0.6])
+PHI2 = np.array([8.0, 12.0, 20.0, 6.0, 15.0, 30.0, 10.0])
+PHI3 = np.array([0.05, -0.04, 0.06, 0.08, -0.05, 0.03, -0.07])  # an offset on every joint, both signs
+
+
+def gaz(qd):
+    return PHI1 / (1 + np.exp(-PHI2 * (qd + PHI3))) - PHI1 / (1 + np.exp(-PHI2 * PHI3))
+
+
+def test_asymmetric_friction_recovers_the_gaz_sigmoid_that_coulomb_friction_cannot_fit(motion):
+    from sim2real.fitting import fit
+
+    data, signals = friction_data(motion, gaz)
+    result = fit(["asymmetric_friction"], None, data, signals=signals, uncertainty=False)
+    values = result.values["asymmetric_friction"]
+    assert per_joint(values["amplitude"]) == pytest.approx(PHI1, rel=0.03)
+    assert per_joint(values["slope"]) == pytest.approx(PHI2, rel=0.03)
+    assert per_joint(values["velocity_offset"]) == pytest.approx(PHI3, rel=0.03)
+    assert result.fit_rmse["overall"] <= 1.05 * 0.01  # the noise floor
+    coulomb = fit(["coulomb_friction"], None, data, signals=signals, uncertainty=False)
+    assert coulomb.fit_rmse["overall"] >= 5 * result.fit_rmse["overall"]
+
+
+def test_asymmetric_friction_works_as_a_candidate_on_top_of_coulomb_friction(motion):
+    """As the diagnosis tries it: on the current model (Coulomb friction, its smoothing held)."""
+    from sim2real.fitting import fit
+
+    data, signals = friction_data(motion, gaz)
+    current = fit(["coulomb_friction"], None, data, signals=signals, uncertainty=False)
+    held = {"coulomb_friction": current.nonlinear["coulomb_friction"]}
+    added = fit(["coulomb_friction", "asymmetric_friction"], None, data, signals=signals, uncertainty=False,
+                nonlinear_fixed=held)
+    bias = fit(["coulomb_friction", "torque_bias"], None, data, signals=signals, uncertainty=False,
+               nonlinear_fixed=held)
+    assert added.fit_rmse["overall"] <= 1.1 * 0.01 < 0.2 * current.fit_rmse["overall"]
+    assert added.fit_rmse["overall"] < 0.5 * bias.fit_rmse["overall"]  # an offset is not a constant bias
+    values = added.values["asymmetric_friction"]
+    assert np.all(per_joint(values["amplitude"]) > 0)
+    assert np.sign(per_joint(values["velocity_offset"])) == pytest.approx(np.sign(PHI3))
+
+
+FC = np.array([0.6, 0.8, 0.5, 1.0, 0.7, 0.3, 0.5])
+PEAK = np.array([0.3, 0.4, 0.2, 0.5, 0.3, 0.15, 0.25])  # F_s - F_c
+V_ST = np.array([0.03, 0.05, 0.08, 0.04, 0.1, 0.06, 0.05])
+
+
+def stribeck(qd):
+    return FC * np.tanh(qd / 0.01) + PEAK * np.exp(-((qd / V_ST) ** 2)) * np.tanh(qd / 0.005)
+
+
+def test_stribeck_friction_recovers_a_hump_on_top_of_coulomb_friction(motion):
+    from sim2real.fitting import fit
+
+    data, signals = friction_data(motion, stribeck)
+    coulomb = fit(["coulomb_friction"], None, data, signals=signals, uncertainty=False)
+    result = fit(["coulomb_friction", "stribeck_friction"], None, data, signals=signals, uncertainty=False)
+    values = result.values["stribeck_friction"]
+    assert per_joint(values["stribeck_peak"]) == pytest.approx(PEAK, rel=0.05)
+    assert per_joint(values["stribeck_velocity"]) == pytest.approx(V_ST, rel=0.05)
+    assert per_joint(result.values["coulomb_friction"]["friction"]) == pytest.approx(FC, rel=0.03)
+    assert result.fit_rmse["overall"] <= 1.05 * 0.01
+    assert coulomb.fit_rmse["overall"] >= 3 * result.fit_rmse["overall"]
+
+
+def test_log_scale_of_nonlinear_parameters_is_declared_per_effect(motion):
+    _, signals = friction_data(motion, gaz)
+    for effect in EFFECTS.values():
+        mask = effect.nonlinear_log_scale(signals)
+        assert mask.dtype == bool and mask.shape == effect.nonlinear_init(signals).shape
+        assert np.all(effect.nonlinear_bounds(signals)[0][mask] > 0)  # a logarithm needs positive bounds
+    n = len(JOINTS)
+    assert EFFECTS["coulomb_friction"].nonlinear_log_scale(signals).all()
+    assert EFFECTS["stribeck_friction"].nonlinear_log_scale(signals).all()
+    # asymmetric_friction: the slopes in log scale, the offsets (either sign) not
+    assert list(EFFECTS["asymmetric_friction"].nonlinear_log_scale(signals)) == [True] * n + [False] * n
+    assert not EFFECTS["actuation_delay"].nonlinear_log_scale(signals).any()
+
+
+FRICTION_PARAMS = {
+    "effects": {
+        # Listed before the Coulomb friction on purpose: the symmetric part adds to it whatever the order.
+        "asymmetric_friction": {"amplitude": {j: 0.4 for j in JOINTS}, "slope": {j: 10.0 for j in JOINTS},
+                                "velocity_offset": {j: 0.03 for j in JOINTS}},
+        "stribeck_friction": {"stribeck_peak": {j: 0.3 for j in JOINTS},
+                              "stribeck_velocity": {j: 0.05 for j in JOINTS}},
+        "coulomb_friction": {"friction": {j: 0.7 for j in JOINTS}, "smoothing_velocity": {j: 0.01 for j in JOINTS}},
+    },
+}
+
+
+def test_friction_effects_write_what_mujoco_and_urdf_can_hold(dev_mjcf):
+    dof = lambda model: model.joint("panda_joint4").dofadr[0]  # noqa: E731
+    # Default (the calibrated MJCF, from a URDF with the Coulomb friction): phi1 / 2 adds to what is there.
+    spec = dev_mjcf.copy()
+    spec.joint("panda_joint4").frictionloss = 0.7  # as the calibrated URDF carries it
+    apply_to_spec(spec, FRICTION_PARAMS)
+    assert spec.compile().dof_frictionloss[dof(spec.compile())] == pytest.approx(0.7 + 0.2)
+    # A nominal MJCF calibrated completely: Coulomb's total, then the symmetric part of the sigmoid on top.
+    spec = dev_mjcf.copy()
+    apply_to_spec(spec, FRICTION_PARAMS, include_urdf_effects=True)
+    model = spec.compile()
+    assert model.dof_frictionloss[dof(model)] == pytest.approx(0.7 + 0.2)
+    # Stribeck friction has no MuJoCo equivalent: it writes nothing at all.
+    spec = dev_mjcf.copy()
+    before = spec.compile()
+    get_effect("stribeck_friction").apply_to_spec(spec, FRICTION_PARAMS["effects"]["stribeck_friction"], {})
+    after = spec.compile()
+    for field in ("dof_frictionloss", "dof_damping", "dof_armature"):
+        assert np.array_equal(getattr(before, field), getattr(after, field))
+    # URDF holds neither: the calibration is the Coulomb friction's alone.
+    assert not get_effect("asymmetric_friction").in_urdf and not get_effect("stribeck_friction").in_urdf
+    only_coulomb = {"effects": {"coulomb_friction": FRICTION_PARAMS["effects"]["coulomb_friction"]}}
+    assert calibration_from_params(FRICTION_PARAMS) == calibration_from_params(only_coulomb)

@@ -138,6 +138,10 @@ def _with_sensor(scenario: dict, where: str, **sensors) -> dict:
     return dict(scenario, sensors=dict(scenario["sensors"], torque_sensor=where, **sensors))
 
 
+# The Stribeck humps of the real-arm scenarios (joints 2, 4 and 6).
+HUMPS = {"peak": {"panda_joint2": 0.25, "panda_joint4": 0.2, "panda_joint6": 0.1},
+         "velocity": {"panda_joint2": 0.1, "panda_joint4": 0.08, "panda_joint6": 0.05}}
+
 LINK_IDENTITY_CASES = {
     "frictionloss_damping_payload_gains": {
         "rotor_inertia": {"armature": [0.08, 0.06, 0.05, 0.05, 0.03, 0.03, 0.02]},
@@ -158,7 +162,48 @@ LINK_IDENTITY_CASES = {
                          "com_offset": {"panda_joint4": [-0.01, 0.02, 0.0], "panda_joint6": [0.02, -0.01, 0.0]}},
         "actuation_delay": {"delay_s": 0.004},
     },
+    "gaz_stribeck_after_sensor": {
+        "rotor_inertia": {"armature": [0.08, 0.06, 0.05, 0.05, 0.03, 0.03, 0.02]},
+        "coulomb_friction": {"model": "gaz_sigmoid", "phi1": [0.55, 0.87, 0.64, 1.28, 0.84, 0.3, 0.56],
+                             "phi2": [5.1, 9.1, 10.1, 5.6, 8.3, 17.1, 10.3],
+                             "phi3": [0.04, 0.026, -0.046, 0.036, 0.026, -0.021, 0.0036],
+                             "stribeck": HUMPS, "after_sensor": [0.3, 0.3, 0.5, 0.3, 1.0, 0.0, 0.3]},
+        "viscous_friction": {"coefficient": 0.2},
+        "torque_bias": {"bias": [0.12, -0.18, 0.08, -0.1, 0.05, -0.04, 0.03]},
+    },
+    "frictionloss_after_sensor": {
+        "rotor_inertia": {"armature": [0.08, 0.06, 0.05, 0.05, 0.03, 0.03, 0.02]},
+        "coulomb_friction": {"coefficient": [0.8, 0.8, 0.6, 0.6, 0.4, 0.4, 0.3], "after_sensor": 0.4,
+                             "stribeck": {"peak": 0.15, "velocity": 0.1}},
+    },
 }
+
+
+def _lab_passive_friction(coulomb: dict, qd: np.ndarray) -> np.ndarray:
+    """The Gaz and Stribeck torques along qd, written out here (independently of the lab's code)."""
+    joints = PANDA_JOINTS
+
+    def per_joint(value):
+        if isinstance(value, dict):
+            return np.array([float(value.get(j, 0.0)) for j in joints])
+        return np.broadcast_to(np.asarray(value, dtype=float), (len(joints),))
+
+    out = np.zeros_like(qd)
+    if "phi1" in coulomb:
+        phi1, phi2, phi3 = (per_joint(coulomb[k]) for k in ("phi1", "phi2", "phi3"))
+        out = out + phi1 / (1 + np.exp(-phi2 * (qd + phi3))) - phi1 / (1 + np.exp(-phi2 * phi3))
+    if "stribeck" in coulomb:
+        peak = per_joint(coulomb["stribeck"]["peak"])
+        velocity = np.where(peak > 0, per_joint(coulomb["stribeck"]["velocity"]), 1.0)
+        out = out + peak * np.exp(-((qd / velocity) ** 2)) * np.tanh(qd / 0.005)
+    return out
+
+
+def _after_sensor(coulomb: dict) -> np.ndarray:
+    value = coulomb.get("after_sensor", 0.0)
+    if isinstance(value, dict):
+        return np.array([float(value.get(j, 0.0)) for j in PANDA_JOINTS])
+    return np.broadcast_to(np.asarray(value, dtype=float), (len(PANDA_JOINTS),))
 
 
 @pytest.mark.parametrize("case", sorted(LINK_IDENTITY_CASES))
@@ -166,7 +211,7 @@ def test_link_side_sensor_is_applied_torque_minus_the_drive_terms(dev, case):
     """Noise-free link-side tau against the real arm's forward dynamics at the logged true state: the applied
     torque minus rotor inertia * qacc, plus the joint's damping, frictionloss and Gaz torques (all negative
     work on the rotor), which the full model's forward dynamics computes independently of the lab's link model."""
-    from sim2real.lab import _apply_spec_effects, arm_spec, compile_arm, gaz_friction
+    from sim2real.lab import _apply_spec_effects, arm_spec, compile_arm
 
     config = load_lab_config(dev["lab"])
     joints = config["joints"]
@@ -194,61 +239,267 @@ def test_link_side_sensor_is_applied_torque_minus_the_drive_terms(dev, case):
     data = mujoco.MjData(real)
     armature = real.dof_armature[dadr]
     assert np.all(armature >= np.array(effects["rotor_inertia"]["armature"]))
-    gaz = None
-    if "phi1" in effects["coulomb_friction"]:
-        gaz = [np.asarray(effects["coulomb_friction"][k], dtype=float) for k in ("phi1", "phi2", "phi3")]
+    coulomb = effects["coulomb_friction"]
+    after = _after_sensor(coulomb)  # the share of the joint friction beyond the sensor
     expected = np.empty_like(tau_link)
     for k in range(len(tau_link)):
         data.qpos[qadr], data.qvel[dadr] = link["q"][k], link["qd"][k]
         data.ctrl[:] = applied[k]
-        data.qfrc_applied[dadr] = -gaz_friction(link["qd"][k], *gaz) if gaz else 0.0
+        data.qfrc_applied[dadr] = -_lab_passive_friction(coulomb, link["qd"][k])
         mujoco.mj_forward(real, data)
-        # Rotor: armature * qacc = applied - tau_link + (damping + frictionloss + Gaz torques on the joint)
+        # Rotor: armature * qacc = applied - tau_link + (damping + the friction before the sensor); no joint
+        # limit is reached, so the constraint force is the frictionloss alone.
         expected[k] = (applied[k] - armature * data.qacc[dadr] + data.qfrc_passive[dadr]
-                       + data.qfrc_constraint[dadr] + data.qfrc_applied[dadr])
+                       + (1.0 - after) * (data.qfrc_constraint[dadr] + data.qfrc_applied[dadr]))
     np.testing.assert_allclose(tau_link, expected, rtol=0, atol=1e-8)
     drive = np.sqrt(np.mean((applied - tau_link) ** 2, axis=0))
     assert np.all(drive > 0.05), drive  # the drive terms are there to be removed on every joint
 
 
 def test_link_side_sensor_moves_rotor_inertia_and_friction_between_command_and_tau(dev):
-    """tau_cmd - tau is the hidden armature * qdd plus the Gaz friction for the link-side sensor, sensor noise
+    """tau_cmd - tau is the hidden armature * qdd plus the friction before the sensor (1 - after_sensor of the
+    Gaz and Stribeck torques) minus any sensor offset for the link-side sensor, the offset and sensor noise
     alone for the motor-side one (real_arm_like has no effect between the command and the applied torque)."""
     config = load_lab_config(dev["lab"])
     joints = config["joints"]
     scenario = config["scenarios"]["link_side_sensor"]
     assert scenario["sensors"]["torque_sensor"] == "link"
     noise = scenario["sensors"]["torque_noise_std"]
-    armature = np.array(scenario["effects"]["rotor_inertia"]["armature"])
-    phi = [np.array(scenario["effects"]["coulomb_friction"][k]) for k in ("phi1", "phi2", "phi3")]
+    effects = scenario["effects"]
+    armature = np.array(effects["rotor_inertia"]["armature"])
+    bias = np.array(effects["torque_bias"]["bias"]) if "torque_bias" in effects else np.zeros(len(joints))
+    coulomb = effects["coulomb_friction"]
+    after = _after_sensor(coulomb)
+    assert np.all(after == pytest.approx(0.3))
+    gaz_only = {k: coulomb[k] for k in ("phi1", "phi2", "phi3")}
+    hump_only = {"stribeck": coulomb["stribeck"]}
+    humped = np.array([j in coulomb["stribeck"]["peak"] for j in joints])
+    assert humped.sum() == 3
 
     def residual_fit(signals):
-        """Per joint least squares of tau_cmd - tau on [qdd, Gaz(qd), qd, 1] -> coefficients, R^2, residual RMS."""
-        from sim2real.lab import gaz_friction
-
+        """Per joint least squares of tau_cmd - tau on [qdd, Gaz(qd), Stribeck(qd), qd, 1] -> coefficients, R^2,
+        residual RMS, RMS about the mean."""
         m, dt = 10, 1.0 / scenario["sample_rate_hz"]
         qd = signals["qd"]
         qdd = (qd[2 * m:] - qd[:-2 * m]) / (2 * m * dt)  # central difference over 20 ms
         r = (signals["tau_cmd"] - signals["tau"])[m:-m][200:]  # past the controller's start
         qdd, qd = qdd[200:], qd[m:-m][200:]
-        friction = gaz_friction(qd, *phi)
+        gaz, hump = _lab_passive_friction(gaz_only, qd), _lab_passive_friction(hump_only, qd)
         out = []
         for j in range(len(joints)):
-            A = np.column_stack([qdd[:, j], friction[:, j], qd[:, j], np.ones(len(r))])
+            A = np.column_stack([qdd[:, j], gaz[:, j], hump[:, j], qd[:, j], np.ones(len(r))])
             x, *_ = np.linalg.lstsq(A, r[:, j], rcond=None)
             rest = r[:, j] - A @ x
-            out.append((x, 1.0 - rest.var() / r[:, j].var(), np.sqrt(np.mean(rest**2)), np.sqrt(np.mean(r[:, j] ** 2))))
+            out.append((x, 1.0 - rest.var() / r[:, j].var(), np.sqrt(np.mean(rest**2)), r[:, j].std()))
         return out
 
     _, link, _ = simulate_run(dev["mjcf"], joints, scenario, seed=5)
     _, motor, _ = simulate_run(dev["mjcf"], joints, _with_sensor(scenario, "motor"), seed=5)
     for j, (x, r2, rest, total) in enumerate(residual_fit(link)):
-        assert r2 > 0.85 and total > 5 * noise, (j, r2, total)
+        assert r2 > 0.75 and total > 2 * noise, (j, r2, total)  # the wrist's friction is small beside the noise
         assert x[0] == pytest.approx(armature[j], rel=0.25), (j, x)  # the hidden rotor inertia
-        assert x[1] == pytest.approx(1.0, abs=0.1), (j, x)  # the hidden Gaz friction, whole
+        assert x[1] == pytest.approx(1.0 - after[j], abs=0.1), (j, x)  # the Gaz friction before the sensor
+        if humped[j]:
+            assert x[2] == pytest.approx(1.0 - after[j], abs=0.15), (j, x)  # the Stribeck hump before the sensor
+        assert x[4] == pytest.approx(-bias[j], abs=0.03), (j, x)  # the sensor's offset
         assert rest < 1.2 * noise, (j, rest)  # nothing else: the sensor's noise
     for j, (x, r2, rest, total) in enumerate(residual_fit(motor)):
         assert r2 < 0.02 and total < 1.2 * noise, (j, r2, total)
+        assert x[4] == pytest.approx(-bias[j], abs=0.01), (j, x)
+
+
+def _exact(scenario: dict, where: str, seconds: float = 1.0, **effects) -> dict:
+    """A short noise-free scenario (exact encoder, velocity and torque, no stamp jitter) with these effects."""
+    sensors = {"torque_noise_std": 0.0, "encoder_resolution_rad": 0.0, "velocity_noise_std": 0.0,
+               "torque_sensor": where}
+    return dict(scenario, duration_s=seconds, sensors=sensors, effects=effects)
+
+
+def _rigid_body_torque(mjcf, joints, effects, signals) -> np.ndarray:
+    """The real arm's link-side inverse dynamics at the logged (exact) states, its acceleration from the full
+    model's forward dynamics: built here, from the spec, without the lab's link-side model."""
+    from sim2real.lab import arm_spec, compile_arm
+
+    real, qadr, dadr = compile_arm(_with_effects(arm_spec(mjcf, joints), joints, effects), joints)
+    links_spec = _with_effects(arm_spec(mjcf, joints), joints, effects)
+    for name in joints:  # the drive terms belong to the rotor side
+        joint = links_spec.joint(name)
+        joint.armature, joint.frictionloss = 0.0, 0.0
+        joint.damping = np.zeros_like(np.array(joint.damping, dtype=float).reshape(-1))
+    links, qadr_l, dadr_l = compile_arm(links_spec, joints)
+    data, data_l = mujoco.MjData(real), mujoco.MjData(links)
+    coulomb = effects.get("coulomb_friction", {})
+    out = np.empty_like(signals["q"])
+    for k in range(len(out)):
+        data.qpos[qadr], data.qvel[dadr] = signals["q"][k], signals["qd"][k]
+        data.ctrl[:] = signals["tau_cmd"][k]
+        data.qfrc_applied[dadr] = -_lab_passive_friction(coulomb, signals["qd"][k])
+        mujoco.mj_forward(real, data)
+        data_l.qpos[qadr_l], data_l.qvel[dadr_l] = data.qpos[qadr], data.qvel[dadr]
+        data_l.qacc[dadr_l] = data.qacc[dadr]
+        mujoco.mj_inverse(links, data_l)
+        out[k] = data_l.qfrc_inverse[dadr_l]
+    return out
+
+
+def _with_effects(spec, joints, effects):
+    from sim2real.lab import _apply_spec_effects
+
+    _apply_spec_effects(spec, joints, effects, None)
+    return spec
+
+
+REAL_FRICTION = {"model": "gaz_sigmoid", "phi1": [0.54615, 0.87224, 0.64068, 1.2794, 0.83904, 0.30301, 0.56489],
+                 "phi2": [5.1181, 9.0657, 10.136, 5.5903, 8.3469, 17.133, 10.336],
+                 "phi3": [0.039533, 0.025882, -0.04607, 0.036194, 0.026226, -0.021047, 0.0035526],
+                 "stribeck": HUMPS}
+
+
+def test_link_side_tau_is_the_rigid_body_torque_plus_the_friction_after_the_sensor(dev):
+    """Link-side tau - rigid-body inverse dynamics = after_sensor * (Gaz + Stribeck) at the true velocity, and
+    zero without after_sensor; the share changes neither the motion nor a motor-side sensor."""
+    config = load_lab_config(dev["lab"])
+    joints = config["joints"]
+    clean = config["scenarios"]["clean"]
+    rotor = {"armature": [0.08, 0.06, 0.05, 0.05, 0.03, 0.03, 0.02]}
+    payload = {"mass": 0.35, "com": [0.0, 0.0, 0.17], "radius": 0.05}
+    after = [0.3, 0.3, 0.3, 0.5, 0.3, 1.0, 0.0]
+    shared = dict(coulomb_friction=dict(REAL_FRICTION, after_sensor=after), rotor_inertia=rotor, payload=payload)
+    whole = dict(coulomb_friction=REAL_FRICTION, rotor_inertia=rotor, payload=payload)
+    _, link, truth = simulate_run(dev["mjcf"], joints, _exact(clean, "link", **shared), seed=3)
+    _, link_whole, _ = simulate_run(dev["mjcf"], joints, _exact(clean, "link", **whole), seed=3)
+    _, motor, _ = simulate_run(dev["mjcf"], joints, _exact(clean, "motor", **shared), seed=3)
+    _, motor_whole, _ = simulate_run(dev["mjcf"], joints, _exact(clean, "motor", **whole), seed=3)
+    assert truth["coulomb_friction"]["after_sensor"] == dict(zip(joints, after))
+    for kind in ("q", "qd", "tau_cmd"):  # the friction's split leaves the arm's motion alone
+        assert np.array_equal(link[kind], link_whole[kind]) and np.array_equal(link[kind], motor[kind]), kind
+    assert np.array_equal(motor["tau"], motor_whole["tau"])  # a motor-side sensor sees no difference
+
+    friction = _lab_passive_friction(REAL_FRICTION, link["qd"])
+    assert np.all(np.sqrt(np.mean(friction**2, axis=0)) > 0.05)  # every joint has friction to share
+    np.testing.assert_allclose(link["tau"] - _rigid_body_torque(dev["mjcf"], joints, shared, link),
+                               np.asarray(after) * friction, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(link_whole["tau"] - _rigid_body_torque(dev["mjcf"], joints, whole, link_whole),
+                               0.0, rtol=0, atol=1e-8)
+    np.testing.assert_allclose((link["tau"] - link_whole["tau"])[:, -1], 0.0, atol=1e-12)  # after_sensor 0
+
+
+def test_stribeck_hump_is_a_passive_torque_against_the_motion(dev):
+    """Each logged step is MuJoCo's step of the real arm under the applied torque minus Gaz + the Stribeck
+    hump peak*exp(-(qd/v)^2)*tanh(qd/0.005) at the step's velocity; the hump moves the arm and the torques."""
+    config = load_lab_config(dev["lab"])
+    joints = config["joints"]
+    clean = config["scenarios"]["clean"]
+    gaz_only = {k: v for k, v in REAL_FRICTION.items() if k != "stribeck"}
+    _, humped, truth = simulate_run(dev["mjcf"], joints, _exact(clean, "motor", 2.0, coulomb_friction=REAL_FRICTION),
+                                   seed=4)
+    _, smooth, _ = simulate_run(dev["mjcf"], joints, _exact(clean, "motor", 2.0, coulomb_friction=gaz_only), seed=4)
+    assert truth["coulomb_friction"]["stribeck"]["peak"]["panda_joint2"] == 0.25
+    assert truth["coulomb_friction"]["stribeck"]["peak"]["panda_joint1"] == 0.0
+
+    from sim2real.lab import arm_spec, compile_arm
+
+    real, qadr, dadr = compile_arm(arm_spec(dev["mjcf"], joints), joints)
+    real.opt.timestep = 1.0 / clean["sample_rate_hz"]
+    data = mujoco.MjData(real)
+    hump_max = np.zeros(len(joints))
+    for k in range(len(humped["q"]) - 1):
+        data.qpos[qadr], data.qvel[dadr] = humped["q"][k], humped["qd"][k]
+        data.ctrl[:] = humped["tau"][k]  # motor side, no gain or offset: the applied torque
+        data.qfrc_applied[dadr] = -_lab_passive_friction(REAL_FRICTION, humped["qd"][k])
+        mujoco.mj_step(real, data)
+        np.testing.assert_allclose(data.qvel[dadr], humped["qd"][k + 1], rtol=0, atol=1e-9)
+        hump_max = np.maximum(hump_max, np.abs(_lab_passive_friction({"stribeck": REAL_FRICTION["stribeck"]},
+                                                                     humped["qd"][k])))
+    assert hump_max[[1, 3, 5]] == pytest.approx([0.25, 0.2, 0.1], rel=0.15)  # zero crossings reach the peak
+    assert np.all(hump_max[[0, 2, 4, 6]] == 0.0)
+    moved = np.max(np.abs(humped["tau"] - smooth["tau"]), axis=0)
+    # The controller answers the hump on its joints (a part of the peak); the other joints barely notice.
+    assert np.all(moved[[1, 3, 5]] > 0.3 * np.array([0.25, 0.2, 0.1])), moved
+    assert np.all(moved[[0, 2, 4, 6]] < moved[[1, 3, 5]].min()), moved
+
+
+def test_real_arm_scenarios_carry_the_real_arm_traits(dev, tmp_path):
+    """real_arm_like and its siblings: sensor offsets and Stribeck humps; link_side_sensor shares 30 % of the
+    friction after its sensor; link_side_tau_only logs like a real tau_J; wrist_friction has joint 7's only."""
+    config = load_lab_config(dev["lab"])
+    scenarios = config["scenarios"]
+    joints = config["joints"]
+    for name in ("real_arm_like", "link_side_sensor", "real_arm_like_actuator", "link_side_tau_only", "wrist_friction"):
+        assert scenarios[name].get("description"), name
+        out = tmp_path / f"{name}.yaml"
+        write_truth(dev["lab"], dev["mjcf"], name, out)
+        effects = yaml.safe_load(out.read_text())["effects"]
+        assert {"link_inertia", "payload", "rotor_inertia"} <= set(effects), name
+        hidden_bias = scenarios[name]["effects"].get("torque_bias")
+        if hidden_bias:  # sensor offsets, when the scenario hides them, are in the truth too
+            assert list(effects["torque_bias"]["bias"].values()) == hidden_bias["bias"], name
+        coulomb = effects["coulomb_friction"]
+        if name == "wrist_friction":
+            assert "stribeck" not in coulomb and "after_sensor" not in coulomb
+            for key, value in (("phi1", 0.56489), ("phi2", 10.336), ("phi3", 0.0035526)):
+                assert coulomb[key] == {j: (value if j == "panda_joint7" else 0.0) for j in joints}, key
+            continue
+        assert coulomb["stribeck"]["peak"] == {j: HUMPS["peak"].get(j, 0.0) for j in joints}, name
+        assert coulomb["stribeck"]["velocity"]["panda_joint6"] == 0.05, name
+        link_side = scenarios[name]["sensors"].get("torque_sensor") == "link"
+        assert link_side == name.startswith("link_side"), name
+        if link_side:
+            assert coulomb["after_sensor"] == {j: 0.3 for j in joints}, name
+        else:
+            assert "after_sensor" not in coulomb, name
+    assert scenarios["link_side_tau_only"]["columns"] == ["q", "qd", "tau"]
+
+    out = tmp_path / "tau_only" / "fit.parquet"
+    run_lab_scenario_run(dev["mjcf"], dev["lab"], "panda", "link_side_tau_only", "fit", out)
+    run = load_run(out, known_joints=PANDA_JOINTS)
+    assert run.tau is not None and run.tau_cmd is None and run.q_cmd is None
+    assert yaml.safe_load(out.with_suffix(".yaml").read_text())["torque_sensor"] == "link"
+    first = out.read_bytes()
+    run_lab_scenario_run(dev["mjcf"], dev["lab"], "panda", "link_side_tau_only", "fit", out)
+    assert out.read_bytes() == first  # deterministic with the new effects too
+
+    # wrist_friction: the controller's (motor-side) torque answers a friction on joint 7 alone.
+    exact = {"torque_noise_std": 0.0, "encoder_resolution_rad": 0.0, "velocity_noise_std": 0.0}
+    wrist = dict(scenarios["wrist_friction"], duration_s=1.0, sensors=exact)
+    without = dict(wrist, effects={k: v for k, v in wrist["effects"].items() if k != "coulomb_friction"})
+    _, with_friction, _ = simulate_run(dev["mjcf"], joints, wrist, seed=2)
+    _, no_friction, _ = simulate_run(dev["mjcf"], joints, without, seed=2)
+    diff = np.max(np.abs(with_friction["tau"] - no_friction["tau"]), axis=0)
+    assert diff[-1] > 0.1 and diff[-1] > 5 * diff[:-1].max(), diff
+
+
+@pytest.mark.parametrize("coulomb, key", [
+    ({"after_sensor": 1.5}, "after_sensor"),
+    ({"after_sensor": {"panda_joint7": -0.2}}, "after_sensor"),
+    ({"stribeck": {"peak": 0.2}}, "stribeck"),
+    ({"stribeck": {"peak": -0.2, "velocity": 0.1}}, "peak"),
+    ({"stribeck": {"peak": 0.2, "velocity": 0.1, "width": 1}}, "stribeck"),
+])
+def test_bad_friction_options_name_the_file_and_key(dev, tmp_path, coulomb, key):
+    """The schema's checks; the joint counts and names are the lab's (next test), as for every per-joint value."""
+    data = yaml.safe_load(dev["lab"].read_text())
+    data["scenarios"]["clean"] = {"effects": {"coulomb_friction": dict(
+        {"model": "gaz_sigmoid", "phi1": 0.5, "phi2": 10.0, "phi3": 0.0}, **coulomb)}}
+    bad = tmp_path / "lab.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    with pytest.raises(InputError, match=rf"lab\.yaml.*coulomb_friction.*{key}"):
+        load_lab_config(bad)
+
+
+def test_bad_friction_options_in_a_scenario_dict_are_caught_by_the_lab(dev):
+    """simulate_run takes settings that no schema saw: it checks the new values itself."""
+    config = load_lab_config(dev["lab"])
+    joints = config["joints"]
+    gaz = {"model": "gaz_sigmoid", "phi1": 0.5, "phi2": 10.0, "phi3": 0.0}
+    for extra, key in (({"after_sensor": [0.3, 0.3]}, "after_sensor"), ({"after_sensor": -0.1}, "after_sensor"),
+                       ({"stribeck": {"peak": 0.2, "velocity": 0.0}}, "stribeck/velocity"),
+                       ({"stribeck": {"peak": -0.2, "velocity": 0.1}}, "stribeck/peak"),
+                       ({"stribeck": {"peak": {"panda_joint2": 0.2}, "velocity": {"panda_joint2": 0.1, "wrist": 0.1}}},
+                        "stribeck/velocity")):
+        scenario = dict(config["scenarios"]["clean"], duration_s=0.01, effects={"coulomb_friction": dict(gaz, **extra)})
+        with pytest.raises(InputError, match=f"lab.yaml: coulomb_friction/{key}"):
+            simulate_run(dev["mjcf"], joints, scenario, seed=1, config_path=dev["lab"])
 
 
 def test_run_metadata_says_where_the_torque_sensor_sits(dev, tmp_path):

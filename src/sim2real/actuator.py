@@ -70,21 +70,50 @@ def link_mode(runs: Sequence[PreparedRun]) -> str:
 
 
 def effect_link(name: str, torque_sensor: str = "motor") -> str:
-    """The link an effect lies on. The drive's effects (rotor inertia, joint friction and damping) sit
-    between the motor and the link: behind a motor-side sensor they are the body's, in front of a
-    link-side sensor (``torque_sensor: link``) the actuator's."""
+    """The link where an effect is expected. The drive's effects (rotor inertia, joint friction and damping)
+    sit between the motor and the link: behind a motor-side sensor they are the body's, in front of a
+    link-side sensor (``torque_sensor: link``) the actuator's. This is a prior that words the report:
+    the data decide (:func:`candidates_of_link`, :func:`effects_of_link`)."""
     effect = get_effect(name)
     return "actuator" if effect.drive and torque_sensor == "link" else effect.link
 
 
 def effects_of_link(effect_names: Sequence[str], link: str, torque_sensor: str = "motor") -> list[str]:
-    """The effects of ``link`` among ``effect_names``, in their order."""
-    return [name for name in effect_names if effect_link(name, torque_sensor) == link]
+    """The effects of ``link`` among ``effect_names``, in their order.
+
+    A drive effect is fitted on the body link whatever the sensor: behind a link-side sensor the body's
+    share is the part after the sensor (output bearings, seals), which a real arm's link-side torque
+    shows (Gaz et al. 2019 identify the Panda's friction from tau_J). Behind a link-side sensor it is
+    fitted on the actuator link too: the part before the sensor."""
+    return [name for name in effect_names
+            if effect_link(name, torque_sensor) == link or (get_effect(name).drive and link == "body")]
 
 
 def candidates_of_link(link: str, torque_sensor: str = "motor") -> list[str]:
-    """The library's effects the diagnosis tries on ``link`` (``combined``: all of them)."""
-    return [name for name in EFFECTS if link == "combined" or effect_link(name, torque_sensor) == link]
+    """The library's effects the diagnosis tries on ``link`` (``combined``: all of them).
+
+    The sensor's position is a prior, not a veto: every effect the judged signal can show is tried. The
+    drive's effects are tried on both links (the body sees what acts after the sensor; the actuator link,
+    what acts between the motor and the sensor: nothing, if the sensor really is motor-side)."""
+    return [name for name in EFFECTS
+            if link == "combined" or effect_link(name, torque_sensor) == link or get_effect(name).drive]
+
+
+def drive_verdict_note(link: str, effect: str, torque_sensor: str) -> str:
+    """What a drive effect found on ``link`` means behind this sensor ('' when it is where it was expected)."""
+    if not get_effect(effect).drive:
+        return ""
+    if link == "body" and torque_sensor == "link":
+        return (f" The runs say the torque sensor is link-side, and yet the measured torque against the motion "
+                f"shows {effect}: behind this sensor that is friction after it (output bearings, seals) or a "
+                "sensor that sits before part of the drive. It is fitted on the body link; the calibrated model "
+                "adds it to the joint's value.")
+    if link == "actuator" and torque_sensor == "motor":
+        return (f" The runs' metadata say the torque sensor is motor-side (torque_sensor: motor), but the measured "
+                f"torque against the command shows {effect}, which lies between the motor and a link-side sensor: "
+                "the data contradict the metadata. If the sensor measures after the gearbox, set "
+                "`torque_sensor: link` in the runs' metadata YAML.")
+    return ""
 
 
 def torque_sensor(runs: Sequence[PreparedRun]) -> str:
@@ -183,7 +212,8 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
              "why": "a constant torque per joint; no body effect of the library is constant"},
         ]
         out["cannot_tell"] = [
-            {"effects": ["actuator_gain", "link_inertia", "rotor_inertia", "coulomb_friction", "viscous_friction"],
+            {"effects": ["actuator_gain", "link_inertia", "rotor_inertia", "coulomb_friction", "viscous_friction",
+                         "asymmetric_friction", "stribeck_friction"],
              "why": "a motor gain g common to all joints moves the arm exactly as the body with every torque "
              "scaled by 1/g (masses, inertias, armature and friction together): in the torque domain and in "
              "the replay alike. Only per-joint differences of the gain show. A joint torque sensor (tau) "
@@ -193,10 +223,12 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
         ]
     else:
         out["cannot_tell"] = [
-            {"effects": candidates_of_link("actuator", sensor),
-             "why": "the runs log no command (tau_cmd), so the actuator link is not seen: not fitted, not tried"},
+            {"effects": [n for n in candidates_of_link("actuator", sensor) if not get_effect(n).drive],
+             "why": "the runs log no command (tau_cmd), so the actuator link is not seen: not fitted, not tried"
+             + ("; the drive's effects are tried on the body link, where the measured torque shows what acts "
+                "after the sensor" if sensor == "link" else "")},
         ]
-        dropped = [n for n in model_effects if effect_link(n, sensor) == "actuator"]
+        dropped = [n for n in model_effects if effect_link(n, sensor) == "actuator" and not get_effect(n).drive]
         if dropped:
             out["cannot_tell"][0]["dropped_from_model"] = dropped
     for pair in confounded:

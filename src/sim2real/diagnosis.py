@@ -2,9 +2,12 @@
 
 On the holdout residual of the last rung, every effect of the library not yet in the model is
 tried: it is added to the model, the model is refitted on the fit runs, and its holdout residual
-is compared with the current one. ``explained`` is the fraction of the current holdout residual
-energy the candidate removes (1 - SSE_after / SSE_now, clipped to 0..1); because it is measured
-on runs the fit never saw, an effect that only soaks up noise explains nothing.
+is compared with the current one. Every residual is taken in units of each joint's own noise floor
+(:func:`sim2real.fitting.joint_weights`, the weights of the fit too): a wrist residual 8x its floor
+weighs what a shoulder residual 8x its floor weighs, although its N*m are ten times smaller.
+``explained`` is the fraction of the current holdout residual energy (in those units) the candidate
+removes (1 - SSE_after / SSE_now, clipped to 0..1); because it is measured on runs the fit never
+saw, an effect that only soaks up noise explains nothing.
 ``explained_beyond_noise`` is the same removal as a share of the residual energy above the noise
 floor, the part any model could remove: near the floor a real effect removes most of that excess
 but only a small share of the whole residual, so the decision is taken on it.
@@ -17,9 +20,12 @@ The diagnosis runs per link of the model (:mod:`sim2real.actuator`): ``candidate
 of that link, and the verdict names the link. Candidates whose holdout predictions agree to within a
 tenth of the noise floor are listed as ``confounded``: these data cannot tell them apart.
 
-When no candidate explains enough, the verdict says so instead of forcing a label:
-``at_noise_floor`` when the residual is already within ``noise_floor_factor`` of the noise floor,
-``unexplained`` otherwise. The diagnosis never looks at the lab's truth.yaml: it sees only runs.
+A candidate is decisive arm-wide (it removes ``min_explained`` of the excess above the floors), or
+on joints: a joint above ``noise_floor_factor`` x its floor whose excess it mostly removes
+(``joint_decisive``) names it on that joint, however small that joint's share of the arm.
+When no candidate is decisive, the verdict says so instead of forcing a label: ``at_noise_floor``
+when every joint is within ``noise_floor_factor`` of its own floor, ``unexplained`` otherwise, with
+each joint still above its floor and the candidate that comes closest there (``per_joint``). The diagnosis never looks at the lab's truth.yaml: it sees only runs.
 """
 
 from __future__ import annotations
@@ -37,15 +43,19 @@ DEFAULT_DIAGNOSIS: dict[str, float] = {
     "min_explained": 0.3,  # a candidate must remove this share of the holdout residual beyond the noise floor
     "min_gain": 0.05,  # ... and this share of the whole holdout residual energy (a fall worth a rung)
     "joint_min_explained": 0.2,  # ... and this share of a joint's residual beyond noise to name that joint
-    "noise_floor_factor": 1.5,  # residual RMS within this factor of the noise floor: nothing to add
+    # A joint above noise_floor_factor x its floor: a candidate removing this share of its excess is named on it,
+    # however small that joint's share of the arm-wide residual.
+    "joint_decisive": 0.5,
+    "noise_floor_factor": 1.5,  # every joint's residual RMS within this factor of its floor: nothing to add
     # Nested effects (a payload is a change of the last link's inertia): a candidate with fewer parameters
-    # ranks first when its holdout RMSE is within this fraction of the noise floor of the best one's.
+    # ranks first when its holdout residual is within this fraction of the noise floor of the best one's.
     "parsimony_noise_fraction": 0.1,
 }
 
 
 # Effects that are special cases of another: never tried once the larger one is in the model.
-NESTED_IN: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",)}
+# Gaz's sigmoid with no velocity offset is a Coulomb tanh: asymmetric_friction holds coulomb_friction.
+NESTED_IN: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",), "asymmetric_friction": ("coulomb_friction",)}
 
 # How each link is named in verdicts (sim2real.actuator.LINK_MODES says which links a data set has).
 LINK_TEXT: dict[str, str] = {
@@ -66,18 +76,22 @@ def _sse(residual: np.ndarray) -> np.ndarray:
 
 
 def _rank(candidates: list[dict[str, Any]], tolerance: float) -> list[dict[str, Any]]:
-    """By explained share; then the simplest candidate that does as well as the best goes first.
+    """Decisive candidates first, each group by explained share; then the simplest candidate that does as
+    well as the best goes first.
 
     Effects nest (a payload is a change of the last link's inertia; link_inertia holds it): the
     bigger one always explains a little more, the smaller one is the better name for what is missing.
-    "As well" is judged against the noise floor: within ``tolerance`` N*m of the best holdout RMSE,
-    a difference no excitation of this length can tell from noise.
+    "As well" is judged in units of the noise floor: within ``tolerance`` of the best holdout residual
+    (each joint in units of its own floor), a difference no excitation of this length can tell from noise.
     """
-    ranked = sorted(candidates, key=lambda c: (-c["explained"], c["effect"]))
+    ranked = sorted(candidates, key=lambda c: (not c["decisive"], -c["explained"], c["effect"]))
     if not ranked:
         return ranked
-    limit = ranked[0]["evidence"]["rmse_after"] + tolerance
-    close = [c for c in ranked if c["evidence"]["rmse_after"] <= limit]
+    best = ranked[0]
+    if not best["decisive"]:
+        return ranked  # nothing is named: the order is only what comes closest
+    limit = best["evidence"]["x_floor_after"] + tolerance
+    close = [c for c in ranked if c["decisive"] == best["decisive"] and c["evidence"]["x_floor_after"] <= limit]
     simplest = min(close, key=lambda c: (c["evidence"]["parameters"], -c["explained"], c["effect"]))
     return [simplest] + [c for c in ranked if c is not simplest]
 
@@ -86,7 +100,8 @@ def _confounded(
     candidates: Sequence[Mapping[str, Any]], residuals: Mapping[str, np.ndarray], tolerance: float, min_gain: float
 ) -> list[tuple[str, str]]:
     """Pairs of candidates that each remove at least ``min_gain`` of the residual and predict the same
-    holdout torque to within ``tolerance`` (RMS, N*m): on these data one is the other (in ranked order)."""
+    holdout torque to within ``tolerance`` (RMS in floor units): on these data one is the other (ranked order).
+    ``residuals`` are already in floor units."""
     useful = [c["effect"] for c in candidates if c["explained"] >= min_gain]
     pairs = []
     for i, a in enumerate(useful):
@@ -94,6 +109,10 @@ def _confounded(
             if float(np.sqrt(np.mean((residuals[a] - residuals[b]) ** 2))) <= tolerance:
                 pairs.append((a, b))
     return pairs
+
+
+def _joint_text(joints: Sequence[str], before: Mapping[str, float], after: Mapping[str, float]) -> str:
+    return ", ".join(f"{j} {before[j]:.2g}x -> {after[j]:.2g}x" for j in joints)
 
 
 def diagnose(
@@ -124,12 +143,20 @@ def diagnose(
     fit_signals = fit_signals or fitting.make_signals(nominal, fit_data)
     holdout_signals = holdout_signals or fitting.make_signals(nominal, holdout_data)
     joints = list(holdout_data.joint_names)
-    sse_now = _sse(holdout_residual)
-    total_now = float(sse_now.sum())
-    rmse_now = float(np.sqrt(np.mean(holdout_residual**2)))
     floor = np.asarray(holdout_data.noise_floor, dtype=float)
     noise = float(np.sqrt(np.mean(floor**2)))
-    excess_now = np.clip(sse_now - holdout_residual.shape[0] * floor**2, 0.0, None)  # per joint
+    # Every decision is taken in units of each joint's own noise floor (fitting.joint_weights): a wrist
+    # residual 8x its floor weighs what a shoulder residual 8x its floor weighs, whatever their N*m.
+    unit = noise / fitting.joint_weights(floor) if noise > 0 else np.ones(len(joints))
+    scaled_now = holdout_residual / unit
+    rows = holdout_residual.shape[0]
+    sse_now = _sse(scaled_now)
+    total_now = float(sse_now.sum())
+    rmse_now = float(np.sqrt(np.mean(holdout_residual**2)))
+    x_now = np.sqrt(sse_now / max(rows, 1))  # per joint, x its floor
+    ratio = float(np.sqrt(np.mean(x_now**2)))
+    excess_now = np.clip(sse_now - rows, 0.0, None)  # per joint, above white noise at the floor
+    above = [j for j, x in zip(joints, x_now, strict=True) if x > limits["noise_floor_factor"]]
     ranked_candidates, skipped = [], []
     residuals_after: dict[str, np.ndarray] = {}
     for name in candidates if candidates is not None else EFFECTS:
@@ -157,62 +184,98 @@ def diagnose(
         result = fitting.fit([*model_effects, name], nominal, fit_data, settings.get("fit"), signals=fit_signals,
                            uncertainty=False, nonlinear_fixed=nonlinear_fixed)
         _, residual = fitting.holdout_metrics(result, nominal, holdout_data, holdout_signals)
-        sse_after = _sse(residual)
-        explained = float(np.clip(1.0 - sse_after.sum() / total_now, 0.0, 1.0)) if total_now > 0 else 0.0
+        scaled = residual / unit
+        sse_after = _sse(scaled)
         gain = total_now - float(sse_after.sum())
+        explained = float(np.clip(gain / total_now, 0.0, 1.0)) if total_now > 0 else 0.0
         beyond = float(np.clip(gain / excess_now.sum(), 0.0, 1.0)) if excess_now.sum() > 0 else 0.0
         with np.errstate(invalid="ignore", divide="ignore"):
             per_joint = np.clip(np.where(sse_now > 0, 1.0 - sse_after / sse_now, 0.0), 0.0, 1.0)
             per_joint_beyond = np.clip(np.where(excess_now > 0, (sse_now - sse_after) / excess_now, 0.0), 0.0, 1.0)
+        x_after = np.sqrt(sse_after / max(rows, 1))
+        arm_wide = beyond >= limits["min_explained"] and explained >= limits["min_gain"]
+        # A joint above its floor whose excess the candidate mostly removes names it on that joint, however
+        # small that joint's share of the arm; never at the price of the arm as a whole (gain > 0).
+        on_joints = [j for j, x, v in zip(joints, x_now, per_joint_beyond, strict=True)
+                     if x > limits["noise_floor_factor"] and v >= limits["joint_decisive"]] if gain > 0 else []
         acting = [j for j, v in zip(joints, per_joint_beyond, strict=True) if v >= limits["joint_min_explained"]]
-        decisive = beyond >= limits["min_explained"] and explained >= limits["min_gain"]
+        decisive = arm_wide or bool(on_joints)
         evidence = effect.evidence(holdout_residual, holdout_signals)
         evidence["per_joint_explained"] = per_joint_dict(joints, per_joint, 3)
+        evidence["per_joint_explained_beyond_noise"] = per_joint_dict(joints, per_joint_beyond, 3)
         evidence["rmse_after"] = round(float(np.sqrt(np.mean(residual**2))), 6)
+        evidence["x_floor_after"] = round(float(np.sqrt(np.mean(x_after**2))), 4)
+        evidence["per_joint_x_floor_after"] = per_joint_dict(joints, x_after, 3)
         evidence["fitted"] = result.values[name]
         evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
-        residuals_after[name] = residual
+        residuals_after[name] = scaled
         ranked_candidates.append({
             "effect": name,
             "link": effect.link if link == "combined" else link,  # a drive effect's follows the torque sensor
-            "joints": acting if decisive else [],
+            "joints": (acting if arm_wide else on_joints) if decisive else [],
+            "decided_on": "arm" if arm_wide else ("joints" if on_joints else None),
             "explained": round(explained, 4),
             "explained_beyond_noise": round(beyond, 4),
             "decisive": decisive,
             "evidence": evidence,
             "add": add_line(name),
         })
-    candidates = _rank(ranked_candidates, float(limits["parsimony_noise_fraction"]) * noise)
-    confounded = _confounded(candidates, residuals_after, CONFOUNDED_NOISE_FRACTION * noise, float(limits["min_gain"]))
+    candidates = _rank(ranked_candidates, float(limits["parsimony_noise_fraction"]))
+    confounded = _confounded(candidates, residuals_after, CONFOUNDED_NOISE_FRACTION, float(limits["min_gain"]))
     best = candidates[0] if candidates else None
-    ratio = rmse_now / noise if noise > 0 else float("inf")
     where = LINK_TEXT.get(link, link)
+    x_now_map = per_joint_dict(joints, x_now, 3)
+    per_joint_status = {}
+    for j, x in zip(joints, x_now, strict=True):
+        closest = max(candidates, key=lambda c: c["evidence"]["per_joint_explained_beyond_noise"][j], default=None)
+        if closest is not None and closest["evidence"]["per_joint_explained_beyond_noise"][j] <= 0:
+            closest = None  # nothing removes any of it
+        per_joint_status[j] = {
+            "x_floor": round(float(x), 3),
+            "closest": closest["effect"] if closest else None,
+            "closest_explained_beyond_noise": closest["evidence"]["per_joint_explained_beyond_noise"][j] if closest else 0.0,
+            "closest_x_floor_after": closest["evidence"]["per_joint_x_floor_after"][j] if closest else round(float(x), 3),
+        }
     if best is not None and best["decisive"]:
         status = "add_effect"
-        joint_text = f" on {', '.join(best['joints'])}" if best["joints"] else ""
+        after = best["evidence"]["per_joint_x_floor_after"]
         twins = [b for a, b in confounded if a == best["effect"]] + [a for a, b in confounded if b == best["effect"]]
         twin_text = (f" These data cannot tell it apart from {', '.join(twins)} (the same prediction to within "
                      f"{CONFOUNDED_NOISE_FRACTION:g}x the noise floor)." if twins else "")
+        if best["decided_on"] == "arm":
+            reach = (f"it explains {best['explained']:.0%} of the holdout residual ({best['explained_beyond_noise']:.0%} "
+                     f"of what lies above the noise floor, each joint in units of its own floor), bringing it from "
+                     f"{ratio:.2g}x to {best['evidence']['x_floor_after']:.2g}x the floor ({rmse_now:.3g} to "
+                     f"{best['evidence']['rmse_after']:.3g} N*m)")
+        else:
+            reach = (f"on {', '.join(best['joints'])} it removes most of what lies above the noise floor "
+                     f"({_joint_text(best['joints'], x_now_map, after)} the joint's own floor), though only "
+                     f"{best['explained']:.0%} of the arm-wide residual")
+        joint_text = f" on {', '.join(best['joints'])}" if best["joints"] else ""
         verdict = (
-            f"On {where}, the model is missing {best['effect']}{joint_text}: it explains {best['explained']:.0%} of "
-            f"the holdout residual ({best['explained_beyond_noise']:.0%} of what lies above the noise floor), bringing "
-            f"it from {rmse_now:.3g} to {best['evidence']['rmse_after']:.3g} N*m. "
+            f"On {where}, the model is missing {best['effect']}{joint_text}: {reach}. "
             f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml.{twin_text}"
         )
-    elif ratio <= limits["noise_floor_factor"]:
+    elif not above:
         status = "at_noise_floor"
         verdict = (
-            f"Nothing to add on {where}: the holdout residual ({rmse_now:.3g} N*m) is within "
-            f"{limits['noise_floor_factor']}x the noise floor ({noise:.3g} N*m) and no effect explains more than "
-            f"{limits['min_explained']:.0%} of what lies above it."
+            f"Nothing to add on {where}: every joint's holdout residual is within {limits['noise_floor_factor']}x its "
+            f"own noise floor (worst {max(x_now_map, key=x_now_map.get) if x_now_map else '-'} "
+            f"{max(x_now_map.values()) if x_now_map else 0:.2g}x; {rmse_now:.3g} N*m against {noise:.3g} N*m arm-wide) "
+            f"and no effect removes more than {limits['min_explained']:.0%} of what lies above it."
         )
     else:
         status = "unexplained"
+        details = "; ".join(
+            f"{j} {per_joint_status[j]['x_floor']:.2g}x its floor"
+            + (f" (closest: {per_joint_status[j]['closest']}, removing "
+               f"{per_joint_status[j]['closest_explained_beyond_noise']:.0%} of its excess)"
+               if per_joint_status[j]["closest"] else "")
+            for j in above)
         verdict = (
-            f"No effect in the library explains the residual on {where}: it is {ratio:.1f}x the noise floor, but the best "
-            f"candidate ({best['effect'] if best else 'none'}) removes only "
-            f"{best['explained_beyond_noise'] if best else 0:.0%} of what lies above it. "
-            "Look at the worst windows in the gap report."
+            f"No effect in the library explains the residual on {where}: {details}. The best candidate arm-wide "
+            f"({best['effect'] if best else 'none'}) removes only {best['explained_beyond_noise'] if best else 0:.0%} "
+            "of what lies above the floor. Look at the worst windows in the gap report."
         )
     return {
         "link": link,
@@ -222,5 +285,7 @@ def diagnose(
         "confounded": [list(pair) for pair in confounded],
         "residual_rmse": round(rmse_now, 6),
         "noise_floor_ratio": round(ratio, 4) if np.isfinite(ratio) else None,
+        "per_joint": per_joint_status,
+        "above_floor": above,
         "skipped": skipped,
     }

@@ -59,7 +59,40 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "seed": 0,
     # Weight of the entropic pull of link inertias towards CAD, x the noise floor's variance (sim2real.inertial).
     "inertia_regularization": 1e-3,
+    # Each joint's residual in units of its own noise floor (joint_weights); "none": plain N*m, to measure it.
+    "joint_weighting": "noise_floor",
 }
+
+# A joint whose floor reads below this fraction of the arm's RMS floor is weighted as if it were there:
+# an underestimated floor (a quiet sensor, a saturated log) must not let one joint take the whole fit.
+MIN_FLOOR_FRACTION = 0.2
+
+
+def joint_weights(noise_floor: np.ndarray, weighting: str = "noise_floor") -> np.ndarray:
+    """Per-joint weights of the fit: each joint's residual in units of its own noise floor.
+
+    Weighted least squares as Gautier and Poignet identify robots (each joint weighted by its error's
+    standard deviation): a wrist whose torques are ten times smaller than the shoulder's then counts as
+    much, in its own units, as the shoulder. Rescaled so that white noise at the floors gives the
+    arm's RMS floor on every joint: the weighted data term stays in (N*m)^2, the scale of the
+    inertial prior's weight. ``weighting="none"``: all ones (plain N*m).
+    """
+    floor = np.asarray(noise_floor, dtype=float).reshape(-1)
+    if weighting == "none" or floor.size == 0 or not np.all(np.isfinite(floor)) or floor.max() <= 0:
+        return np.ones(floor.size)
+    rms = float(np.sqrt(np.mean(floor**2)))
+    return rms / np.maximum(floor, MIN_FLOOR_FRACTION * rms)
+
+
+def floor_units(residual: np.ndarray, noise_floor: np.ndarray) -> dict[str, Any]:
+    """A residual's RMS in units of each joint's noise floor: per joint and over the arm (RMS of the ratios).
+
+    1.0 is what white noise at the floor gives; the loop's decisions are taken in these units."""
+    floor = np.asarray(noise_floor, dtype=float)
+    rms = float(np.sqrt(np.mean(floor**2))) if floor.size else 0.0
+    floor = np.maximum(floor, MIN_FLOOR_FRACTION * rms) if rms > 0 else np.ones_like(floor)
+    ratio = np.sqrt(np.mean(np.asarray(residual, dtype=float) ** 2, axis=0)) / floor
+    return {"overall": float(np.sqrt(np.mean(ratio**2))), "per_joint": [float(v) for v in ratio]}
 
 
 # --------------------------------------------------------------------------------------------
@@ -228,19 +261,47 @@ def _collision_points(urdf_path: Path, link: ET.Element) -> np.ndarray | None:
     return np.vstack(points) if points else None
 
 
-def body_ellipsoids(urdf_path: Path, body_links: Sequence[str]) -> list[np.ndarray | None]:
+def _body_points(urdf_path: Path, body_links: Sequence[str]) -> list[np.ndarray | None]:
+    """Collision-mesh vertices of each body's own link (link frame); None for the last body (it carries
+    tools and payloads, so its mass may lie outside its meshes) and where no mesh can be read."""
+    root = ET.parse(urdf_path).getroot()
+    links = {link.get("name"): link for link in root.findall("link")}
+    return [
+        _collision_points(urdf_path, links[name]) if name in links and index < len(body_links) - 1 else None
+        for index, name in enumerate(body_links)
+    ]
+
+
+def body_ellipsoids(
+    urdf_path: Path, body_links: Sequence[str], points: Sequence[np.ndarray | None] | None = None
+) -> list[np.ndarray | None]:
     """Bounding ellipsoid (``sim2real.inertial`` Q form) of each body's own link, from its collision meshes.
 
     The last body gets none: tools and payloads are mounted there, so its mass may lie outside its meshes.
+    ``points``: the bodies' mesh vertices when already read (:func:`_body_points`).
     """
     from sim2real.inertial import bounding_ellipsoid
 
-    root = ET.parse(urdf_path).getroot()
-    links = {link.get("name"): link for link in root.findall("link")}
+    points = _body_points(urdf_path, body_links) if points is None else points
+    return [bounding_ellipsoid(p) if p is not None and len(p) >= 4 else None for p in points]
+
+
+def body_hulls(
+    urdf_path: Path, body_links: Sequence[str], points: Sequence[np.ndarray | None] | None = None
+) -> list[np.ndarray | None]:
+    """Convex hull of each body's own collision meshes as facet equations ``(k, 4)``: ``n . x + d <= 0``
+    inside, ``n`` a unit outward normal (link frame). None where :func:`body_ellipsoids` has none (the
+    last body) or the vertices span no volume. Qhull on a few hundred vertices: ~1 ms a body."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    points = _body_points(urdf_path, body_links) if points is None else points
     out: list[np.ndarray | None] = []
-    for index, name in enumerate(body_links):
-        points = _collision_points(urdf_path, links[name]) if name in links and index < len(body_links) - 1 else None
-        out.append(bounding_ellipsoid(points) if points is not None and len(points) >= 4 else None)
+    for p in points:
+        try:
+            out.append(np.asarray(ConvexHull(np.asarray(p, dtype=float)).equations) if p is not None and len(p) >= 4
+                       else None)
+        except (QhullError, ValueError):  # flat or degenerate meshes: no volume to be inside of
+            out.append(None)
     return out
 
 
@@ -279,6 +340,7 @@ def load_nominal(
             urdf_path, f"flange '{flange_name}'", "is not carried by the last measured joint",
             "set robot.yaml flange to a link fixed to the last arm link",
         )
+    points = _body_points(urdf_path, body_links)  # the meshes are read once for the ellipsoids and hulls
     info = {
         "damping": dynamics.damping.copy(),
         "friction": dynamics.friction.copy(),
@@ -291,7 +353,8 @@ def load_nominal(
         "flange_rotation": np.asarray(placement.rotation).copy(),
         "flange_translation": np.asarray(placement.translation).copy(),
         "link_own_inertial": _urdf_link_parameters(urdf_path),
-        "ellipsoids": body_ellipsoids(urdf_path, body_links),
+        "ellipsoids": body_ellipsoids(urdf_path, body_links, points),
+        "hulls": body_hulls(urdf_path, body_links, points),  # where a COM may plausibly lie (link_inertia)
     }
     return NominalModel(dynamics, info)
 
@@ -309,12 +372,16 @@ def make_signals(nominal: NominalModel, data: TorqueData) -> Signals:
     """
     dynamics = nominal.dynamics
     tau_nominal = dynamics.inverse_dynamics(data.q, data.qd, data.qdd)
+    info = nominal.info
     if link_side(data):
         tau_nominal = tau_nominal - dynamics.drive_torque(data.qd, data.qdd)
+        # A drive effect found here acts after the sensor: it starts from nothing, not from the URDF's value.
+        info = {**info, **{key: np.zeros_like(np.asarray(info[key], dtype=float))
+                           for key in ("damping", "friction", "armature") if key in info}}
     return Signals(
         joint_names=list(data.joint_names), time=data.time, q=data.q, qd=data.qd, qdd=data.qdd,
         tau_nominal=tau_nominal, segments=data.segments, tau=data.tau,
-        regressor_fn=lambda: dynamics.regressor(data.q, data.qd, data.qdd), nominal=nominal.info,
+        regressor_fn=lambda: dynamics.regressor(data.q, data.qd, data.qdd), nominal=info,
     )
 
 
@@ -334,15 +401,19 @@ class FitResult:
     notes: list[str] = field(default_factory=list)
     consistency: dict[str, Any] = field(default_factory=dict)
     unconstrained: FitResult | None = None  # the same rung without the physical constraints
+    after_sensor: bool = False  # the body link behind a link-side sensor: drive effects are the part after it
 
 
 class _Problem:
     """Columns and targets of one model on one data set, for a given nonlinear parameter vector."""
 
-    def __init__(self, effects: list[Effect], signals: Signals, states: dict[str, dict[str, Any]]) -> None:
+    def __init__(self, effects: list[Effect], signals: Signals, states: dict[str, dict[str, Any]],
+                 weights: np.ndarray | None = None) -> None:
         self.effects = effects
         self.signals = signals
         self.states = states
+        # Per-joint weights of the data term (joint_weights): the fit solves in units of each joint's floor.
+        self.weights = np.ones(signals.n) if weights is None else np.asarray(weights, dtype=float)
         self.static_columns: dict[str, np.ndarray] = {}
         for effect in effects:
             if not effect.time_shift and not effect.nonlinear:
@@ -436,14 +507,17 @@ def _split_theta(effects: list[Effect], flat: np.ndarray, sizes: list[int]) -> d
     return out
 
 
-def _solve_linear(design: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Minimum-norm least squares on unit-norm columns (collinear columns share, never blow up).
+def _solve_linear(design: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Minimum-norm least squares on unit-norm columns (collinear columns share, never blow up), each
+    joint's rows multiplied by its weight (:func:`joint_weights`).
 
     Solved through the p x p Gram matrix (pseudo-inverse by SVD): the designs are tall
     (samples x joints rows, tens of columns), so this is many times faster than a QR of the design.
     """
     if design.shape[2] == 0:
         return np.zeros(0)
+    if weights is not None:
+        design, target = design * weights[None, :, None], target * weights[None, :]
     a = design.reshape(-1, design.shape[2])
     scale = np.linalg.norm(a, axis=0)
     scale[scale == 0] = 1.0
@@ -458,24 +532,28 @@ def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndar
     has_offset = any(type(e).offset is not Effect.offset for e in problem.effects)
     theta: dict[str, np.ndarray] = {}
     for _ in range(iterations if has_offset else 1):
-        flat = _solve_linear(shifted, tau - problem.base(theta, nonlinear))
+        flat = _solve_linear(shifted, tau - problem.base(theta, nonlinear), problem.weights)
         theta = _split_theta(problem.effects, flat, sizes)
     residual = tau - problem.predict(theta, nonlinear)
     return theta, residual, sizes
 
 
 def _refine_nonlinear(
-    problem: _Problem, tau: np.ndarray, settings: Mapping[str, Any], fixed: Mapping[str, np.ndarray] | None = None
+    problem: _Problem, tau: np.ndarray, settings: Mapping[str, Any], fixed: Mapping[str, np.ndarray] | None = None,
+    start: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
     """Nonlinear parameters by bounded least squares, the linear ones projected out.
 
     ``fixed``: nonlinear values of some effects to hold (e.g. the current model's, while the
-    diagnosis tries a candidate on top of it).
+    diagnosis tries a candidate on top of it); ``start``: values to start from but refine again (the
+    previous rung's: a friction smoothing refined before the rotor inertia was in the model is refined
+    again once it is); a delay given there starts from it instead of the grid.
     """
     signals = problem.signals
     fixed = dict(fixed or {})
+    begin = {**dict(start or {}), **fixed}
     x0 = np.concatenate(
-        [np.asarray(fixed.get(e.name, e.nonlinear_init(signals)), dtype=float) for e in problem.effects] or [np.zeros(0)]
+        [np.asarray(begin.get(e.name, e.nonlinear_init(signals)), dtype=float) for e in problem.effects] or [np.zeros(0)]
     )
     if x0.size == 0:
         return problem.split_nonlinear(x0)
@@ -489,13 +567,13 @@ def _refine_nonlinear(
     step = max(1, int(np.ceil(len(signals.time) / n_max)))
     rows = np.arange(0, len(signals.time), step)
     sub_signals = _subset_signals(signals, rows)
-    sub = _Problem(problem.effects, sub_signals, problem.states)
+    sub = _Problem(problem.effects, sub_signals, problem.states, problem.weights)
     sub_tau = tau[rows]
 
     free = ~held
 
     def residual_full(x: np.ndarray) -> np.ndarray:
-        return _linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1)[1].reshape(-1)
+        return (_linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1)[1] * sub.weights).reshape(-1)
 
     def with_free(values: np.ndarray) -> np.ndarray:
         x = x0.copy()
@@ -506,7 +584,7 @@ def _refine_nonlinear(
     # interpolation averages white noise away: start from a grid no coarser than the sampling step.
     offset = 0
     for effect, size in zip(problem.effects, problem.nl_sizes, strict=True):
-        if effect.time_shift and effect.name not in fixed:
+        if effect.time_shift and effect.name not in begin:
             dt = float(np.median(np.diff(sub_signals.time))) if len(sub_signals.time) > 1 else MAX_DELAY
             grid = np.linspace(0.0, MAX_DELAY, max(41, int(round(MAX_DELAY / dt)) + 1))
             costs = []
@@ -518,7 +596,7 @@ def _refine_nonlinear(
         offset += size
     # Smoothing velocities span decades: optimise their logarithm.
     log_mask = np.concatenate(
-        [np.full(s, e.name == "coulomb_friction") for e, s in zip(problem.effects, problem.nl_sizes, strict=True)]
+        [np.asarray(e.nonlinear_log_scale(signals), dtype=bool) for e in problem.effects]
     )
 
     def to_z(x: np.ndarray) -> np.ndarray:
@@ -585,18 +663,20 @@ def _block_bootstrap(
     if replicates <= 0 or (sum(sizes) == 0 and shift is None):
         return []
     signals = problem.signals
+    weights = problem.weights
     shifted, _ = problem.shifted_design(nonlinear)
+    shifted = shifted * weights[None, :, None]  # the replicates solve the same weighted problem as the fit
     # Offsets (payload inertia) are held at the estimate: the replicates are linear solves.
-    target = tau - problem.base(theta, nonlinear)
+    target = (tau - problem.base(theta, nonlinear)) * weights
     rows, p = shifted.shape[0] * shifted.shape[1], shifted.shape[2]
     scale = np.linalg.norm(shifted.reshape(rows, p), axis=0)
     scale[scale == 0] = 1.0
     if shift is not None:
         delay = float(nonlinear[shift.name][0])
         low, high = max(delay - DELAY_STEP_S, 0.0), delay + DELAY_STEP_S
-        slope = (problem.predict(theta, {**nonlinear, shift.name: np.array([high])})
-                 - problem.predict(theta, {**nonlinear, shift.name: np.array([low])})) / (high - low)
-        left = tau - problem.predict(theta, nonlinear)
+        slope = weights * (problem.predict(theta, {**nonlinear, shift.name: np.array([high])})
+                           - problem.predict(theta, {**nonlinear, shift.name: np.array([low])})) / (high - low)
+        left = weights * (tau - problem.predict(theta, nonlinear))
     dt = float(np.median(np.diff(signals.time))) if len(signals.time) > 1 else 1.0
     block = max(2, int(round(float(settings["bootstrap_block_s"]) / dt)))
     # Gram matrices per block: a replicate is a sum of blocks, solved in p x p.
@@ -685,16 +765,18 @@ def fit(
     uncertainty: bool = True,
     consistency: bool = True,
     nonlinear_fixed: Mapping[str, np.ndarray] | None = None,
+    nonlinear_start: Mapping[str, np.ndarray] | None = None,
 ) -> FitResult:
     """Fit the model ``nominal + effect_names`` on ``data`` (the fit runs).
 
     ``consistency``: solve the rung as one convex program (:mod:`sim2real.inertial`: link inertias
     physically consistent, friction/armature/payload mass >= 0) and keep the unconstrained fit beside
     it (``result.unconstrained``); ``uncertainty``: bootstrap intervals; ``nonlinear_fixed``: nonlinear
-    parameters held (the previous rung's: a rung refines only the nonlinear parameters of the effect it
-    adds); ``signals``: what the judged torque is predicted from (default: the nominal model on ``data``;
-    the actuator link passes its own and no nominal model). The ladder and the diagnosis call this same
-    function with the same arguments, so the fall a candidate promises is the fall its rung delivers.
+    parameters held (the diagnosis holds the current model's while it tries a candidate);
+    ``nonlinear_start``: where the refinement starts (the ladder passes the previous rung's and refines
+    every nonlinear parameter again, so a rung delivers at least the fall its candidate promised);
+    ``signals``: what the judged torque is predicted from (default: the nominal model on ``data``;
+    the actuator link passes its own and no nominal model).
     """
     settings = {**DEFAULT_SETTINGS, **(settings or {})}
     if signals is None:
@@ -709,8 +791,9 @@ def fit(
                 "and applied torque does not show in it, so the torque-domain fit keeps it at 0"
             )
     states = {e.name: e.prepare(signals) for e in effects}
-    problem = _Problem(effects, signals, states)
-    nonlinear = _refine_nonlinear(problem, data.tau, settings, nonlinear_fixed)
+    weights = joint_weights(data.noise_floor, str(settings.get("joint_weighting", "noise_floor")))
+    problem = _Problem(effects, signals, states, weights)
+    nonlinear = _refine_nonlinear(problem, data.tau, settings, nonlinear_fixed, nonlinear_start)
     theta, residual, sizes = _linear_fit(problem, data.tau, nonlinear)
     unconstrained = FitResult(
         effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=copy.deepcopy(states),
@@ -731,7 +814,7 @@ def fit(
     return FitResult(
         effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=states, values=values,
         intervals=intervals, fit_rmse=rmse(residual, data.joint_names), notes=notes, consistency=record,
-        unconstrained=unconstrained if consistency else None,
+        unconstrained=unconstrained if consistency else None, after_sensor=link_side(data) and not signals.forward,
     )
 
 
@@ -784,7 +867,9 @@ def _consistent_fit(
     solve_time = 0.0
     try:
         for _ in range(3 if has_offset else 1):
-            solution = solve_consistent(shifted, data.tau - problem.base(theta, nonlinear), bounds, inertial, weight)
+            solution = solve_consistent(shifted * problem.weights[None, :, None],
+                                        (data.tau - problem.base(theta, nonlinear)) * problem.weights,
+                                        bounds, inertial, weight)
             solve_time += solution.solve_time_s
             for effect, cols, _ in blocks:
                 coefficients = solution.coefficients[cols]
@@ -804,7 +889,9 @@ def _consistent_fit(
     record.update({"status": solution.status, "solve_time_s": solve_time})
     free_physical = _physical(problem, theta_free, signals)
     record["unconstrained_physical"] = free_physical
-    fit_now, fit_free = float(np.sqrt(np.mean(residual**2))), float(np.sqrt(np.mean(free_residual**2)))
+    # Compared as fitted: in the weighted units of the data term, where white noise at the floors is the arm's floor.
+    fit_now = float(np.sqrt(np.mean((residual * problem.weights) ** 2)))
+    fit_free = float(np.sqrt(np.mean((free_residual * problem.weights) ** 2)))
     noise = float(np.sqrt(floor))
     if not free_physical and fit_now > 1.1 * fit_free and fit_now - fit_free > 0.1 * noise:
         # The data pull the model out of the physical set: say so, never hide it behind the nominal model.
@@ -812,7 +899,8 @@ def _consistent_fit(
         record["notes"].append(
             f"physical consistency: the data contradict a physical model with these effects: the unconstrained fit "
             f"needs non-physical values ({_violations(problem, theta_free, signals)}) and fits the fit runs to "
-            f"{fit_free:.3g} N*m against {fit_now:.3g} N*m for the best physical fit. An effect is missing, or the "
+            f"{fit_free:.3g} against {fit_now:.3g} for the best physical fit (RMS in N*m, each joint weighted by its "
+            "noise floor). An effect is missing, or the "
             "torque columns' sign or units are wrong"
         )
     if inertial is not None:

@@ -11,6 +11,11 @@ joint order or a ``{joint: value}`` map):
 * ``coulomb_friction`` ``{coefficient}`` N*m: MuJoCo ``frictionloss`` (sticks at reversals like real
   dry friction); or ``{model: gaz_sigmoid, phi1, phi2, phi3}`` (Gaz et al. 2019):
   tau_f = phi1/(1+exp(-phi2*(qd+phi3))) - phi1/(1+exp(-phi2*phi3)), applied as a passive torque.
+  Options of either model: ``stribeck: {peak, velocity}`` adds a Stribeck hump
+  peak*exp(-(qd/velocity)^2)*tanh(qd/0.005) opposing the motion (a passive torque; not the fit library's
+  tanh/viscous forms); ``after_sensor`` (0..1 per joint) is the share of the joint's friction acting
+  between a link-side torque sensor and the link (output bearings, seals): the motion is unchanged, but
+  that sensor then sees the share (see ``tau`` below).
 * ``rotor_inertia`` ``{armature}`` kg*m^2: added to the joint armature.
 * ``actuation_delay`` ``{delay_s}``: the applied torque is the command delayed by delay_s.
 * ``actuator_gain`` ``{gain}`` and ``command_bias`` ``{bias}`` N*m: the motor applies
@@ -32,14 +37,17 @@ Column semantics of the written runs:
 * ``tau.<j>``: the joint torque sensor: the torque it sees times ``torque_gain`` plus ``torque_bias``
   plus white noise ``sensors.torque_noise_std``. Where it sits is ``sensors.torque_sensor``:
 
-  - ``motor`` (the default, every scenario but ``link_side_sensor``): at the motor output, it sees the
+  - ``motor`` (the default, every scenario but the ``link_side_*`` ones): at the motor output, it sees the
     applied torque (the command after any delay, through the motor's gain and offset), before the
     joint's rotor inertia, damping and friction (a motor-current estimate).
-  - ``link`` (``link_side_sensor``; the Panda's ``tau_J``, a KUKA iiwa's sensors): after the gearbox,
-    it sees the torque transmitted to the link, the rigid-body inverse dynamics of the real arm (its
-    hidden link inertias and payload included) at the true state and acceleration of the sample,
-    without the drive terms: the applied torque minus armature * qdd, damping * qd and the joint's
-    friction (frictionloss, Gaz). Rotor inertia and joint friction then lie between ``tau_cmd`` and ``tau``.
+  - ``link`` (``link_side_sensor``, ``link_side_tau_only``; the Panda's ``tau_J``, a KUKA iiwa's sensors):
+    after the gearbox, it sees the torque transmitted to the link, the rigid-body inverse dynamics of the
+    real arm (its hidden link inertias and payload included) at the true state and acceleration of the
+    sample, without the drive terms: the applied torque minus armature * qdd, damping * qd and the joint's
+    friction (frictionloss, Gaz, Stribeck). Rotor inertia and joint friction then lie between ``tau_cmd``
+    and ``tau``, but for ``coulomb_friction``'s ``after_sensor`` share: tau = inverse dynamics +
+    after_sensor * the joint's friction torque (passive ones at the sample's true velocity, frictionloss
+    as the solver's force), as a real Panda's tau_J shows friction.
 
   The run's metadata says which (``torque_sensor: motor|link``) whenever it logs ``tau``.
 * ``time``: the logger's stamps: the sample instants plus Gaussian ``sensors.stamp_jitter_s`` (kept
@@ -51,7 +59,7 @@ without torque sensors). Contacts are disabled: lab runs are free-space identifi
 The excitation is a finite Fourier series (Swevers et al.): 5 harmonics of base 0.15*pi rad/s by
 default, scaled to stay inside the position and velocity limits.
 
-One piece (~530 lines): the hidden effects, the controller and the sensors act inside one simulation
+One piece (~620 lines): the hidden effects, the controller and the sensors act inside one simulation
 loop (:func:`simulate_run`) on the same models and state, and the config's validation names their keys.
 """
 
@@ -302,6 +310,70 @@ def gaz_friction(qd: np.ndarray, phi1: np.ndarray, phi2: np.ndarray, phi3: np.nd
     return phi1 / (1.0 + np.exp(-phi2 * (qd + phi3))) - phi1 / (1.0 + np.exp(-phi2 * phi3))
 
 
+# The hump's sign is tanh(qd / this): near a true sign, yet smooth enough for the explicit passive torque at 1 kHz
+# with peaks of a few tenths of N*m (slope peak/0.005 N*m*s/rad at rest).
+STRIBECK_SMOOTHING_RAD_S = 0.005
+
+
+def stribeck_friction(qd: np.ndarray, peak: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """Stribeck hump, along the velocity: peak * exp(-(qd/velocity)^2) * tanh(qd/0.005), per joint."""
+    return peak * np.exp(-((qd / velocity) ** 2)) * np.tanh(qd / STRIBECK_SMOOTHING_RAD_S)
+
+
+def _joint_friction(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None,
+                    truth: dict[str, Any]) -> dict[str, Any]:
+    """``coulomb_friction``'s passive torques (Gaz sigmoid, Stribeck hump) and its ``after_sensor`` fraction.
+
+    Returns ``{gaz, stribeck, after}`` (None, None, zeros when absent) and records the hidden values in
+    ``truth["coulomb_friction"]`` (the ``sign`` model's coefficient is already there, from the spec).
+    """
+    n = len(joints)
+    friction: dict[str, Any] = {"gaz": None, "stribeck": None, "after": np.zeros(n)}
+    coulomb = effects.get("coulomb_friction")
+    if not coulomb:
+        return friction
+    where = "coulomb_friction"
+    if coulomb.get("model") == "gaz_sigmoid":
+        friction["gaz"] = tuple(_per_joint(coulomb[k], joints, f"{where}/{k}", path) for k in ("phi1", "phi2", "phi3"))
+        truth[where] = {"model": "gaz_sigmoid",
+                        **{k: dict(zip(joints, v.tolist())) for k, v in zip(("phi1", "phi2", "phi3"), friction["gaz"])}}
+    record = truth.setdefault(where, {})
+    if "stribeck" in coulomb:
+        hump = coulomb["stribeck"]
+        if not isinstance(hump, Mapping) or not {"peak", "velocity"} <= set(hump):
+            raise InputError(path, f"{where}/stribeck", "needs peak and velocity", "give {peak: N*m, velocity: rad/s}")
+        peak = _per_joint(hump["peak"], joints, f"{where}/stribeck/peak", path)
+        velocity = _per_joint(hump["velocity"], joints, f"{where}/stribeck/velocity", path)
+        if not np.all(np.isfinite(peak)) or np.any(peak < 0):
+            raise InputError(path, f"{where}/stribeck/peak", "a peak is negative or not finite", "give peaks >= 0 N*m")
+        if np.any((peak > 0) & ~(velocity > 0)) or not np.all(np.isfinite(velocity)):
+            raise InputError(path, f"{where}/stribeck/velocity", "a joint with a peak has no positive velocity",
+                             "give a Stribeck velocity > 0 rad/s for every joint whose peak is not zero")
+        # Joints without a hump keep a harmless velocity (a {joint: value} map leaves the others at 0).
+        friction["stribeck"] = (peak, np.where(peak > 0, velocity, 1.0))
+        record["stribeck"] = {"peak": dict(zip(joints, peak.tolist())),
+                              "velocity": dict(zip(joints, velocity.tolist()))}
+    if "after_sensor" in coulomb:
+        after = _per_joint(coulomb["after_sensor"], joints, f"{where}/after_sensor", path)
+        if not np.all((after >= 0) & (after <= 1)):
+            raise InputError(path, f"{where}/after_sensor", "a fraction is outside 0..1",
+                             "give the share of each joint's friction acting after the sensor, 0 to 1")
+        friction["after"] = after
+        record["after_sensor"] = dict(zip(joints, after.tolist()))
+    return friction
+
+
+def passive_friction(qd: np.ndarray, friction: Mapping[str, Any]) -> np.ndarray | None:
+    """The lab's friction applied as a passive torque (Gaz + Stribeck), along qd; None when there is none."""
+    out = None
+    if friction["gaz"] is not None:
+        out = gaz_friction(qd, *friction["gaz"])
+    if friction["stribeck"] is not None:
+        hump = stribeck_friction(qd, *friction["stribeck"])
+        out = hump if out is None else out + hump
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # excitation
 
@@ -375,6 +447,19 @@ def _nominal_torque(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray, q
     return data.qfrc_inverse[dadr].copy()
 
 
+def _friction_now(data: mujoco.MjData, qd: np.ndarray, friction: Mapping[str, Any],
+                  dof_of: Mapping[int, int]) -> np.ndarray:
+    """Each joint's friction torque at the forward-computed sample, along the velocity: the passive torques
+    at the true velocity plus MuJoCo's dry friction (frictionloss rows of the constraint solver)."""
+    out = passive_friction(qd, friction)
+    out = np.zeros(len(qd)) if out is None else out.copy()
+    for row in np.flatnonzero(data.efc_type[:data.nefc] == mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF):
+        joint = dof_of.get(int(data.efc_id[row]))
+        if joint is not None:
+            out[joint] -= data.efc_force[row]  # the constraint force opposes the motion
+    return out
+
+
 def simulate_run(
     mjcf_path: str | Path, joints: Sequence[str], scenario: Mapping[str, Any], seed: int,
     config_path: str | Path | None = None,
@@ -406,12 +491,9 @@ def simulate_run(
     time = np.arange(steps) * dt
     q_des, qd_des, qdd_des = fourier_excitation(time, lower, upper, vel_limit, scenario["excitation"], seed)
 
-    gaz = None
-    coulomb = effects.get("coulomb_friction")
-    if coulomb and coulomb.get("model") == "gaz_sigmoid":
-        gaz = tuple(_per_joint(coulomb[k], joints, f"coulomb_friction/{k}", path) for k in ("phi1", "phi2", "phi3"))
-        truth["coulomb_friction"] = {"model": "gaz_sigmoid",
-                                     **{k: dict(zip(joints, v.tolist())) for k, v in zip(("phi1", "phi2", "phi3"), gaz)}}
+    friction = _joint_friction(effects, joints, path, truth)
+    passive = friction["gaz"] is not None or friction["stribeck"] is not None
+    after = friction["after"]
     delay_steps = 0
     if "actuation_delay" in effects:
         delay_steps = int(round(float(effects["actuation_delay"]["delay_s"]) * rate))
@@ -429,6 +511,7 @@ def simulate_run(
         link_data = mujoco.MjData(real_link)
         dadr_l = np.array([real_link.jnt_dofadr[real_link.joint(j).id] for j in joints])
         out_link = np.empty((steps, n))
+        dof_of = {int(d): i for i, d in enumerate(dadr_r)}
     controller = scenario["controller"]
     kp = _per_joint(controller["kp"], joints, "controller/kp", path)
     kd = _per_joint(controller["kd"], joints, "controller/kd", path)
@@ -460,17 +543,21 @@ def simulate_run(
         out_q[k], out_qd[k], out_applied[k] = q_meas, qd_meas, applied
         real_data.ctrl[ctrl_index] = applied
         if link_side:
-            if gaz is not None:
-                real_data.qfrc_applied[dadr_r] = -gaz_friction(real_data.qvel[dadr_r], *gaz)
+            if passive:
+                real_data.qfrc_applied[dadr_r] = -passive_friction(real_data.qvel[dadr_r], friction)
             mujoco.mj_forward(real, real_data)  # the acceleration the step below integrates
             link_data.qpos[:] = real_data.qpos
             link_data.qvel[:] = real_data.qvel
             link_data.qacc[:] = real_data.qacc
             mujoco.mj_inverse(real_link, link_data)
             out_link[k] = link_data.qfrc_inverse[dadr_l]
+            if np.any(after > 0):
+                # Output bearings and seals sit between the sensor and the link: the sensor transmits the
+                # link's inverse dynamics plus their share of the friction (the arm's motion is unchanged).
+                out_link[k] += after * _friction_now(real_data, qd_true, friction, dof_of)
         for _ in range(substeps):
-            if gaz is not None:
-                real_data.qfrc_applied[dadr_r] = -gaz_friction(real_data.qvel[dadr_r], *gaz)
+            if passive:
+                real_data.qfrc_applied[dadr_r] = -passive_friction(real_data.qvel[dadr_r], friction)
             mujoco.mj_step(real, real_data)
 
     seen = out_link if link_side else out_applied
@@ -517,10 +604,7 @@ def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, ou
     spec = arm_spec(mjcf_path, joints)
     truth = _apply_spec_effects(spec, joints, settings.get("effects") or {}, Path(lab_config))
     effects = settings.get("effects") or {}
-    coulomb = effects.get("coulomb_friction")
-    if coulomb and coulomb.get("model") == "gaz_sigmoid":
-        truth["coulomb_friction"] = {"model": "gaz_sigmoid", **{
-            k: dict(zip(joints, _per_joint(coulomb[k], joints, k, None).tolist())) for k in ("phi1", "phi2", "phi3")}}
+    _joint_friction(effects, joints, Path(lab_config), truth)
     dt = 1.0 / float(settings["sample_rate_hz"])
     if "actuation_delay" in effects:
         truth["actuation_delay"] = {"delay_s": round(float(effects["actuation_delay"]["delay_s"]) / dt) * dt}

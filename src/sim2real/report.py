@@ -152,8 +152,25 @@ def _fmt(x: float | None, digits: int = 3) -> str:
     return "n/a" if x is None else f"{x:.{digits}g}"
 
 
+def _inertia_prior_text(prior: Any) -> str | None:
+    """One sentence on the entropic prior's weight and how it was chosen (rung ``consistency.inertia_prior``)."""
+    if not isinstance(prior, Mapping) or not isinstance(prior.get("weight"), (int, float)):
+        return None
+    text = (f"The inertial prior (the entropic pull of every link towards its CAD inertials) has weight "
+            f"{prior['weight']:.3g}, chosen by {prior.get('chosen_by') or 'an unstated rule'}")
+    grid, scores = prior.get("grid"), prior.get("scores")
+    if isinstance(grid, Sequence) and grid and all(isinstance(g, (int, float)) for g in grid):
+        if isinstance(scores, Sequence) and len(scores) == len(grid) and len(grid) <= 8 and all(
+                isinstance(v, (int, float)) for v in scores):
+            text += " among " + ", ".join(f"{g:.3g} (score {v:.3g})" for g, v in zip(grid, scores))
+        else:
+            text += f" among {len(grid)} weights from {min(grid):.3g} to {max(grid):.3g}"
+    return text + "."
+
+
 def _identified_markdown(rung: Mapping[str, Any]) -> list[str]:
-    """What the data identified of the link inertias (last rung): a richer excitation is needed when little."""
+    """What the data identified of the link inertias (last rung): a richer excitation is needed when little;
+    which bodies moved beyond plausible (a missing effect soaked up) and the CAD prior's weight."""
     link = rung.get("params", {}).get("link_inertia")
     if not link:
         return []
@@ -166,25 +183,46 @@ def _identified_markdown(rung: Mapping[str, Any]) -> list[str]:
              f"{link['condition_number']:.3g} (the scaled regressor's largest over smallest singular value on those "
              "directions: above ~1000 a richer excitation trajectory would pin them down better).", "",
              f"Moved from the URDF: {', '.join(moved) or 'none'}. Stayed at the URDF values (not seen or not "
-             f"needed by these data): {', '.join(stayed) or 'none'}.", "",
-             "| body | moved | mass change [kg] | COM shift [mm] | divergence from CAD |", "|---|---|---|---|---|"]
+             f"needed by these data): {', '.join(stayed) or 'none'}.", ""]
+    prior = _inertia_prior_text((rung.get("consistency") or {}).get("inertia_prior"))
+    if prior:
+        lines += [prior, ""]
+    lines += ["| body | moved | mass change [kg] | COM shift [mm] | divergence from CAD | plausible |",
+              "|---|---|---|---|---|---|"]
     for name, b in bodies.items():
+        # Documents written before the plausibility checks have no "implausible" key: n/a.
+        reasons = b.get("implausible")
+        plausible = "n/a" if reasons is None else "; ".join(reasons) if reasons else "yes"
         lines.append(f"| {name} | {'yes' if b['moved'] else 'no'} | {b['mass_change_kg']:+.3g} | "
-                     f"{b['com_shift_mm']:.3g} | {_fmt(b['divergence'])} |")
+                     f"{b['com_shift_mm']:.3g} | {_fmt(b['divergence'])} | {plausible} |")
+    flagged = ["{} ({})".format(name, ", ".join(b["implausible"])) for name, b in bodies.items() if b.get("implausible")]
+    if flagged:
+        lines += ["", f"**Moved beyond plausible:** {'; '.join(flagged)}. "
+                  "Real links are rarely this far from their CAD: the fit is bending these inertias to soak up "
+                  "an effect the model lacks (friction, rotor inertia, a payload or tool, a torque sensor's "
+                  "offset or gain...). Read the diagnosis and the per-joint residuals, and add the missing effect, "
+                  "before trusting these inertias or writing them into a calibrated URDF."]
     return lines
 
 
 def _ladder_table(ladder: Sequence[Mapping[str, Any]], floor: float, unconstrained: bool) -> list[str]:
-    """One link's ladder: holdout error per rung, its fall, against the floor, and the replay's position error."""
+    """One link's ladder: holdout error per rung, its fall, against the floor (arm-wide: each joint x its own
+    floor, and the worst joint), and the replay's position error."""
     first = ladder[0]["metrics"]["torque_rmse"]["overall"]
-    head = "| rung | effects | holdout torque RMSE [N m] | change from nominal | x noise floor | "
+    head = "| rung | effects | holdout torque RMSE [N m] | change from nominal | x noise floor (worst joint) | "
     head += "unconstrained fit [N m] | " if unconstrained else ""
     lines = [head + "replay position RMSE [rad] |", "|---|---|---|---|---|" + ("---|" if unconstrained else "") + "---|"]
     for k, rung in enumerate(ladder):
         value = rung["metrics"]["torque_rmse"]["overall"]
         change = f"{100 * (value - first) / first:+.0f}%" if k and first else "–"
         position = rung["metrics"].get("position_rmse", {}).get("overall")
-        row = f"| {k} | {', '.join(rung['effects']) or 'nominal'} | {value:.3g} | {change} | {value / floor:.2f} | "
+        x_floor = rung["metrics"].get("torque_x_floor")
+        if x_floor:
+            worst = max(x_floor["per_joint"], key=x_floor["per_joint"].get)
+            ratio = f"{x_floor['overall']:.2f} ({worst} {x_floor['per_joint'][worst]:.2f})"
+        else:
+            ratio = f"{value / floor:.2f}"
+        row = f"| {k} | {', '.join(rung['effects']) or 'nominal'} | {value:.3g} | {change} | {ratio} | "
         if unconstrained:
             free = rung["metrics"].get("unconstrained_torque_rmse", {}).get("overall")
             physical = rung.get("consistency", {}).get("unconstrained_physical")
@@ -199,11 +237,21 @@ def _diagnosis_markdown(diagnosis: Mapping[str, Any]) -> list[str]:
     for cand in diagnosis["candidates"][:3]:
         beyond = cand.get("explained_beyond_noise")
         beyond_text = f" ({100 * beyond:.0f}% of what lies above the noise floor)" if beyond is not None else ""
+        after = cand["evidence"].get("x_floor_after")
         lines.append(f"- `{cand['effect']}` on {', '.join(cand['joints']) or 'no joint in particular'}: explains "
                      f"{100 * cand['explained']:.0f}% of the residual{beyond_text}, holdout RMSE after "
-                     f"{_fmt(cand['evidence'].get('rmse_after'))} N m; add `{cand['add']}`")
+                     f"{_fmt(cand['evidence'].get('rmse_after'))} N m"
+                     + (f" ({after:.2f}x the floor)" if after is not None else "") + f"; add `{cand['add']}`")
     for skip in diagnosis.get("skipped", []):
         lines.append(f"- `{skip['effect']}` not tried: {skip['reason']}")
+    per_joint = diagnosis.get("per_joint")
+    if per_joint and diagnosis.get("status") != "at_noise_floor":
+        # Joint by joint: how far above its own floor each joint sits, and what comes closest there.
+        lines += ["", "| joint | x its noise floor | closest candidate there | share of its excess removed | x floor after |",
+                  "|---|---|---|---|---|"]
+        for joint, row in per_joint.items():
+            lines.append(f"| {joint} | {row['x_floor']:.2f} | {row['closest'] or 'none'} | "
+                         f"{100 * row['closest_explained_beyond_noise']:.0f}% | {row['closest_x_floor_after']:.2f} |")
     return lines
 
 
@@ -229,9 +277,12 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
               f"Overall RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
               f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
               f"R^2 {m['torque_r2']['overall']:.4g}.", "",
-              "| joint | RMSE [N m] | noise floor [N m] | relative RMSE | R^2 |", "|---|---|---|---|---|"]
+              "Each joint is judged in its own units, x its own noise floor: a wrist residual 8x its floor weighs "
+              "what a shoulder residual 8x its floor weighs, although its N m are ten times smaller.", "",
+              "| joint | RMSE [N m] | noise floor [N m] | x floor | relative RMSE | R^2 |", "|---|---|---|---|---|---|"]
     for j in joints:
-        lines.append(f"| {j} | {m['torque_rmse']['per_joint'][j]:.3g} | {floor['per_joint'][j]:.3g} | "
+        value, noise = m["torque_rmse"]["per_joint"][j], floor["per_joint"][j]
+        lines.append(f"| {j} | {value:.3g} | {noise:.3g} | {_fmt(value / noise if noise > 0 else None)} | "
                      f"{m['torque_relative_rmse']['per_joint'][j]:.3g} | {m['torque_r2']['per_joint'][j]:.4g} |")
     sd = m["state_domain"]
     lines += ["", "## State domain (replay of the commanded torques)", ""]

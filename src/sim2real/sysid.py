@@ -25,8 +25,8 @@ from sim2real.dynamics import RigidBodyModel
 from sim2real.effects import Signals, get_effect
 from sim2real.errors import InputError
 from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
-    DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, holdout_metrics, kept_segments, load_nominal,
-    make_signals, predict, resolve_armature, run_from_prepared, stack_runs,
+    DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, floor_units, holdout_metrics, joint_weights,
+    kept_segments, load_nominal, make_signals, predict, resolve_armature, run_from_prepared, stack_runs,
 )
 from sim2real.measurements import PreparedRun, estimate_noise_floor
 
@@ -93,13 +93,17 @@ def fit_ladder(
     for k in range(len(effect_names) + 1):
         effects = list(effect_names[:k])
         held = result.nonlinear if result is not None else None
-        result = fit(effects, nominal, fit_data, fit_settings, signals=fit_signals, nonlinear_fixed=held)
+        result = fit(effects, nominal, fit_data, fit_settings, signals=fit_signals, nonlinear_start=held)
         metrics, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
+        x_floor = floor_units(residual, holdout_data.noise_floor)
         rung: dict[str, Any] = {
             "effects": effects,
             "params": result.values,
             "intervals": result.intervals,
-            "metrics": {**metrics, "fit_torque_rmse": result.fit_rmse},
+            "metrics": {**metrics, "fit_torque_rmse": result.fit_rmse,
+                        # the rung's headline: each joint in units of its own noise floor
+                        "torque_x_floor": {"overall": x_floor["overall"], "per_joint": dict(
+                            zip(holdout_data.joint_names, x_floor["per_joint"], strict=True))}},
         }
         if result.unconstrained is not None and result.consistency:
             # The same rung without the physical constraints: what consistency costs (or gains) on holdout.
@@ -171,6 +175,8 @@ def fit_model(
         candidates=actuator.candidates_of_link("body", sensor) if mode == "separate" or sensor == "link" else None,
     )
     results = [result]
+    if body_link == "body":
+        _note_drive(document.get("diagnosis"), "body", sensor)
     confounded = list(document.get("diagnosis", {}).get("confounded", []))
     if mode == "separate":
         link_data = {role: actuator.actuator_data(runs[role], joints) for role in ("fit", "holdout")}
@@ -188,10 +194,51 @@ def fit_model(
             "(tau_cmd) less the drive's rotor inertia, damping and friction on the measured motion",
             **{key: section[key] for key in ("ladder", "diagnosis", "noise_floor") if key in section},
         }
+        _note_drive(document["actuator"].get("diagnosis"), "actuator", sensor)
         confounded += section.get("diagnosis", {}).get("confounded", [])
         results.append(link_result)
     document["links"] = round_floats(actuator.separability(mode, effect_names, confounded, sensor))
     return document, results
+
+
+def _note_drive(diagnosis: dict[str, Any] | None, link: str, sensor: str) -> None:
+    """A drive effect named where the sensor's position did not expect it: the verdict says what that means."""
+    if not diagnosis or diagnosis.get("status") != "add_effect":
+        return
+    note = actuator.drive_verdict_note(link, diagnosis["candidates"][0]["effect"], sensor)
+    if note:
+        diagnosis["verdict"] += note
+        diagnosis["sensor_note"] = note.strip()
+
+
+def merge_link_values(results: Sequence[FitResult], nominal: NominalModel) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Each effect's values for the assets, and the drive effects fitted on two links apart.
+
+    Behind a link-side sensor a drive effect may be fitted on the body link (its part after the sensor,
+    from zero) and on the actuator link (its part before it, from the URDF's value): the joint holds both,
+    so the calibrated value is their sum. Found on the body link alone, it adds to the URDF's value.
+    ``results``: the body link's last rung first (:func:`fit_model`).
+    """
+    effects: dict[str, Any] = {}
+    by_link: dict[str, Any] = {}
+    body = results[0]
+    for result in results[1:]:
+        effects.update(result.values)
+    for name, values in body.values.items():
+        spec = get_effect(name).parameters[0] if get_effect(name).parameters else None
+        if not (get_effect(name).drive and body.after_sensor) or spec is None or not spec.per_joint:
+            effects.setdefault(name, values)
+            continue
+        key = spec.name
+        # the URDF holds friction, damping and armature; other parameters start from zero
+        base = effects.get(name, {}).get(key) or dict(zip(nominal.joint_names, map(float, nominal.info.get(key, [])), strict=False))
+        merged = dict(effects.get(name) or values)
+        merged[key] = {j: float(base.get(j, 0.0)) + float(v) for j, v in values[key].items()}
+        by_link[name] = {"body": values, **({"actuator": effects[name]} if name in effects else {}),
+                         "why": "the body link's value acts after the link-side sensor; the joint holds the sum"}
+        effects[name] = merged
+    order = [name for result in results for name in result.effects]
+    return {name: effects[name] for name in dict.fromkeys(order) if name in effects}, by_link
 
 
 def params_document(
@@ -201,11 +248,13 @@ def params_document(
 
     ``torque_source``: the body link's judged torque (``tau`` or ``tau_cmd``; ladder.json's ``torque_source``).
     """
+    effects, by_link = merge_link_values(results, nominal)
     return round_floats({
         "robot": robot,
-        "effects": {name: values for result in results for name, values in result.values.items()},
+        "effects": effects,
+        **({"by_link": by_link} if by_link else {}),
         "intervals": {name: values for result in results for name, values in result.intervals.items()},
-        "order": [name for result in results for name in result.effects],
+        "order": list(dict.fromkeys(name for result in results for name in result.effects)),
         "joints": nominal.joint_names,
         "torque_source": torque_source,
         "last_link": nominal.info["last_link"],

@@ -17,12 +17,14 @@ from typing import Any
 
 from sim2real.effects.actuation_delay import ActuationDelay
 from sim2real.effects.actuator_gain import ActuatorGain
+from sim2real.effects.asymmetric_friction import AsymmetricFriction
 from sim2real.effects.base import ColumnLabel, Effect, ParameterSpec, Signals
 from sim2real.effects.command_bias import CommandBias
 from sim2real.effects.coulomb_friction import CoulombFriction
 from sim2real.effects.link_inertia import LinkInertia
 from sim2real.effects.payload import Payload
 from sim2real.effects.rotor_inertia import RotorInertia
+from sim2real.effects.stribeck_friction import StribeckFriction
 from sim2real.effects.torque_bias import TorqueBias
 from sim2real.effects.torque_gain import TorqueGain
 from sim2real.effects.viscous_friction import ViscousFriction
@@ -33,6 +35,8 @@ EFFECTS: dict[str, Effect] = {
     for effect in (
         ViscousFriction(),
         CoulombFriction(),
+        AsymmetricFriction(),
+        StribeckFriction(),
         RotorInertia(),
         ActuationDelay(),
         Payload(),
@@ -80,7 +84,10 @@ def apply_to_spec(spec: Any, params: dict[str, Any], include_urdf_effects: bool 
     and link inertias. ``include_urdf_effects=True`` writes everything (to calibrate a nominal MJCF).
     """
     context = _mjcf_context(spec, params)
-    for name, values in params.get("effects", {}).items():
+    # Effects the URDF holds write total values (frictionloss = friction); the others may add to them
+    # (asymmetric_friction's symmetric part adds to frictionloss), so they come after, whatever the order.
+    items = sorted(params.get("effects", {}).items(), key=lambda item: not get_effect(item[0]).in_urdf)
+    for name, values in items:
         effect = get_effect(name)
         if include_urdf_effects or not effect.in_urdf:
             effect.apply_to_spec(spec, values, context)

@@ -158,6 +158,11 @@ class Effect:
     def nonlinear_bounds(self, signals: Signals) -> tuple[np.ndarray, np.ndarray]:
         return np.array([]), np.array([])
 
+    def nonlinear_log_scale(self, signals: Signals) -> np.ndarray:
+        """Which nonlinear values the refinement optimises in log scale (bool, same length as
+        :meth:`nonlinear_init`): positive values spanning decades (a smoothing velocity, a slope)."""
+        return np.zeros(len(self.nonlinear_init(signals)), dtype=bool)
+
     def columns(
         self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray
     ) -> tuple[np.ndarray, list[ColumnLabel]]:

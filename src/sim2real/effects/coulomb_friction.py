@@ -34,6 +34,9 @@ class CoulombFriction(Effect):
     def nonlinear_bounds(self, signals):
         return np.full(signals.n, self.nonlinear[0].lower), np.full(signals.n, self.nonlinear[0].upper)
 
+    def nonlinear_log_scale(self, signals):
+        return np.ones(signals.n, dtype=bool)  # smoothing velocities span decades
+
     def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
         smoothing = nonlinear if len(nonlinear) else self.nonlinear_init(signals)
         return (

@@ -1,0 +1,130 @@
+"""Identified inertias stay plausible, or gap.md says they do not (issue 18 item 4).
+
+A fit that lacks an effect bends the link inertias to soak it up: a link gains half its mass, its
+centre of mass leaves the link. ``link_inertia.body_changes`` flags such bodies (mass change, centre
+of mass outside the collision meshes' convex hull, divergence from CAD) and gap.md names them.
+Hand-made corrections on the dev Panda; no fit, so these tests take about a second.
+"""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import yaml
+
+from gap_fixtures import PANDA_JOINTS, build_dev_panda
+from sim2real import fitting
+from sim2real.effects.link_inertia import (
+    HULL_TOLERANCE_M, LinkInertia, body_changes, correction_anchors, hull_distance, plausibility, to_mass_com_inertia,
+)
+from sim2real.report import _identified_markdown
+
+
+@pytest.fixture(scope="module")
+def info(tmp_path_factory) -> dict:
+    urdf, _ = build_dev_panda(tmp_path_factory.mktemp("plausible_panda"))
+    return fitting.load_nominal(urdf, PANDA_JOINTS).info
+
+
+def changed(info: dict, body: str, mass_scale: float = 1.0, com_offset=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Correction (all bodies, parameter units) that scales one body's mass and inertia about its COM and
+    moves its COM by ``com_offset`` (m, link frame); the other bodies stay at CAD."""
+    anchors = correction_anchors(info)
+    b = info["body_links"].index(body)
+    cad = pin.Inertia.FromDynamicParameters(anchors[b])
+    new = pin.Inertia(cad.mass * mass_scale, cad.lever + np.asarray(com_offset, dtype=float), cad.inertia * mass_scale)
+    delta = np.zeros_like(anchors)
+    delta[b] = new.toDynamicParameters() - anchors[b]
+    return delta.reshape(-1)
+
+
+def link_values(info: dict, delta: np.ndarray) -> dict:
+    """LinkInertia.values of a correction held entirely in the remainder (no base parameters)."""
+    state = {"basis": np.zeros((delta.size, 0)), "null_offset": delta, "rank": 0, "condition_number": 1.0}
+    return LinkInertia().values(np.zeros(0), np.zeros(0), SimpleNamespace(nominal=info), state)
+
+
+def test_nominal_keeps_each_links_convex_hull_but_the_last(info):
+    hulls = info["hulls"]
+    assert len(hulls) == len(info["body_links"]) == 7
+    assert hulls[-1] is None, "tools and payloads mount on the last body: no hull"
+    anchors = correction_anchors(info)
+    for hull, anchor in zip(hulls[:-1], anchors[:-1]):
+        assert hull.ndim == 2 and hull.shape[1] == 4 and len(hull) >= 4
+        np.testing.assert_allclose(np.linalg.norm(hull[:, :3], axis=1), 1.0)
+        assert hull_distance(to_mass_com_inertia(anchor)["com"], hull) < 0, "the CAD COM lies inside its link"
+
+
+def test_a_com_well_outside_the_links_hull_is_flagged_the_cad_com_is_not(info):
+    at_cad = body_changes(np.zeros(70), info)
+    for link, body in at_cad.items():
+        assert body["implausible"] == [], (link, body)
+        assert body["com_inside_hull"] is (None if link == "panda_link7" else True)
+    assert at_cad["panda_link7"]["com_outside_hull_mm"] is None
+
+    bodies = body_changes(changed(info, "panda_link4", com_offset=(0.0, 0.0, 0.3)), info)
+    body = bodies["panda_link4"]
+    assert body["com_inside_hull"] is False
+    assert body["com_outside_hull_mm"] > 50
+    assert f"centre of mass {body['com_outside_hull_mm']:.0f} mm outside the link's convex hull" in body["implausible"]
+    assert all(not b["implausible"] for link, b in bodies.items() if link != "panda_link4")
+
+
+def test_a_few_millimetres_outside_the_hull_still_count_inside():
+    cube = np.array([[1, 0, 0, -0.1], [-1, 0, 0, -0.1], [0, 1, 0, -0.1], [0, -1, 0, -0.1], [0, 0, 1, -0.1],
+                     [0, 0, -1, -0.1]], dtype=float)
+    cad = {"mass": 1.0, "com": [0.0, 0.0, 0.0]}
+    near = plausibility(cad, {"mass": 1.0, "com": [0.1 + HULL_TOLERANCE_M - 0.002, 0.0, 0.0]}, 0.1, cube)
+    assert near == {"com_inside_hull": True, "com_outside_hull_mm": 3.0, "implausible": []}
+    far = plausibility(cad, {"mass": 1.0, "com": [0.15, 0.0, 0.0]}, 0.1, cube)
+    assert far["com_inside_hull"] is False and far["implausible"] == ["centre of mass 50 mm outside the link's convex hull"]
+    # A CAD COM already outside the meshes: they do not say where this link's mass is, no hull check.
+    odd = plausibility({"mass": 1.0, "com": [0.3, 0.0, 0.0]}, {"mass": 1.0, "com": [0.5, 0.0, 0.0]}, 0.1, cube)
+    assert odd["com_inside_hull"] is None and odd["implausible"] == []
+
+
+def test_a_doubled_mass_is_flagged_on_its_body(info):
+    values = link_values(info, changed(info, "panda_link3", mass_scale=2.0))
+    assert list(values["implausible_bodies"]) == ["panda_link3"]
+    reasons = list(values["bodies"]["panda_link3"]["implausible"])
+    assert len(reasons) == 1 and reasons[0].startswith("mass changed by +100% (3.23 -> 6.46 kg)"), reasons
+    assert values["bodies"]["panda_link3"]["com_inside_hull"] is True
+    # Written as plain lists; the bootstrap's intervals survive replicates that flag different numbers.
+    assert json.loads(json.dumps(values["bodies"]))["panda_link3"]["implausible"] == reasons
+    assert yaml.safe_load(yaml.safe_dump(values["bodies"]))["panda_link3"]["implausible"] == reasons
+    intervals = fitting._intervals([values, link_values(info, np.zeros(70))], 0.9)
+    assert intervals["bodies"]["panda_link3"]["implausible"] is None
+
+
+def test_gap_md_names_implausible_bodies_and_the_priors_weight(info):
+    values = link_values(info, changed(info, "panda_link3", mass_scale=2.0))
+    rung = {"effects": ["link_inertia"], "params": {"link_inertia": values}, "consistency": {"status": "optimal"}}
+    text = "\n".join(_identified_markdown(rung))
+    assert "| body | moved | mass change [kg] | COM shift [mm] | divergence from CAD | plausible |" in text
+    assert "| panda_link3 | yes | +3.23 | 0 | 1.23 | mass changed by +100% (3.23 -> 6.46 kg) |" in text
+    assert "| panda_link1 | no | +0 | 0 | 0 | yes |" in text
+    assert "**Moved beyond plausible:** panda_link3 (mass changed by +100% (3.23 -> 6.46 kg))." in text
+    assert "soak up an effect the model lacks" in text and "diagnosis and the per-joint residuals" in text
+    assert "inertial prior" not in text, "no consistency.inertia_prior: no sentence"
+
+    rung["consistency"]["inertia_prior"] = {"weight": 0.003, "chosen_by": "the fit runs' cross-validated error",
+                                           "grid": [1e-4, 1e-3, 3e-3, 1e-2], "scores": [0.061, 0.052, 0.05, 0.058]}
+    text = "\n".join(_identified_markdown(rung))
+    assert ("The inertial prior (the entropic pull of every link towards its CAD inertials) has weight 0.003, "
+            "chosen by the fit runs' cross-validated error among 0.0001 (score 0.061), 0.001 (score 0.052), "
+            "0.003 (score 0.05), 0.01 (score 0.058).") in text
+    del rung["consistency"]["inertia_prior"]["scores"]
+    assert "among 4 weights from 0.0001 to 0.01." in "\n".join(_identified_markdown(rung))
+
+    plausible = {"effects": ["link_inertia"], "params": {"link_inertia": link_values(info, np.zeros(70))}}
+    text = "\n".join(_identified_markdown(plausible))
+    assert "beyond plausible" not in text and "| panda_link7 | no | +0 | 0 | 0 | yes |" in text
+    # A ladder.json written before these checks: no plausibility known.
+    old = json.loads(json.dumps(plausible))
+    for body in old["params"]["link_inertia"]["bodies"].values():
+        del body["implausible"]
+    assert "| panda_link2 | no | +0 | 0 | 0 | n/a |" in "\n".join(_identified_markdown(old))
