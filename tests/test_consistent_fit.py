@@ -53,8 +53,12 @@ def test_following_the_diagnosis_lowers_the_error_to_the_noise_floor(lab, scenar
     assert len(documents) >= 2, documents[0]["diagnosis"]["verdict"]
     assert_promises_kept(documents)
     last = documents[-1]
-    if scenario == "real_arm_like":  # the README's ladder on the default Panda demo
-        assert last["ladder"][-1]["effects"][:2] == ["link_inertia", "coulomb_friction"]
+    if scenario == "real_arm_like":  # the README's ladder on the default Panda demo; the lab hides Gaz's sigmoid
+        assert last["ladder"][-1]["effects"][:2] == ["link_inertia", "asymmetric_friction"]
+        for rung in last["ladder"][1:]:  # the inertial prior's weight, chosen on held-out blocks of the fit runs
+            prior = rung["consistency"]["inertia_prior"]
+            assert prior["chosen_by"].startswith("cross-validation") and prior["weight"] in prior["grid"]
+            assert len(prior["scores"]) == len(prior["grid"])
     rmse = [overall(r) for r in last["ladder"]]
     assert rmse == sorted(rmse, reverse=True), f"the error falls rung by rung: {rmse}"
     floor = last["noise_floor"]["torque_rmse"]["overall"]

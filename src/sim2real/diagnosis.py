@@ -64,6 +64,24 @@ LINK_TEXT: dict[str, str] = {
     "combined": "the commanded torque against the motion (actuator and body together: no torque sensor)",
 }
 CONFOUNDED_NOISE_FRACTION = 0.1  # two candidates whose predictions differ by less: not told apart
+# A per-joint fix may not push another joint further above its floor by more than this (x its floor).
+HARM_TOLERANCE = 0.1
+# A joint is named for an effect when the effect's own fitted term there is at least this (RMS, x its floor).
+OWN_TERM_MIN = 0.5
+
+
+def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: fitting.TorqueData,
+                      signals: Signals, unit: np.ndarray) -> np.ndarray | None:
+    """RMS per joint of what the effect ``name`` itself adds to the prediction, x each joint's floor
+    (None for an effect without linear coefficients: a delay acts through the whole prediction)."""
+    import dataclasses
+
+    coefficients = np.asarray(result.theta.get(name, []), dtype=float)
+    if not coefficients.size:
+        return None
+    without = dataclasses.replace(result, theta={**result.theta, name: np.zeros_like(coefficients)})
+    term = fitting.predict(result, nominal, data, signals) - fitting.predict(without, nominal, data, signals)
+    return np.sqrt(np.mean((term / unit) ** 2, axis=0))
 
 
 def add_line(effect: str) -> str:
@@ -181,9 +199,10 @@ def diagnose(
                 "on commands the same column is the actuator's (actuator_gain, command_bias)",
             })
             continue
-        result = fitting.fit([*model_effects, name], nominal, fit_data, settings.get("fit"), signals=fit_signals,
-                           uncertainty=False, nonlinear_fixed=nonlinear_fixed)
-        _, residual = fitting.holdout_metrics(result, nominal, holdout_data, holdout_signals)
+        # Fitted as its rung will be: the current nonlinear parameters refined again or held, as predicts better.
+        result, residual, _ = fitting.fit_on_the_previous(
+            [*model_effects, name], nominal, fit_data, holdout_data, nonlinear_fixed, settings.get("fit"),
+            fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=False)
         scaled = residual / unit
         sse_after = _sse(scaled)
         gain = total_now - float(sse_after.sum())
@@ -196,9 +215,18 @@ def diagnose(
         arm_wide = beyond >= limits["min_explained"] and explained >= limits["min_gain"]
         # A joint above its floor whose excess the candidate mostly removes names it on that joint, however
         # small that joint's share of the arm; never at the price of the arm as a whole (gain > 0).
+        # Nor at the price of another joint: one pushed further above its floor is no joint's fix.
+        harmed = [j for j, a, b in zip(joints, x_now, x_after, strict=True)
+                  if b > max(a, limits["noise_floor_factor"]) + HARM_TOLERANCE]
         on_joints = [j for j, x, v in zip(joints, x_now, per_joint_beyond, strict=True)
-                     if x > limits["noise_floor_factor"] and v >= limits["joint_decisive"]] if gain > 0 else []
-        acting = [j for j, v in zip(joints, per_joint_beyond, strict=True) if v >= limits["joint_min_explained"]]
+                     if x > limits["noise_floor_factor"] and v >= limits["joint_decisive"]] if gain > 0 and not harmed else []
+        # Named on the joints where its own term shows, not where the residual fell because the rest of the
+        # model no longer bends to soak it up (joint 7's friction frees the link inertias of joints 2 to 6).
+        own = _own_term_x_floor(result, name, nominal, holdout_data, holdout_signals, unit)
+        seen = [True] * len(joints) if own is None else [bool(o >= OWN_TERM_MIN) for o in own]
+        on_joints = [j for j in on_joints if seen[joints.index(j)]]
+        acting = [j for j, v, ok in zip(joints, per_joint_beyond, seen, strict=True)
+                  if v >= limits["joint_min_explained"] and ok]
         decisive = arm_wide or bool(on_joints)
         evidence = effect.evidence(holdout_residual, holdout_signals)
         evidence["per_joint_explained"] = per_joint_dict(joints, per_joint, 3)
@@ -206,6 +234,9 @@ def diagnose(
         evidence["rmse_after"] = round(float(np.sqrt(np.mean(residual**2))), 6)
         evidence["x_floor_after"] = round(float(np.sqrt(np.mean(x_after**2))), 4)
         evidence["per_joint_x_floor_after"] = per_joint_dict(joints, x_after, 3)
+        evidence["harmed_joints"] = harmed
+        if own is not None:
+            evidence["per_joint_own_term_x_floor"] = per_joint_dict(joints, own, 3)
         evidence["fitted"] = result.values[name]
         evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
         residuals_after[name] = scaled

@@ -57,8 +57,9 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "confidence": 0.95,
     "bootstrap_few_blocks_correction": True,  # small_sample_stretch; off only to measure what it corrects
     "seed": 0,
-    # Weight of the entropic pull of link inertias towards CAD, x the noise floor's variance (sim2real.inertial).
-    "inertia_regularization": 1e-3,
+    # Weight of the entropic pull of link inertias towards CAD, x the noise floor's variance (sim2real.inertial):
+    # "held_out" chooses it on held-out blocks of the fit runs (inertial.choose_prior_weight); a number fixes it.
+    "inertia_regularization": "held_out",
     # Each joint's residual in units of its own noise floor (joint_weights); "none": plain N*m, to measure it.
     "joint_weighting": "noise_floor",
 }
@@ -66,6 +67,8 @@ DEFAULT_SETTINGS: dict[str, Any] = {
 # A joint whose floor reads below this fraction of the arm's RMS floor is weighted as if it were there:
 # an underestimated floor (a quiet sensor, a saturated log) must not let one joint take the whole fit.
 MIN_FLOOR_FRACTION = 0.2
+# The prior's weight (x the floor's variance) where no link inertia is fitted or the held-out choice fails.
+INERTIA_PRIOR_FALLBACK = 1e-3
 
 
 def joint_weights(noise_floor: np.ndarray, weighting: str = "noise_floor") -> np.ndarray:
@@ -818,6 +821,57 @@ def fit(
     )
 
 
+def fit_on_the_previous(
+    effect_names: Sequence[str],
+    nominal: NominalModel | None,
+    fit_data: TorqueData,
+    holdout_data: TorqueData,
+    previous: Mapping[str, np.ndarray] | None,
+    settings: Mapping[str, Any] | None = None,
+    *,
+    fit_signals: Signals | None = None,
+    holdout_signals: Signals | None = None,
+    uncertainty: bool = True,
+) -> tuple[FitResult, np.ndarray, str]:
+    """A model fitted on top of the previous one: (fit, holdout residual, how its nonlinear parameters were set).
+
+    Two ways to carry the previous model's nonlinear parameters (friction slopes and offsets, a delay):
+    refine them all again from there, so that a smoothing refined before the rotor inertia was in the
+    model can move once it is, or hold them, so that a sharp sigmoid cannot wander off to absorb what
+    the new effect should explain. The fit runs alone cannot tell which generalises (the refinement
+    always lowers the fit residual); the one whose holdout residual is smaller, each joint in units of
+    its own floor, is kept. The diagnosis and the ladder use this same rule, so a rung delivers what
+    its diagnosis promised. ``"refined"`` also when there is nothing to hold.
+    """
+    previous = {k: v for k, v in (previous or {}).items() if np.size(v)}
+    if fit_signals is None:
+        assert nominal is not None
+        fit_signals = make_signals(nominal, fit_data)
+    if holdout_signals is None:
+        assert nominal is not None
+        holdout_signals = make_signals(nominal, holdout_data)
+    weights = joint_weights(holdout_data.noise_floor, str({**DEFAULT_SETTINGS, **(settings or {})}["joint_weighting"]))
+
+    def judged(result: FitResult) -> tuple[np.ndarray, float]:
+        _, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
+        return residual, float(np.sum((residual * weights) ** 2))
+
+    refined = fit(effect_names, nominal, fit_data, settings, signals=fit_signals, uncertainty=uncertainty,
+                  nonlinear_start=previous)
+    residual, score = judged(refined)
+    if not previous:
+        return refined, residual, "refined"
+    held = fit(effect_names, nominal, fit_data, settings, signals=fit_signals, uncertainty=False,
+               nonlinear_fixed=previous)
+    held_residual, held_score = judged(held)
+    if held_score >= score:
+        return refined, residual, "refined"
+    if uncertainty:
+        held = fit(effect_names, nominal, fit_data, settings, signals=fit_signals, uncertainty=True,
+                   nonlinear_fixed=previous)
+    return held, held_residual, "held"
+
+
 def _consistent_fit(
     problem: _Problem, data: TorqueData, nonlinear: dict[str, np.ndarray], theta_free: dict[str, np.ndarray],
     settings: Mapping[str, Any],
@@ -829,7 +883,14 @@ def _consistent_fit(
     held at the current estimate and updated by fixed-point iteration, as in the unconstrained fit.
     """
     from sim2real.effects.link_inertia import correction_anchors
-    from sim2real.inertial import InertialBlock, InfeasibleFit, physically_consistent, pseudo_inertia, solve_consistent
+    from sim2real.inertial import (
+        InertialBlock,
+        InfeasibleFit,
+        choose_prior_weight,
+        physically_consistent,
+        pseudo_inertia,
+        solve_consistent,
+    )
 
     signals = problem.signals
     blocks, lower, inertial = [], [], None
@@ -861,7 +922,26 @@ def _consistent_fit(
                             [b[2].shape[2] for b in blocks], nonlinear)
     bounds = np.concatenate(lower)
     floor = float(np.mean(np.asarray(data.noise_floor, dtype=float) ** 2))
-    weight = float(settings["inertia_regularization"]) * max(floor, 1e-12)
+    relative = settings["inertia_regularization"]
+    if relative == "held_out":
+        relative = INERTIA_PRIOR_FALLBACK
+        if inertial is not None:
+            try:
+                choice = choose_prior_weight(shifted * problem.weights[None, :, None],
+                                             (data.tau - problem.base({}, nonlinear)) * problem.weights,
+                                             bounds, inertial, max(floor, 1e-12))
+                relative = choice.weight
+                record["inertia_prior"] = {
+                    "weight": choice.weight, "grid": choice.grid, "scores": choice.scores,
+                    "chosen_by": f"cross-validation on {choice.blocks} held-out blocks of the fit runs (the strongest "
+                    "pull towards CAD within 1% of the best held-out error; weights are fractions of the noise "
+                    "floor's variance, scores held-out RMS in N*m, each joint weighted by its floor)"}
+            except InfeasibleFit:
+                pass  # the rung's own solve below says what failed
+    elif inertial is not None:
+        record["inertia_prior"] = {"weight": float(relative), "chosen_by": "the model.yaml setting "
+                                   "fit.inertia_regularization (a fraction of the noise floor's variance)"}
+    weight = float(relative) * max(floor, 1e-12)
     has_offset = any(type(e).offset is not Effect.offset and e.name != "link_inertia" for e in problem.effects)
     theta: dict[str, np.ndarray] = {}
     solve_time = 0.0

@@ -25,7 +25,8 @@ from sim2real.dynamics import RigidBodyModel
 from sim2real.effects import Signals, get_effect
 from sim2real.errors import InputError
 from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
-    DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, floor_units, holdout_metrics, joint_weights,
+    DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
+    joint_weights,
     kept_segments, load_nominal, make_signals, predict, resolve_armature, run_from_prepared, stack_runs,
 )
 from sim2real.measurements import PreparedRun, estimate_noise_floor
@@ -92,8 +93,9 @@ def fit_ladder(
     residual = None
     for k in range(len(effect_names) + 1):
         effects = list(effect_names[:k])
-        held = result.nonlinear if result is not None else None
-        result = fit(effects, nominal, fit_data, fit_settings, signals=fit_signals, nonlinear_start=held)
+        previous = result.nonlinear if result is not None else None
+        result, _, carried = fit_on_the_previous(effects, nominal, fit_data, holdout_data, previous, fit_settings,
+                                                 fit_signals=fit_signals, holdout_signals=holdout_signals)
         metrics, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
         x_floor = floor_units(residual, holdout_data.noise_floor)
         rung: dict[str, Any] = {
@@ -113,6 +115,10 @@ def fit_ladder(
             rung["consistency"] = {k: v for k, v in result.consistency.items() if k != "solve_time_s"}
         if result.notes:
             rung["notes"] = result.notes
+        if carried == "held":
+            rung.setdefault("notes", []).append(
+                "the previous rung's nonlinear parameters (friction slopes and offsets, delay) are held: refined "
+                "again, they predicted the holdout runs worse")
         rungs.append(rung)
     assert result is not None and residual is not None
     joints = holdout_data.joint_names
@@ -134,9 +140,14 @@ def fit_ladder(
         "settings": {"fit": fit_settings},
     }
     if diagnose:
+        prior = (result.consistency or {}).get("inertia_prior")
+        # Every candidate is fitted with the prior weight the current rung chose: a candidate that merely let the
+        # inertias move more would otherwise be credited with their fall, on joints where it does nothing. Its
+        # rung chooses again on held-out blocks, which can only help the holdout it was promised.
+        diagnosis_fit = {**fit_settings, "inertia_regularization": prior["weight"]} if prior else fit_settings
         document["diagnosis"] = run_diagnosis(
             effect_names, nominal, fit_data, holdout_data, residual,
-            {"fit": fit_settings, "diagnosis": settings.get("diagnosis", {})},
+            {"fit": diagnosis_fit, "diagnosis": settings.get("diagnosis", {})},
             fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot, nonlinear_fixed=result.nonlinear,
             candidates=candidates, link=link,
         )
