@@ -144,7 +144,9 @@ def test_behind_a_link_side_sensor_the_drive_is_found_on_the_actuator_link(lab, 
     for section in (last, last["actuator"]):
         assert section["diagnosis"]["status"] == "at_noise_floor", section["diagnosis"]["verdict"]
         rmse = [overall(rung) for rung in section["ladder"]]
-        assert rmse == sorted(rmse, reverse=True), rmse
+        # A rung the actuator link asked for (rotor inertia, its friction) is fitted after the sensor on the body
+        # too, from zero: there it may cost a hair of noise, never more than a twentieth of the floor.
+        assert all(b <= a + 0.05 * floor(section) for a, b in zip(rmse, rmse[1:], strict=False)), rmse
         assert rmse[-1] <= 1.5 * floor(section), (rmse, floor(section))
     hidden = yaml.safe_load(lab.lab_config.read_text(encoding="utf-8"))["scenarios"]["link_side_sensor"]["effects"]
     armature = last["actuator"]["ladder"][-1]["params"]["rotor_inertia"]["armature"]
