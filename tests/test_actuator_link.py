@@ -162,7 +162,12 @@ def test_behind_a_link_side_sensor_the_drive_is_found_on_the_actuator_link(lab, 
     gap = build_gap_report("panda", lab.urdf, lab.mjcf, listing, out / "gap.json", out / "gap.md", figures,
                            out / "ladder.json", "/")
     assert gap["links"]["torque_sensor"] == "link"
-    assert "The torque sensor is link-side" in (out / "gap.md").read_text(encoding="utf-8")
+    markdown = (out / "gap.md").read_text(encoding="utf-8")
+    assert "The torque sensor is link-side" in markdown
+    # Each joint in N*m and in its own floor's units; the inertial prior's weight and how it was chosen.
+    assert "| joint | RMSE [N m] | noise floor [N m] | x floor |" in markdown
+    assert "The inertial prior (the entropic pull of every link towards its CAD inertials) has weight" in markdown
+    assert "chosen by cross-validation on 4 held-out blocks of the fit runs" in markdown
     replayed = [rung["metrics"]["position_rmse"]["overall"] for rung in gap["actuator"]["ladder"]]
     assert replayed[-1] < replayed[0], replayed  # the drive's effects move the replayed arm too
 
