@@ -563,6 +563,14 @@ def _refine_nonlinear(
     lower = np.concatenate([e.nonlinear_bounds(signals)[0] for e in problem.effects])
     upper = np.concatenate([e.nonlinear_bounds(signals)[1] for e in problem.effects])
     held = np.concatenate([np.full(s, e.name in fixed) for e, s in zip(problem.effects, problem.nl_sizes, strict=True)])
+    # A previous value at its bound sits on a plateau (a sigmoid at its steepest is a sign function for every
+    # sample: its slope no longer moves the residual), where the refinement cannot leave it: start that one
+    # from its default instead.
+    default = np.concatenate(
+        [np.asarray(e.nonlinear_init(signals), dtype=float) for e in problem.effects] or [np.zeros(0)]
+    )
+    at_bound = ~held & ((x0 <= lower + 1e-9 * np.abs(lower)) | (x0 >= upper - 1e-9 * np.abs(upper)))
+    x0 = np.where(at_bound & (lower < upper), default, x0)
     if held.all():
         return problem.split_nonlinear(x0)
     # The refinement runs on a subset of whole runs' samples (every k-th: keeps the time grid uniform).

@@ -29,7 +29,7 @@ from sim2real.effects.base import (
     ColumnLabel, Effect, ParameterSpec, Signals, correlation_per_joint, diagonal_columns, per_joint_dict,
 )
 
-DEFAULT_SLOPE = 20.0  # s/rad: start value of the refinement (a transition ~0.1 rad/s wide)
+DEFAULT_SLOPE = 10.0  # s/rad: start value of the refinement, mid-range of Gaz et al.'s Panda joints
 START_OFFSET = 0.02  # rad/s: magnitude of the offset's start value, its sign read from the data
 EVIDENCE_WIDTH = 0.05  # rad/s: width of the bell the evidence correlates with
 
@@ -80,11 +80,11 @@ class AsymmetricFriction(Effect):
         ParameterSpec("amplitude", "N*m", 0.0, 100.0, True, "phi1: span between the two sliding levels"),
     )
     nonlinear = (
-        # Gaz et al. identify 5 to 17 s/rad on the Panda; above 100 (a transition within +-0.01 rad/s) the sigmoid is
-        # a sign for every sample a decimated log holds. With the bound at 200 the refinement ran into it to soak up
-        # a Stribeck hump and stayed there once the hump was modelled (lab real_arm_like, joint 2: 200 where the
-        # truth is 9, the loop stuck at 1.5x its floor); at 100 it comes back to 9.
-        ParameterSpec("slope", "s/rad", 1.0, 100.0, True, "phi2: slope of the sigmoid"),
+        # Gaz et al. identify 5 to 17 s/rad on the Panda; above 40 (a transition within +-0.025 rad/s) the sigmoid is
+        # a sign for every sample a decimated log holds. With the bound at 100 or 200 the refinement ran into it to
+        # soak up a Stribeck hump and stayed there once the hump was modelled (lab real_arm_like_actuator, joint 2:
+        # 100 where the truth is 9, the loop stuck at 1.7x its floor); from 40 it comes back to 9.
+        ParameterSpec("slope", "s/rad", 1.0, 40.0, True, "phi2: slope of the sigmoid"),
         ParameterSpec("velocity_offset", "rad/s", -0.2, 0.2, True, "phi3: the transition sits at qd = -phi3"),
     )
 
