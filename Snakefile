@@ -20,6 +20,7 @@ include: "rules/lab.smk"
 include: "rules/sysid.smk"
 include: "rules/gap.smk"
 include: "rules/dr.smk"
+include: "rules/excitation.smk"
 include: "rules/fleet.smk"
 
 

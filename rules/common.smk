@@ -24,6 +24,7 @@ wildcard_constraints:
     scenario="[A-Za-z0-9_-]+",
     run="(?!truth$)[A-Za-z0-9_-]+",
     bag="[A-Za-z0-9_.-]+",
+    design="[A-Za-z0-9_-]+",
     campaign=_sim2real_fleet.wildcard_pattern(
         [c.name for cs in CAMPAIGNS.values() for c in cs if c.prefix]
     ),
@@ -291,3 +292,27 @@ def lab_truth_targets(robot):
         if entry.path.as_posix().startswith(prefix)
     }
     return [f"{prefix}{scenario}/truth.yaml" for scenario in sorted(scenarios)]
+
+
+# ---- excitation design -------------------------------------------------------------
+
+
+def excitation_config(robot):
+    return f"configs/{robot}/excitation.yaml"
+
+
+def optional_model_ladder(wildcards):
+    """The model ladder the design makes identifiable, when the robot has one."""
+    path = model_ladder(wildcards.robot)
+    return [path] if os.path.exists(path) else []
+
+
+def excitation_targets(robot):
+    """Every design of configs/{robot}/excitation.yaml (the file is validated by the rule itself)."""
+    path = excitation_config(robot)
+    if not os.path.exists(path):
+        return []
+    designs = (_sim2real_io.read_yaml(path) or {}).get("designs") or {}
+    return [f"results/{robot}/excitation/{name}.csv" for name in sorted(designs)] + [
+        f"results/{robot}/excitation/{name}.md" for name in sorted(designs)
+    ]

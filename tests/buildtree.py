@@ -70,6 +70,13 @@ def make_fast(tree: Path, lab_duration_s: float | None = None) -> None:
             edit_yaml(lab, short_runs)
         for model in sorted((tree / "configs").glob("*/model.yaml")):
             edit_yaml(model, few_replicates)
+    def coarse_design(data: dict) -> None:
+        # A real optimisation, a few iterations on a coarse grid: seconds, not minutes.
+        data.setdefault("defaults", {})["solver"] = {"max_iterations": 8, "objective_samples": 40,
+                                                      "limit_samples": 120, "seed": 0}
+
+    for excitation in sorted((tree / "configs").glob("*/excitation.yaml")):
+        edit_yaml(excitation, coarse_design)
     for robot_cfg in sorted((tree / "configs").glob("*/robot.yaml")):
         def fast_collision(data: dict) -> None:
             collision = data.get("collision")

@@ -1,0 +1,36 @@
+# Excitation design: configs/{robot}/excitation.yaml -> an optimised, collision-checked identification
+# trajectory (CSV at the controller rate, a ROS 2 JointTrajectory, a report), for the model of
+# configs/{robot}/model.yaml on the built URDF and MJCF (CoACD collision parts).
+
+
+rule excitation:
+    input:
+        config="configs/{robot}/excitation.yaml",
+        urdf="results/{robot}/{robot}.urdf",
+        mjcf="results/{robot}/mjcf/{robot}.xml",
+        robot_config=lambda w: robot_config(w.robot),
+        model=optional_model_ladder,
+    output:
+        csv="results/{robot}/excitation/{design}.csv",
+        trajectory="results/{robot}/excitation/{design}.trajectory.yaml",
+        json="results/{robot}/excitation/{design}.json",
+        md="results/{robot}/excitation/{design}.md",
+        figure=report(
+            "results/{robot}/excitation/{design}.png",
+            caption="../report/excitation.rst",
+            category="Excitation",
+            subcategory="{robot}",
+        ),
+    log:
+        "results/{robot}/logs/excitation/{design}.log",
+    benchmark:
+        "results/{robot}/benchmarks/excitation/{design}.tsv"
+    threads: 1
+    resources:
+        mem_mb=2048,
+        runtime=30,
+    script:
+        "../scripts/excitation.py"
+
+
+STAGE_TARGETS.append(excitation_targets)

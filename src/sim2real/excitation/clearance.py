@@ -1,0 +1,113 @@
+"""Distance to collision along a trajectory, by MuJoCo on the built MJCF and its CoACD collision parts.
+
+The obstacles of the design (planes, boxes) are added to the world with MjSpec. MuJoCo's own contact
+filter decides which pairs can collide (bodies welded together and a body with its parent never do),
+and every collision geom is given a margin, so that its collision pass also reports pairs that come
+within that margin of each other, with their distance. The smallest distance over those contacts is
+the sample's clearance (``search`` when no pair is that close). A body welded to the world (the
+robot's base) is not checked against the link its first joint moves, which touches it by design.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from sim2real.errors import InputError
+
+COLLISION_GROUP = 3  # menagerie convention, as sim2real.mjcf writes it
+OBSTACLE_GROUP = 4
+
+
+def _quat_from_normal(normal: np.ndarray) -> np.ndarray:
+    """Quaternion (w x y z) turning +z into ``normal`` (a plane geom's free side)."""
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, normal)
+    s, c = np.linalg.norm(axis), float(np.dot(z, normal))
+    if s < 1e-12:
+        return np.array([1.0, 0.0, 0.0, 0.0]) if c > 0 else np.array([0.0, 1.0, 0.0, 0.0])
+    angle = np.arctan2(s, c)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis / s])
+
+
+class Clearance:
+    """The arm of ``mjcf_path`` with ``obstacles``; distances for poses of ``joints``."""
+
+    def __init__(self, mjcf_path: str | Path, joints: Sequence[str], obstacles: Sequence[Mapping[str, Any]],
+                 search: float, config_path: str | Path | None = None, key: str = "obstacles") -> None:
+        spec = mujoco.MjSpec.from_file(str(mjcf_path))
+        self.search = float(search)
+        for geom in spec.geoms:
+            if geom.group == COLLISION_GROUP:
+                geom.contype, geom.conaffinity, geom.margin = 1, 1, self.search
+            else:
+                geom.contype, geom.conaffinity = 0, 0
+        self.obstacle_names = []
+        for k, obstacle in enumerate(obstacles):
+            name = f"obstacle_{obstacle['name']}"
+            geom = spec.worldbody.add_geom(name=name, group=OBSTACLE_GROUP, contype=1, conaffinity=1,
+                                           margin=self.search)
+            if obstacle["type"] == "plane":
+                normal = np.asarray(obstacle["normal"], dtype=float)
+                if np.linalg.norm(normal) == 0:
+                    raise InputError(config_path, f"{key}/{k}/normal", "is the zero vector",
+                                     "give the plane's normal pointing to the free side")
+                geom.type = mujoco.mjtGeom.mjGEOM_PLANE
+                geom.size = [0.0, 0.0, 1.0]
+                geom.pos = obstacle["point"]
+                geom.quat = _quat_from_normal(normal / np.linalg.norm(normal))
+            else:
+                geom.type = mujoco.mjtGeom.mjGEOM_BOX
+                geom.size = obstacle["half_size"]
+                geom.pos = obstacle["center"]
+                if "quat" in obstacle:
+                    geom.quat = obstacle["quat"]
+            self.obstacle_names.append(name)
+        # MuJoCo filters a body against its parent, except when the parent is welded to the world: the
+        # robot's base and its first moving link touch at their joint, so exclude that pair too.
+        model = spec.compile()
+        base = [b for b in range(1, model.nbody) if model.body_weldid[b] == 0]
+        for b in range(1, model.nbody):
+            if model.body_weldid[b] == b and model.body_weldid[model.body_parentid[b]] == 0:
+                for fixed in base:
+                    spec.add_exclude(bodyname1=model.body(fixed).name, bodyname2=model.body(b).name)
+        self.model = spec.compile()
+        self.model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        self.data = mujoco.MjData(self.model)
+        mujoco.mj_resetDataKeyframe(self.model, self.data, 0) if self.model.nkey else None
+        self.qadr = np.array([self.model.jnt_qposadr[self.model.joint(j).id] for j in joints])
+
+    def _pair_name(self, g1: int, g2: int) -> str:
+        def name(g: int) -> str:
+            geom = self.model.geom(g)
+            return geom.name if geom.name.startswith("obstacle_") else self.model.body(self.model.geom_bodyid[g]).name
+        return f"{name(g1)} / {name(g2)}"
+
+    def closest(self, q: np.ndarray) -> tuple[float, str | None]:
+        """Smallest distance (m, negative: penetration) at pose ``q`` and the pair it is between."""
+        self.data.qpos[self.qadr] = q
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_collision(self.model, self.data)
+        if self.data.ncon == 0:
+            return self.search, None
+        dist = self.data.contact.dist[: self.data.ncon]
+        k = int(np.argmin(dist))
+        return float(dist[k]), self._pair_name(int(self.data.contact.geom1[k]), int(self.data.contact.geom2[k]))
+
+    def distances(self, q: np.ndarray) -> np.ndarray:
+        """Smallest distance at each pose of ``q`` (N, n)."""
+        return np.array([self.closest(row)[0] for row in np.atleast_2d(q)])
+
+    def gradient(self, q: np.ndarray, step: float = 1e-5) -> np.ndarray:
+        """d(smallest distance)/dq at one pose, by forward differences."""
+        base = self.closest(q)[0]
+        out = np.empty(len(q))
+        for j in range(len(q)):
+            moved = q.copy()
+            moved[j] += step
+            out[j] = (self.closest(moved)[0] - base) / step
+        return out

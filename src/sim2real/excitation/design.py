@@ -1,0 +1,385 @@
+"""The nonlinear program of an excitation design, solved by IPOPT through CasADi.
+
+Decision variables: the Fourier coefficients of the excited joints (:mod:`.fourier`). Constraints:
+at rest at t = 0 (linear equalities), position, velocity and acceleration limits on a grid of one period
+(linear in the coefficients), joint torques of the nominal model within the usable effort (nonlinear,
+on the objective's samples), and the distance to collision (nonlinear, on the samples where it was found
+short: an active set, re-solved until MuJoCo finds none on a dense grid). The objective (:mod:`.information`)
+and the torques are evaluated by Pinocchio and enter the program as CasADi callbacks with their Jacobians.
+
+The result is then checked at every sample of the written trajectory. Constraints imposed on a grid can be
+missed between its points by a hair; if any check fails, the motion is scaled towards the start pose (which
+every check passes) until all pass, and the report says by how much.
+"""
+
+from __future__ import annotations
+
+import time as clock
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from sim2real.errors import InputError
+from sim2real.excitation.clearance import Clearance
+from sim2real.excitation.config import Design, Limits, limits, start_pose
+from sim2real.excitation.fourier import FourierSeries, random_start
+from sim2real.excitation.information import Identification, condition_number, identification_effects
+from sim2real.fitting import NominalModel
+
+ACTIVE_SET_ROUNDS = 3
+CLEARANCE_SEARCH_M = 0.1  # distances are reported up to this; beyond it a pose is simply "clear"
+START_FILL = 0.5  # the initial guess uses this fraction of the tightest limit
+FD_STEP = 1e-6
+
+
+@dataclass
+class Trajectory:
+    time: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+
+
+@dataclass
+class DesignResult:
+    design: Design
+    joints: list[str]
+    coefficients: np.ndarray  # (excited joints, 2 * harmonics)
+    start: np.ndarray
+    limits: Limits
+    trajectory: Trajectory
+    torque: np.ndarray  # nominal joint torque at every sample (N, n)
+    clearance: np.ndarray  # smallest distance to collision at every sample of one period
+    closest_pair: str | None
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+class _Numeric(ca.Callback):
+    """A numeric function of the coefficients with its numeric Jacobian, as a CasADi function."""
+
+    def __init__(self, name: str, size_in: int, size_out: int, value: Callable[[np.ndarray], np.ndarray],
+                 jacobian: Callable[[np.ndarray], np.ndarray]) -> None:
+        ca.Callback.__init__(self)
+        self.size_in, self.size_out, self.value, self.jac = size_in, size_out, value, jacobian
+        self.construct(name, {})
+
+    def get_n_in(self) -> int:
+        return 1
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.size_in, 1)
+
+    def get_sparsity_out(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.size_out, 1)
+
+    def eval(self, arg: Sequence[Any]) -> list[np.ndarray]:
+        return [np.asarray(self.value(np.asarray(arg[0]).ravel()), dtype=float).reshape(-1, 1)]
+
+    def has_jacobian(self) -> bool:
+        return True
+
+    def get_jacobian(self, name: str, inames: Any, onames: Any, opts: Any) -> ca.Callback:
+        self._jacobian = _Jacobian(name, self)  # CasADi holds no reference: keep one
+        return self._jacobian
+
+
+class _Jacobian(ca.Callback):
+    def __init__(self, name: str, parent: _Numeric) -> None:
+        ca.Callback.__init__(self)
+        self.parent = parent
+        self.construct(name, {})
+
+    def get_n_in(self) -> int:
+        return 2
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.parent.size_in if i == 0 else self.parent.size_out, 1)
+
+    def get_sparsity_out(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.parent.size_out, self.parent.size_in)
+
+    def eval(self, arg: Sequence[Any]) -> list[np.ndarray]:
+        return [np.asarray(self.parent.jac(np.asarray(arg[0]).ravel()), dtype=float)]
+
+
+class _Grid:
+    """Samples of one period: the maps from the coefficients to every joint's q, qd, qdd (K, n, size)."""
+
+    def __init__(self, series: FourierSeries, time: np.ndarray, excited: np.ndarray, n: int, start: np.ndarray):
+        self.time, self.start = time, start
+        position, velocity, acceleration = series.basis(time)  # (K, 2L)
+        width = 2 * series.harmonics
+        self.maps = []
+        for basis in (position, velocity, acceleration):
+            full = np.zeros((len(time), n, series.size))
+            for slot, j in enumerate(excited):
+                full[:, j, slot * width : (slot + 1) * width] = basis
+            self.maps.append(full)
+
+    def state(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        q, qd, qdd = (m @ x for m in self.maps)
+        return self.start + q, qd, qdd
+
+    def chain(self, dq: np.ndarray, dqd: np.ndarray, dqdd: np.ndarray) -> np.ndarray:
+        """Gradient with respect to x of a scalar whose gradients per sample state are (K, n) each."""
+        return sum(np.einsum("kj,kjs->s", g, m) for g, m in zip((dq, dqd, dqdd), self.maps, strict=True))
+
+
+def _torque_jacobian(nominal: NominalModel, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                     grid: _Grid) -> np.ndarray:
+    """d tau / d x (K*n, size): the nominal inverse dynamics differentiated per sample state, chained."""
+    count, n = q.shape
+    base = nominal.dynamics.inverse_dynamics(q, qd, qdd)
+    out = np.zeros((count, n, grid.maps[0].shape[2]))
+    for which, state_map in enumerate(grid.maps):
+        for j in range(n):
+            if not np.any(state_map[:, j]):
+                continue
+            states = [q, qd, qdd]
+            moved = states[which].copy()
+            moved[:, j] += FD_STEP
+            states[which] = moved
+            d_tau = (nominal.dynamics.inverse_dynamics(*states) - base) / FD_STEP  # (K, n): column j of dtau/dstate
+            out += d_tau[:, :, None] * state_map[:, j, None, :]
+    return out.reshape(count * n, -1)
+
+
+def _scaled_start(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray, seed: int) -> np.ndarray:
+    """A random series at rest at t = 0, scaled to START_FILL of the tightest position, velocity or
+    acceleration limit (the lab's excitation is drawn the same way)."""
+    x = random_start(series, np.random.default_rng(seed))
+    q, qd, qdd = grid.state(x)
+    room = np.minimum(grid.start - lim.lower, lim.upper - grid.start)[excited]
+    ratios = [room / np.max(np.abs(q - grid.start)[:, excited], axis=0),
+              lim.velocity[excited] / np.max(np.abs(qd[:, excited]), axis=0),
+              lim.acceleration[excited] / np.max(np.abs(qdd[:, excited]), axis=0)]
+    return START_FILL * float(np.min(np.concatenate(ratios))) * x
+
+
+def check_trajectory(nominal: NominalModel, trajectory: Trajectory, lim: Limits, start: np.ndarray,
+                     clearance: Clearance, margin: float, excited: np.ndarray,
+                     ) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Every limit at every sample: the failures (empty when none), the torques and the clearances."""
+    failures = []
+    tol = 1e-9
+    q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
+    for label, bad in (("position", (q < lim.lower - tol) | (q > lim.upper + tol)),
+                       ("velocity", np.abs(qd) > lim.velocity + tol),
+                       ("acceleration", np.abs(qdd) > lim.acceleration + tol)):
+        bad[:, [j for j in range(q.shape[1]) if j not in excited]] = False
+        if bad.any():
+            failures.append(label)
+    torque = nominal.dynamics.inverse_dynamics(q, qd, qdd)
+    if np.any(np.abs(torque) > lim.torque + tol):
+        failures.append("torque")
+    distances = clearance.distances(q)
+    if np.any(distances < margin):
+        failures.append("collision")
+    return failures, torque, distances
+
+
+def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Path, home: Mapping[str, float],
+                      model_effects: Sequence[str], urdf_path: str | Path,
+                      log: Callable[[str], None] = lambda message: None) -> DesignResult:
+    """Design one excitation: the optimised coefficients and the checked trajectory at the controller rate."""
+    started = clock.perf_counter()
+    settings, joints = design.settings, design.joints
+    dynamics = nominal.dynamics
+    n = len(joints)
+    excited = np.array([joints.index(j) for j in design.excite])
+    start = start_pose(design, home, dynamics.lower, dynamics.upper)
+    lim = limits(design, dynamics.lower, dynamics.upper, dynamics.velocity_limit, dynamics.effort_limit, start,
+                 dynamics.gravity(start)[0], urdf_path)
+    margin = float(settings["margins"]["collision_m"])
+    clearance = Clearance(mjcf_path, joints, settings["obstacles"], max(CLEARANCE_SEARCH_M, 2 * margin),
+                          design.path, design.key("obstacles"))
+    distance, pair = clearance.closest(start)
+    if distance < margin:
+        obstacle = next((o for o in (pair or "").split(" / ") if o.startswith("obstacle_")), None)
+        what = (f"obstacle '{obstacle.removeprefix('obstacle_')}' contains the start pose or comes within "
+                f"{margin:g} m of it" if obstacle else f"the start pose is in self-collision ({pair})")
+        raise InputError(design.path, design.key("obstacles" if obstacle else "start"),
+                         f"{what}: distance {distance:.3g} m at the start pose",
+                         "move the obstacle away from the robot, choose another start pose, or lower "
+                         "margins/collision_m")
+
+    noise_floor = design.per_joint("noise_floor")
+    effects = identification_effects(model_effects)
+    solver = settings["solver"]
+    ident = Identification(nominal, effects, noise_floor, lim.lower, lim.upper, lim.velocity, lim.acceleration,
+                           seed=int(solver["seed"]))
+    series = FourierSeries(2.0 * np.pi * float(settings["base_frequency_hz"]), int(settings["harmonics"]),
+                           len(excited))
+    period = series.period
+    objective_grid = _Grid(series, np.linspace(0.0, period, int(solver["objective_samples"]), endpoint=False),
+                           excited, n, start)
+    limit_grid = _Grid(series, np.linspace(0.0, period, int(solver["limit_samples"]), endpoint=False),
+                       excited, n, start)
+    objective = str(settings["objective"])
+
+    def f(x: np.ndarray) -> np.ndarray:
+        return np.array([ident.state_gradient(*objective_grid.state(x), objective)[0]])
+
+    def df(x: np.ndarray) -> np.ndarray:
+        _, dq, dqd, dqdd = ident.state_gradient(*objective_grid.state(x), objective)
+        return objective_grid.chain(dq, dqd, dqdd).reshape(1, -1)
+
+    def torque(x: np.ndarray) -> np.ndarray:
+        return dynamics.inverse_dynamics(*objective_grid.state(x)).ravel()
+
+    def torque_jac(x: np.ndarray) -> np.ndarray:
+        return _torque_jacobian(nominal, *objective_grid.state(x), objective_grid)
+
+    x0 = _scaled_start(series, limit_grid, lim, excited, int(solver["seed"]))
+    initial = x0.copy()
+    active: list[float] = []  # times (one period) where the clearance is constrained
+    x = x0
+    status, iterations = "not run", 0
+    for _ in range(ACTIVE_SET_ROUNDS + 1):
+        x, status, iterations = _solve(series, limit_grid, lim, excited, f, df, torque, torque_jac,
+                                       n, objective_grid, clearance, active, margin, x, int(solver["max_iterations"]))
+        short = _short_samples(clearance, limit_grid, x, margin)
+        log(f"IPOPT: {status} after {iterations} iterations; {len(short)} new samples short of clearance")
+        if not short:
+            break
+        active.extend(short)
+
+    rate = float(settings["sample_rate_hz"])
+    time = np.arange(int(round(float(settings["duration_s"]) * rate))) / rate
+    one_period = time < period - 0.5 / rate
+    scale = 1.0
+    for _ in range(40):
+        trajectory = _trajectory(series, x * scale, time, start, excited, n)
+        failures, tau, distances = check_trajectory(nominal, _head(trajectory, one_period), lim, start, clearance,
+                                                    margin, excited)
+        if not failures:
+            break
+        log(f"dense check at {rate:g} Hz failed ({', '.join(failures)}); scaling the motion by {scale * 0.97:.3g}")
+        scale *= 0.97
+    else:
+        raise RuntimeError(f"the design '{design.name}' violates {failures} even scaled to {scale:.3g}")
+    x = x * scale
+    tau = dynamics.inverse_dynamics(trajectory.q, trajectory.qd, trajectory.qdd)
+    log(f"designed in {clock.perf_counter() - started:.1f} s")  # the log, not the outputs: those stay byte-identical
+    head = _head(trajectory, one_period)
+    before = _trajectory(series, initial, time, start, excited, n)
+    before_head = _head(before, one_period)
+    _, closest = clearance.closest(head.q[int(np.argmin(distances))])
+    summary = {
+        "objective": objective,
+        "identified": {"inertial": "base parameters of the moving bodies", "effects": effects,
+                       "base_parameters": ident.size},
+        "objective_value": {"initial": round(f(initial)[0], 6), "designed": round(f(x)[0], 6)},
+        "condition_number": {"initial": round(condition_number(ident.matrix(before_head.q, before_head.qd,
+                                                                             before_head.qdd)), 4),
+                             "designed": round(condition_number(ident.matrix(head.q, head.qd, head.qdd)), 4)},
+        "solver": {"status": status, "iterations": iterations, "active_clearance_samples": len(active),
+                   "scaled_by": round(scale, 6)},
+        "min_clearance_m": round(float(distances.min()), 6),
+        "closest_pair": closest,
+        "peak": {
+            "torque_Nm": _per_joint(joints, np.abs(tau).max(axis=0)),
+            "torque_limit_Nm": _per_joint(joints, lim.torque),
+            "velocity_rad_s": _per_joint(joints, np.abs(trajectory.qd).max(axis=0)),
+            "velocity_limit_rad_s": _per_joint(joints, lim.velocity),
+            "acceleration_rad_s2": _per_joint(joints, np.abs(trajectory.qdd).max(axis=0)),
+            "acceleration_limit_rad_s2": _per_joint(joints, lim.acceleration),
+            "position_min_rad": _per_joint(joints, trajectory.q.min(axis=0)),
+            "position_max_rad": _per_joint(joints, trajectory.q.max(axis=0)),
+            "position_lower_rad": _per_joint(joints, lim.lower),
+            "position_upper_rad": _per_joint(joints, lim.upper),
+        },
+    }
+    return DesignResult(design=design, joints=list(joints), coefficients=x.reshape(len(excited), -1), start=start,
+                        limits=lim, trajectory=trajectory, torque=tau, clearance=distances, closest_pair=closest,
+                        summary=summary)
+
+
+def _per_joint(joints: Sequence[str], values: np.ndarray) -> dict[str, float]:
+    return {j: round(float(v), 6) for j, v in zip(joints, values, strict=True)}
+
+
+def _head(trajectory: Trajectory, keep: np.ndarray) -> Trajectory:
+    return Trajectory(trajectory.time[keep], trajectory.q[keep], trajectory.qd[keep], trajectory.qdd[keep])
+
+
+def _trajectory(series: FourierSeries, x: np.ndarray, time: np.ndarray, start: np.ndarray, excited: np.ndarray,
+                n: int) -> Trajectory:
+    q = np.tile(start, (len(time), 1))
+    qd, qdd = np.zeros_like(q), np.zeros_like(q)
+    qe, qde, qdde = series.motion(x, time, start[excited])
+    q[:, excited], qd[:, excited], qdd[:, excited] = qe, qde, qdde
+    return Trajectory(time, q, qd, qdd)
+
+
+def _short_samples(clearance: Clearance, grid: _Grid, x: np.ndarray, margin: float) -> list[float]:
+    """Times of the grid where the clearance is below the margin: one per run of consecutive samples (its worst)."""
+    distances = clearance.distances(grid.state(x)[0])
+    short = distances < margin
+    out = []
+    k = 0
+    while k < len(short):
+        if short[k]:
+            end = k
+            while end + 1 < len(short) and short[end + 1]:
+                end += 1
+            out.append(float(grid.time[k + int(np.argmin(distances[k : end + 1]))]))
+            k = end + 1
+        else:
+            k += 1
+    return out
+
+
+def _solve(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray, f, df, torque, torque_jac,
+           n: int, objective_grid: _Grid, clearance: Clearance, active: Sequence[float], margin: float,
+           x0: np.ndarray, max_iterations: int) -> tuple[np.ndarray, str, int]:
+    x = ca.MX.sym("x", series.size)
+    constraints, lower, upper = [], [], []
+
+    def add(expr: Any, lo: np.ndarray, hi: np.ndarray) -> None:
+        constraints.append(expr)
+        lower.append(np.asarray(lo, dtype=float).ravel())
+        upper.append(np.asarray(hi, dtype=float).ravel())
+
+    rest = series.rest_constraints()
+    add(ca.mtimes(ca.DM(rest), x), np.zeros(len(rest)), np.zeros(len(rest)))
+    count = len(grid.time)
+    for state_map, lo, hi in ((grid.maps[0], lim.lower - grid.start, lim.upper - grid.start),
+                              (grid.maps[1], -lim.velocity, lim.velocity),
+                              (grid.maps[2], -lim.acceleration, lim.acceleration)):
+        rows = state_map[:, excited].reshape(-1, series.size)
+        add(ca.mtimes(ca.DM(rows), x), np.tile(lo[excited], count), np.tile(hi[excited], count))
+    tau_count = len(objective_grid.time) * n
+    callbacks = [_Numeric("objective", series.size, 1, f, df),
+                 _Numeric("torque", series.size, tau_count, torque, torque_jac)]
+    add(callbacks[1](x), np.tile(-lim.torque, len(objective_grid.time)), np.tile(lim.torque, len(objective_grid.time)))
+    if active:
+        active_grid = _Grid(series, np.asarray(active), excited, n, grid.start)
+
+        def distance(xv: np.ndarray) -> np.ndarray:
+            return clearance.distances(active_grid.state(xv)[0])
+
+        def distance_jac(xv: np.ndarray) -> np.ndarray:
+            q = active_grid.state(xv)[0]
+            return np.stack([clearance.gradient(q[k]) @ active_grid.maps[0][k] for k in range(len(q))])
+
+        callbacks.append(_Numeric("clearance", series.size, len(active), distance, distance_jac))
+        add(callbacks[2](x), np.full(len(active), margin), np.full(len(active), np.inf))
+    nlp = {"x": x, "f": callbacks[0](x), "g": ca.vertcat(*constraints)}
+    options = {"ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": max_iterations,
+               "ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False, "ipopt.tol": 1e-6,
+               "ipopt.acceptable_tol": 1e-3}
+    solver = ca.nlpsol("excitation", "ipopt", nlp, options)
+    result = solver(x0=x0, lbg=np.concatenate(lower), ubg=np.concatenate(upper))
+    stats = solver.stats()
+    return np.asarray(result["x"]).ravel(), str(stats["return_status"]), int(stats["iter_count"])

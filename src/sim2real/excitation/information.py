@@ -1,0 +1,151 @@
+"""What a trajectory lets the fit identify: the regressor of the current model on its samples.
+
+The columns are those the fit estimates (:mod:`sim2real.fitting`): Pinocchio's inertial regressor of
+the moving bodies plus each effect's columns (:meth:`sim2real.effects.base.Effect.columns`) at its
+default nonlinear parameters. Effects that move the inertias (``link_inertia``, ``payload``) live in the
+inertial columns; a delay has none. Without a friction effect in the model, viscous and Coulomb friction
+are added: every identification of a real arm has to separate friction from inertia.
+
+Not all of those columns are identifiable from joint torques: the **base** columns are chosen once, on
+random states spanning the limits, by QR with column pivoting (Gautier 1990): a set of independent
+columns whose span holds every other. A trajectory is then judged on its base columns, each joint's rows
+divided by that joint's noise floor (so a wrist 10x quieter weighs as much as a shoulder):
+
+- ``d_optimal``: -log det(W'W), the volume of the parameters' confidence ellipsoid;
+- ``condition``: log of the condition number of W with unit-norm columns (invariant to the units).
+
+Both come with their gradient with respect to each sample's state: the columns of a sample depend on
+that sample alone, so one finite difference per state entry and sample gives it (batched).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import scipy.linalg
+
+from sim2real.effects import EFFECTS
+from sim2real.effects.base import Effect, Signals
+from sim2real.fitting import NominalModel
+
+INERTIAL_EFFECTS = ("link_inertia", "payload")  # their columns are (combinations of) the inertial ones
+DEFAULT_FRICTION = ("viscous_friction", "coulomb_friction")
+BASE_SAMPLES = 400
+BASE_TOLERANCE = 1e-6  # |R_ii| / |R_00| of the unit-norm columns below this: a dependent column
+FD_STEP = 1e-6
+
+
+def identification_effects(model_effects: Sequence[str]) -> list[str]:
+    """The effects whose columns the design must make identifiable (model order, friction added if absent)."""
+    names = [e for e in model_effects if e in EFFECTS and e not in INERTIAL_EFFECTS and not EFFECTS[e].time_shift]
+    if not any("friction" in e for e in names):
+        names += [e for e in DEFAULT_FRICTION if e not in names]
+    return names
+
+
+class Identification:
+    """The identification columns of ``effects`` on the nominal model, reduced to a base."""
+
+    def __init__(self, nominal: NominalModel, effects: Sequence[str], noise_floor: np.ndarray | None,
+                 lower: np.ndarray, upper: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray,
+                 seed: int = 0) -> None:
+        self.nominal = nominal
+        self.dynamics = nominal.dynamics
+        self.effect_names = list(effects)
+        self.effects: list[Effect] = [EFFECTS[name] for name in self.effect_names]
+        n = self.dynamics.n
+        self.row_weight = np.ones(n) if noise_floor is None else 1.0 / np.asarray(noise_floor, dtype=float)
+        rng = np.random.default_rng(seed)
+        q = rng.uniform(lower, upper, size=(BASE_SAMPLES, n))
+        qd = rng.uniform(-velocity, velocity, size=(BASE_SAMPLES, n))
+        qdd = rng.uniform(-acceleration, acceleration, size=(BASE_SAMPLES, n))
+        probe = self._signals(q, qd, qdd)
+        self._nonlinear = [effect.nonlinear_init(probe) for effect in self.effects]
+        full = self.full(q, qd, qdd).reshape(-1, self.width)
+        norms = np.linalg.norm(full, axis=0)
+        active = np.flatnonzero(norms > 1e-9 * norms.max())
+        _, r, pivots = scipy.linalg.qr(full[:, active] / norms[active], mode="economic", pivoting=True)
+        diagonal = np.abs(np.diag(r))
+        rank = int(np.sum(diagonal > BASE_TOLERANCE * diagonal[0]))
+        self.base = np.sort(active[pivots[:rank]])  # base columns in their natural order
+
+    @property
+    def size(self) -> int:
+        return len(self.base)
+
+    def _signals(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> Signals:
+        count = len(q)
+        dynamics = self.dynamics
+        needs_nominal = any(effect.scales_judged for effect in self.effects)
+        tau_nominal = dynamics.inverse_dynamics(q, qd, qdd) if needs_nominal else np.zeros_like(q)
+        return Signals(joint_names=list(dynamics.joint_names), time=np.arange(count, dtype=float), q=q, qd=qd,
+                       qdd=qdd, tau_nominal=tau_nominal, segments=[slice(0, count)],
+                       regressor_fn=lambda: dynamics.regressor(q, qd, qdd), nominal=self.nominal.info)
+
+    @property
+    def width(self) -> int:
+        return self._width
+
+    def full(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """Every column (N, n, p): the inertial regressor, then each effect's columns."""
+        signals = self._signals(q, qd, qdd)
+        blocks = [signals.regressor]
+        nonlinear = getattr(self, "_nonlinear", None)
+        for k, effect in enumerate(self.effects):
+            init = nonlinear[k] if nonlinear is not None else effect.nonlinear_init(signals)
+            blocks.append(effect.columns(signals, {}, init)[0])
+        out = np.concatenate(blocks, axis=2)
+        self._width = out.shape[2]
+        return out
+
+    def columns(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """The weighted base columns (N, n, r): each joint's rows divided by its noise floor."""
+        return self.full(q, qd, qdd)[:, :, self.base] * self.row_weight[None, :, None]
+
+    def matrix(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """The stacked weighted regressor W (N*n, r)."""
+        return self.columns(q, qd, qdd).reshape(-1, self.size)
+
+    def state_gradient(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, objective: str
+                       ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """The objective and its gradient with respect to q, qd and qdd of each sample (each (N, n))."""
+        count, n = q.shape
+        base = self.columns(q, qd, qdd)
+        value, dw = objective_and_gradient(base.reshape(-1, self.size), objective)
+        dw = dw.reshape(base.shape)
+        # Perturb every state entry of every sample at once: 3n copies of the samples.
+        states = [np.repeat(a[None], 3 * n, axis=0) for a in (q, qd, qdd)]
+        for which in range(3):
+            for j in range(n):
+                states[which][which * n + j, :, j] += FD_STEP
+        moved = self.columns(*(s.reshape(-1, n) for s in states)).reshape(3 * n, count, n, self.size)
+        grad = np.einsum("scjr,cjr->sc", moved - base[None], dw) / FD_STEP  # (3n, N)
+        return value, grad[:n].T, grad[n : 2 * n].T, grad[2 * n :].T
+
+
+def objective_and_gradient(w: np.ndarray, objective: str) -> tuple[float, np.ndarray]:
+    """The design objective (minimised) of the stacked regressor and its gradient with respect to it."""
+    norms = np.linalg.norm(w, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    v = w / norms
+    if objective == "d_optimal":
+        # -log det(W'W) = -log det(V'V) - 2 sum log norms; d/dW = -2 W (W'W)^-1 = -2 V (V'V)^-1 / norms.
+        gram = v.T @ v
+        chol = np.linalg.cholesky(gram + 1e-12 * np.eye(len(gram)))
+        value = -2.0 * float(np.sum(np.log(np.diag(chol)))) - 2.0 * float(np.sum(np.log(norms)))
+        return value, -2.0 * np.linalg.solve(gram, v.T).T / norms
+    if objective == "condition":
+        u, s, vt = np.linalg.svd(v, full_matrices=False)
+        value = float(np.log(s[0] / s[-1]))
+        dv = np.outer(u[:, 0], vt[0]) / s[0] - np.outer(u[:, -1], vt[-1]) / s[-1]
+        # Through the normalisation: d v_c / d w_c = (I - v_c v_c') / |w_c|.
+        return value, (dv - v * np.sum(v * dv, axis=0)) / norms
+    raise ValueError(f"unknown objective {objective}")
+
+
+def condition_number(w: np.ndarray) -> float:
+    """Condition number of the stacked regressor with unit-norm columns (independent of parameter units)."""
+    norms = np.linalg.norm(w, axis=0)
+    s = np.linalg.svd(w / np.where(norms > 0, norms, 1.0), compute_uv=False)
+    return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")

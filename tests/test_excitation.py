@@ -1,0 +1,177 @@
+"""Excitation design (sim2real.excitation): the built trajectory respects every limit at every sample, is
+collision-free on the built MJCF, is deterministic, and bad configs get errors naming file, key and fix."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from buildtree import run_snakemake
+from collision_usd_build import fast_panda_build
+from sim2real.dynamics import RigidBodyModel
+from sim2real.errors import InputError
+from sim2real.excitation.config import load_designs
+from sim2real.excitation.files import build_excitation
+
+TARGET = "results/panda/excitation/identification.csv"
+
+
+@pytest.fixture(scope="module")
+def designed(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    tree = fast_panda_build(repo_root, tmp_path_factory.mktemp("excitation"))
+    run_snakemake(tree, TARGET)
+    return tree
+
+
+def _config(tree: Path) -> dict:
+    return yaml.safe_load((tree / "configs/panda/excitation.yaml").read_text())
+
+
+def test_every_sample_within_the_limits_and_margins(designed: Path) -> None:
+    table = pd.read_csv(designed / TARGET)
+    config = _config(designed)
+    settings = {**config["defaults"], **(config["designs"]["identification"] or {})}
+    joints = config["joints"]
+    margins = settings["margins"]
+    q = table[[f"q.{j}" for j in joints]].to_numpy()
+    qd = table[[f"qd.{j}" for j in joints]].to_numpy()
+    qdd = table[[f"qdd.{j}" for j in joints]].to_numpy()
+    assert len(table) == settings["duration_s"] * settings["sample_rate_hz"]
+    assert np.allclose(np.diff(table["time"]), 1.0 / settings["sample_rate_hz"])
+    robot = yaml.safe_load((designed / "configs/panda/robot.yaml").read_text())
+    model = RigidBodyModel(designed / "results/panda/panda.urdf", joints, armature={j: 0.1 for j in joints})
+    tol = 1e-7
+    assert np.all(q >= model.lower + margins["position_rad"] - tol)
+    assert np.all(q <= model.upper - margins["position_rad"] + tol)
+    assert np.all(np.abs(qd) <= (1 - margins["velocity_fraction"]) * model.velocity_limit + tol)
+    assert np.all(np.abs(qdd) <= (1 - margins["acceleration_fraction"]) * np.asarray(settings["acceleration_limit"]) + tol)
+    torque = model.inverse_dynamics(q, qd, qdd)
+    assert np.all(np.abs(torque) <= (1 - margins["torque_fraction"]) * model.effort_limit + tol)
+    # Starts and ends at rest at the start pose, and the series is consistent (qd is the derivative of q).
+    home = np.array([robot["home"][j] for j in joints])
+    assert np.allclose(q[0], home) and np.allclose(qd[0], 0, atol=1e-9) and np.allclose(qdd[0], 0, atol=1e-9)
+    dt = 1.0 / settings["sample_rate_hz"]
+    assert np.allclose(np.gradient(q, dt, axis=0)[1:-1], qd[1:-1], atol=1e-4)
+    # It moves: every excited joint uses a good part of its usable velocity.
+    assert np.all(np.abs(qd).max(axis=0) > 0.3 * (1 - margins["velocity_fraction"]) * model.velocity_limit)
+    trajectory = yaml.safe_load((designed / "results/panda/excitation/identification.trajectory.yaml").read_text())
+    assert trajectory["joint_names"] == joints
+    end = trajectory["points"][-1]
+    assert end["time_from_start"] == {"sec": int(settings["duration_s"]), "nanosec": 0}
+    assert np.allclose(end["positions"], home) and not any(end["velocities"])
+
+
+def _min_distance(tree: Path, joints: list[str], q: np.ndarray, obstacles: list[dict]) -> float:
+    """Smallest distance between collision geoms that may touch, by mj_geomDistance (independent of the design's
+    own contact-based check): pairs on different weld groups, not parent and child, the base and its first link
+    excluded; the obstacles against every moving link."""
+    spec = mujoco.MjSpec.from_file(str(tree / "results/panda/mjcf/panda.xml"))
+    for obstacle in obstacles:
+        assert obstacle["type"] == "plane"
+        spec.worldbody.add_geom(name=obstacle["name"], type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1],
+                                pos=obstacle["point"], group=4)
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, 0)  # the joints not designed (the fingers) stay at home
+    geoms = [g for g in range(model.ngeom) if model.geom_group[g] in (3, 4)]
+    weld = model.body_weldid
+
+    def may_touch(a: int, b: int) -> bool:
+        wa, wb = weld[model.geom_bodyid[a]], weld[model.geom_bodyid[b]]
+        if wa == wb:
+            return False
+        pa, pb = weld[model.body_parentid[wa]], weld[model.body_parentid[wb]]
+        return pa != wb and pb != wa
+
+    pairs = [(a, b) for i, a in enumerate(geoms) for b in geoms[i + 1:] if may_touch(a, b)]
+    qadr = [model.jnt_qposadr[model.joint(j).id] for j in joints]
+    fromto = np.zeros(6)
+    best = np.inf
+    for row in q:
+        data.qpos[qadr] = row
+        mujoco.mj_kinematics(model, data)
+        best = min(best, min(mujoco.mj_geomDistance(model, data, a, b, 0.05, fromto) for a, b in pairs))
+    return best
+
+
+def test_collision_free_on_the_built_mjcf(designed: Path) -> None:
+    config = _config(designed)
+    joints = config["joints"]
+    table = pd.read_csv(designed / TARGET)
+    q = table[[f"q.{j}" for j in joints]].to_numpy()[::25]
+    margin = config["defaults"]["margins"]["collision_m"]
+    distance = _min_distance(designed, joints, q, config["defaults"]["obstacles"])
+    assert distance >= margin - 1e-3, distance  # a 25 ms grid can miss the closest sample by a hair
+    summary = yaml.safe_load((designed / "results/panda/excitation/identification.json").read_text())
+    assert summary["min_clearance_m"] >= margin
+    assert summary["condition_number"]["designed"] < summary["condition_number"]["initial"]
+    report = (designed / "results/panda/excitation/identification.md").read_text()
+    assert "Closest approach to collision" in report and "condition number" in report.lower()
+
+
+def test_same_inputs_same_bytes(designed: Path) -> None:
+    files = ["identification.csv", "identification.trajectory.yaml", "identification.md", "identification.png"]
+    before = {f: (designed / "results/panda/excitation" / f).read_bytes() for f in files}
+    run_snakemake(designed, TARGET, "--forcerun", "excitation")
+    for f in files:
+        assert (designed / "results/panda/excitation" / f).read_bytes() == before[f], f
+
+
+def _broken(tree: Path, tmp_path: Path, edit) -> Path:
+    config = _config(tree)
+    edit(config)
+    path = tmp_path / "excitation.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return path
+
+
+def _build(tree: Path, config: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    build_excitation("panda", config, "identification", tree / "results/panda/panda.urdf",
+                     tree / "results/panda/mjcf/panda.xml", tree / "configs/panda/robot.yaml",
+                     tree / "configs/panda/model.yaml",
+                     {k: str(out / f"x.{k}") for k in ("csv", "trajectory", "json", "md", "figure")})
+
+
+def test_duration_shorter_than_a_period(designed: Path, tmp_path: Path) -> None:
+    path = _broken(designed, tmp_path, lambda c: c["defaults"].update(duration_s=5.0))
+    with pytest.raises(InputError, match=r"designs/identification/duration_s: 5 s is shorter than one period") as err:
+        load_designs(path)
+    assert str(path) in str(err.value) and "Fix:" in str(err.value)
+    path = _broken(designed, tmp_path, lambda c: c["defaults"].update(duration_s=15.0))
+    with pytest.raises(InputError, match=r"1.5 periods.*Fix: use duration_s 20 \(2 periods\)"):
+        load_designs(path)
+
+
+def test_limits_that_leave_no_motion(designed: Path, tmp_path: Path) -> None:
+    path = _broken(designed, tmp_path, lambda c: c["defaults"]["margins"].update(position_rad=2.0))
+    with pytest.raises(InputError, match=r"margins/position_rad: a margin of 2 rad leaves panda_joint2 no feasible"):
+        _build(designed, path, tmp_path)
+    path = _broken(designed, tmp_path, lambda c: c["defaults"]["margins"].update(torque_fraction=0.9))
+    with pytest.raises(InputError, match=r"margins/torque_fraction: holding the start pose already takes"):
+        _build(designed, path, tmp_path)
+    assert not (tmp_path / "out").exists()  # nothing written
+
+
+def test_obstacle_that_contains_the_start_pose(designed: Path, tmp_path: Path) -> None:
+    box = {"name": "shelf", "type": "box", "center": [0.3, 0.0, 0.6], "half_size": [0.2, 0.2, 0.2]}
+
+    def add_box(config: dict) -> None:
+        config["defaults"]["obstacles"] = copy.deepcopy(config["defaults"]["obstacles"]) + [box]
+
+    path = _broken(designed, tmp_path, add_box)
+    with pytest.raises(InputError, match=r"designs/identification/obstacles: obstacle 'shelf' contains the start pose"):
+        _build(designed, path, tmp_path)
+    assert not (tmp_path / "out").exists()
+
+
+def test_schema_names_the_key(designed: Path, tmp_path: Path) -> None:
+    path = _broken(designed, tmp_path, lambda c: c["defaults"].update(objective="a_optimal"))
+    with pytest.raises(InputError, match=r"key 'defaults/objective'"):
+        load_designs(path)
