@@ -5,6 +5,7 @@ import glob
 import os
 
 import sim2real.collision as _sim2real_collision
+import sim2real.excitation.separation as _sim2real_separation
 import sim2real.fleet as _sim2real_fleet
 import sim2real.io as _sim2real_io
 import sim2real.urdf as _sim2real_urdf
@@ -280,6 +281,16 @@ def bag_topics(wildcards):
     return ros2_topics(measurement_list(wildcards.robot))
 
 
+def lab_run_excitation(wildcards):
+    """The designed excitation a lab run plays (lab.yaml `runs: [{..., excitation: <design>}]`), if any."""
+    from sim2real.lab import excitation_design
+
+    design = excitation_design(
+        f"configs/{wildcards.robot}/lab.yaml", wildcards.scenario, wildcards.run
+    )
+    return [f"results/{wildcards.robot}/excitation/{design}.csv"] if design else []
+
+
 def lab_truth_targets(robot):
     """truth.yaml of every lab scenario the robot's campaigns measure (no comparing rule reads it)."""
     from sim2real.measurements import load_measurement_list
@@ -305,6 +316,13 @@ def optional_model_ladder(wildcards):
     """The model ladder the design makes identifiable, when the robot has one."""
     path = model_ladder(wildcards.robot)
     return [path] if os.path.exists(path) else []
+
+
+def separation_ladder(wildcards):
+    """The diagnosis a separating design (separate-<a>-vs-<b>) reads its two fitted candidates from."""
+    if _sim2real_separation.confounded_pair(wildcards.design) is None:
+        return []
+    return [f"results/{wildcards.robot}/sysid/ladder.json"]
 
 
 def excitation_targets(robot):

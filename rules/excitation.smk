@@ -1,6 +1,8 @@
 # Excitation design: configs/{robot}/excitation.yaml -> an optimised, collision-checked identification
 # trajectory (CSV at the controller rate, a ROS 2 JointTrajectory, a report), for the model of
 # configs/{robot}/model.yaml on the built URDF and MJCF (CoACD collision parts).
+# A design named separate-<a>-vs-<b> is the run that tells two candidates the diagnosis could not tell apart
+# (gap.md names it): it reads their fits from the ladder.
 
 
 rule excitation:
@@ -10,6 +12,7 @@ rule excitation:
         mjcf="results/{robot}/mjcf/{robot}.xml",
         robot_config=lambda w: robot_config(w.robot),
         model=optional_model_ladder,
+        ladder=separation_ladder,
     output:
         csv="results/{robot}/excitation/{design}.csv",
         trajectory="results/{robot}/excitation/{design}.trajectory.yaml",

@@ -10,6 +10,7 @@ rule lab_run:
     input:
         mjcf="results/{robot}/mjcf/{robot}.xml",
         config="configs/{robot}/lab.yaml",
+        excitation=lab_run_excitation,
     output:
         run="results/{robot}/lab/{scenario}/{run}.parquet",
         meta="results/{robot}/lab/{scenario}/{run}.yaml",

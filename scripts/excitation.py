@@ -14,4 +14,5 @@ build_excitation(
     snakemake.input.robot_config,
     snakemake.input.model[0] if snakemake.input.model else None,
     {key: str(value) for key, value in snakemake.output.items()},
+    ladder=snakemake.input.ladder[0] if snakemake.input.ladder else None,
 )

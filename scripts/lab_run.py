@@ -12,4 +12,5 @@ run_lab_scenario_run(
     snakemake.wildcards.scenario,
     snakemake.wildcards.run,
     snakemake.output.run,
+    excitation=snakemake.input.excitation[0] if snakemake.input.excitation else None,
 )

@@ -175,3 +175,55 @@ def test_schema_names_the_key(designed: Path, tmp_path: Path) -> None:
     path = _broken(designed, tmp_path, lambda c: c["defaults"].update(objective="a_optimal"))
     with pytest.raises(InputError, match=r"key 'defaults/objective'"):
         load_designs(path)
+
+
+def test_the_run_that_separates_confounded_candidates(designed: Path, tmp_path: Path) -> None:
+    """Too slow a run cannot tell viscous from Coulomb friction; gap.md names the separating design's target;
+    once the lab has played that run and it is added to the fit runs, the diagnosis tells them apart."""
+    from sim2real.lab import run_lab_scenario_run
+    from sim2real.sysid import run_sysid
+
+    lab = yaml.safe_load((designed / "configs/panda/lab.yaml").read_text())
+    scenario = lab["scenarios"]["slow_viscous"]
+    scenario["duration_s"] = 8.0
+    separating = "separate-viscous_friction-vs-coulomb_friction"
+    scenario["runs"] = [{"name": "fit", "seed": 11, "role": "fit"}, {"name": "holdout", "seed": 12, "role": "holdout"},
+                        {"name": "separating", "seed": 13, "role": "fit", "excitation": separating}]
+    lab_config = tmp_path / "lab.yaml"
+    lab_config.write_text(yaml.safe_dump(lab))
+    model = tmp_path / "model.yaml"
+    model.write_text(yaml.safe_dump({"effects": [], "fit": {"fit_rate_hz": 100.0, "bootstrap_replicates": 20,
+                                                            "refine_max_samples": 1500}}))
+    mjcf, urdf, robot = (designed / "results/panda/mjcf/panda.xml", designed / "results/panda/panda.urdf",
+                         designed / "configs/panda/robot.yaml")
+
+    def runs(*names: str) -> Path:
+        listing = tmp_path / f"{'_'.join(names)}.yaml"
+        listing.write_text(yaml.safe_dump({"runs": [
+            {"name": r, "path": str(tmp_path / f"{r}.parquet"), "role": "holdout" if r == "holdout" else "fit"}
+            for r in names]}))
+        return listing
+
+    for run in ("fit", "holdout"):
+        run_lab_scenario_run(mjcf, lab_config, "panda", "slow_viscous", run, tmp_path / f"{run}.parquet")
+    ladder = tmp_path / "ladder.json"
+    before = run_sysid("panda", urdf, robot, model, runs("fit", "holdout"), ladder, tmp_path / "p.yaml",
+                       tmp_path / "c.yaml")["diagnosis"]
+    assert ["viscous_friction", "coulomb_friction"] in before["confounded"]
+    assert f"`snakemake results/panda/excitation/{separating}.csv`" in before["verdict"]
+
+    outputs = {k: str(tmp_path / f"separating.{k}") for k in ("csv", "trajectory", "json", "md", "figure")}
+    result = build_excitation("panda", designed / "configs/panda/excitation.yaml", separating, urdf, mjcf, robot,
+                              model, outputs, ladder=ladder)
+    difference = result.summary["separation"]["difference_x_floor"]
+    assert difference["designed"] > 2 * difference["initial"]  # the design sought the difference out
+    assert "tells viscous_friction from coulomb_friction apart" in Path(outputs["md"]).read_text()
+
+    run_lab_scenario_run(mjcf, lab_config, "panda", "slow_viscous", "separating", tmp_path / "separating.parquet",
+                         excitation=outputs["csv"])
+    after = run_sysid("panda", urdf, robot, model, runs("fit", "separating", "holdout"), tmp_path / "ladder2.json",
+                      tmp_path / "p.yaml", tmp_path / "c.yaml")["diagnosis"]
+    assert after["confounded"] == []
+    assert after["status"] == "add_effect" and after["candidates"][0]["effect"] == "viscous_friction"
+    coulomb = next(c for c in after["candidates"] if c["effect"] == "coulomb_friction")
+    assert coulomb["evidence"]["x_floor_after"] > after["candidates"][0]["evidence"]["x_floor_after"] + 0.3

@@ -38,6 +38,7 @@ import numpy as np
 from sim2real import fitting
 from sim2real.effects import EFFECTS
 from sim2real.effects.base import Signals, per_joint_dict
+from sim2real.excitation.separation import separation_name
 
 DEFAULT_DIAGNOSIS: dict[str, float] = {
     "min_explained": 0.3,  # a candidate must remove this share of the holdout residual beyond the noise floor
@@ -238,6 +239,10 @@ def diagnose(
         if own is not None:
             evidence["per_joint_own_term_x_floor"] = per_joint_dict(joints, own, 3)
         evidence["fitted"] = result.values[name]
+        # Its own coefficients (the linear ones added to the nominal model, and the nonlinear ones): what a
+        # design that separates two confounded candidates predicts each of them adds (sim2real.excitation).
+        evidence["coefficients"] = {"linear": [float(v) for v in result.theta.get(name, [])],
+                                    "nonlinear": [float(v) for v in result.nonlinear.get(name, [])]}
         evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
         residuals_after[name] = scaled
         ranked_candidates.append({
@@ -272,7 +277,11 @@ def diagnose(
         after = best["evidence"]["per_joint_x_floor_after"]
         twins = [b for a, b in confounded if a == best["effect"]] + [a for a, b in confounded if b == best["effect"]]
         twin_text = (f" These data cannot tell it apart from {', '.join(twins)} (the same prediction to within "
-                     f"{CONFOUNDED_NOISE_FRACTION:g}x the noise floor)." if twins else "")
+                     f"{CONFOUNDED_NOISE_FRACTION:g}x the noise floor). The run that would: "
+                     + "; ".join(f"`snakemake results/{robot}/excitation/{separation_name(best['effect'], twin)}.csv`"
+                                 for twin in twins)
+                     + " designs it (the motion on which their fitted predictions differ most, within the limits of "
+                     f"configs/{robot}/excitation.yaml); record it and add it to the fit runs." if twins else "")
         if best["decided_on"] == "arm":
             reach = (f"it explains {best['explained']:.0%} of the holdout residual ({best['explained_beyond_noise']:.0%} "
                      f"of what lies above the noise floor, each joint in units of its own floor), bringing it from "

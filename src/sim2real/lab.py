@@ -463,8 +463,13 @@ def _friction_now(data: mujoco.MjData, qd: np.ndarray, friction: Mapping[str, An
 def simulate_run(
     mjcf_path: str | Path, joints: Sequence[str], scenario: Mapping[str, Any], seed: int,
     config_path: str | Path | None = None,
+    trajectory: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, Any]]:
-    """Simulate one run of a scenario: (time, {column kind: (N, n)}, resolved hidden values)."""
+    """Simulate one run of a scenario: (time, {column kind: (N, n)}, resolved hidden values).
+
+    ``trajectory`` (time, q, qd, qdd at the scenario's rate): the desired motion to play instead of the
+    scenario's random Fourier series (a designed excitation, :func:`read_excitation`).
+    """
     path = Path(config_path) if config_path else None
     effects = dict(scenario.get("effects") or {})
     unknown = [e for e in effects if e not in EFFECTS]
@@ -487,9 +492,13 @@ def simulate_run(
     lower = nominal.jnt_range[[nominal.joint(j).id for j in joints], 0]
     upper = nominal.jnt_range[[nominal.joint(j).id for j in joints], 1]
     vel_limit = _per_joint(scenario.get("velocity_limit", 2.0), joints, "velocity_limit", path)
-    steps = int(round(float(scenario["duration_s"]) * rate))
-    time = np.arange(steps) * dt
-    q_des, qd_des, qdd_des = fourier_excitation(time, lower, upper, vel_limit, scenario["excitation"], seed)
+    if trajectory is None:
+        steps = int(round(float(scenario["duration_s"]) * rate))
+        time = np.arange(steps) * dt
+        q_des, qd_des, qdd_des = fourier_excitation(time, lower, upper, vel_limit, scenario["excitation"], seed)
+    else:
+        time, q_des, qd_des, qdd_des = trajectory
+        steps = len(time)
 
     friction = _joint_friction(effects, joints, path, truth)
     passive = friction["gaz"] is not None or friction["stribeck"] is not None
@@ -572,10 +581,37 @@ def simulate_run(
     return time, {k: v for k, v in signals.items() if k in columns}, truth
 
 
+def excitation_design(lab_config: str | Path, scenario: str, run: str) -> str | None:
+    """The designed excitation a run plays (its ``excitation`` key), or None for the scenario's random series."""
+    runs = {r["name"]: r for r in scenario_runs(lab_config, scenario)}
+    return runs[run].get("excitation") if run in runs else None
+
+
+def read_excitation(path: str | Path, joints: Sequence[str], rate_hz: float, where: str,
+                    config_path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A designed excitation CSV (time, q.<j>, qd.<j>, qdd.<j>) as the desired motion of a lab run."""
+    import pandas as pd
+
+    table = pd.read_csv(path)
+    missing = [f"{kind}.{j}" for kind in ("q", "qd", "qdd") for j in joints if f"{kind}.{j}" not in table]
+    if missing:
+        raise InputError(path, f"column {missing[0]}", "missing: the design does not move the lab's joints",
+                         f"list the lab's joints ({', '.join(joints)}) in the excitation.yaml `joints`")
+    time = table["time"].to_numpy()
+    if len(time) > 1 and abs(float(np.median(np.diff(time))) * rate_hz - 1.0) > 1e-6:
+        raise InputError(config_path, where, f"the design is sampled at {1.0 / float(np.median(np.diff(time))):.6g} Hz, "
+                         f"the scenario at {rate_hz:g} Hz", "give both the same sample rate")
+    return (time, *(table[[f"{kind}.{j}" for j in joints]].to_numpy() for kind in ("q", "qd", "qdd")))
+
+
 def run_lab_scenario_run(
     mjcf_path: str | Path, lab_config: str | Path, robot: str, scenario: str, run: str, output: str | Path,
+    excitation: str | Path | None = None,
 ) -> None:
-    """Simulate one run of ``scenario`` and write it (table + metadata) to ``output``."""
+    """Simulate one run of ``scenario`` and write it (table + metadata) to ``output``.
+
+    ``excitation``: the designed trajectory's CSV when the run names one (:func:`excitation_design`).
+    """
     from sim2real.measurements import write_run
 
     config = load_lab_config(lab_config)
@@ -583,14 +619,20 @@ def run_lab_scenario_run(
     if run not in runs:
         raise InputError(lab_config, f"scenarios/{scenario}/runs", f"no run '{run}'", f"use {', '.join(runs)}")
     settings = config["scenarios"][scenario]
-    time, signals, _ = simulate_run(mjcf_path, config["joints"], settings, int(runs[run]["seed"]), lab_config)
+    trajectory = None
+    if excitation is not None:
+        trajectory = read_excitation(excitation, config["joints"], float(settings["sample_rate_hz"]),
+                                     f"scenarios/{scenario}/runs/{run}/excitation", lab_config)
+    time, signals, _ = simulate_run(mjcf_path, config["joints"], settings, int(runs[run]["seed"]), lab_config,
+                                    trajectory)
     meta = {
         "robot": robot,
         "source": "synthetic",
         "control_mode": "torque",
         "sample_rate_hz": float(settings["sample_rate_hz"]),
         **({"torque_sensor": _torque_sensor(settings, Path(lab_config))} if "tau" in signals else {}),
-        "notes": f"virtual lab scenario '{scenario}', run '{run}' (seed {runs[run]['seed']}); "
+        "notes": f"virtual lab scenario '{scenario}', run '{run}' (seed {runs[run]['seed']}"
+                 + (f", designed excitation '{runs[run]['excitation']}'" if excitation is not None else "") + "); "
                  "hidden effects are in truth.yaml, which no comparison reads",
     }
     write_run(output, time, config["joints"], signals, meta)

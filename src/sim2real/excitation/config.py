@@ -118,8 +118,16 @@ def load_designs(path: str | Path) -> dict[str, Design]:
     return designs
 
 
-def load_design(path: str | Path, name: str) -> Design:
+def load_design(path: str | Path, name: str, allow_default: bool = False) -> Design:
+    """One design; ``allow_default``: a name the file does not list takes the defaults (a separating run)."""
     designs = load_designs(path)
+    if name not in designs and allow_default:
+        data = read_validated_yaml(Path(path), "excitation.schema.yaml")
+        joints = list(data["joints"])
+        design = Design(name, Path(path), joints, [], _merge(DEFAULTS, data.get("defaults") or {}))
+        design = Design(name, Path(path), joints, list(design.settings.get("excite") or joints), design.settings)
+        _check_period(design)
+        return design
     if name not in designs:
         raise InputError(path, f"designs/{name}", "no such design", f"add it under `designs:` or use one of "
                          f"{', '.join(sorted(designs))}")

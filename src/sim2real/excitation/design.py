@@ -28,6 +28,7 @@ from sim2real.excitation.clearance import Clearance
 from sim2real.excitation.config import Design, Limits, limits, start_pose
 from sim2real.excitation.fourier import FourierSeries, random_start
 from sim2real.excitation.information import Identification, condition_number, identification_effects
+from sim2real.excitation.separation import Separation
 from sim2real.fitting import NominalModel
 
 ACTIVE_SET_ROUNDS = 3
@@ -190,8 +191,13 @@ def check_trajectory(nominal: NominalModel, trajectory: Trajectory, lim: Limits,
 
 def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Path, home: Mapping[str, float],
                       model_effects: Sequence[str], urdf_path: str | Path,
-                      log: Callable[[str], None] = lambda message: None) -> DesignResult:
-    """Design one excitation: the optimised coefficients and the checked trajectory at the controller rate."""
+                      log: Callable[[str], None] = lambda message: None,
+                      separation: Separation | None = None) -> DesignResult:
+    """Design one excitation: the optimised coefficients and the checked trajectory at the controller rate.
+
+    ``separation``: design the run that tells two confounded candidates apart (:mod:`.separation`) instead of
+    one that conditions the identification.
+    """
     started = clock.perf_counter()
     settings, joints = design.settings, design.joints
     dynamics = nominal.dynamics
@@ -225,13 +231,14 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
                            excited, n, start)
     limit_grid = _Grid(series, np.linspace(0.0, period, int(solver["limit_samples"]), endpoint=False),
                        excited, n, start)
-    objective = str(settings["objective"])
+    objective = str(settings["objective"]) if separation is None else "separate"
+    judge: Identification | Separation = ident if separation is None else separation
 
     def f(x: np.ndarray) -> np.ndarray:
-        return np.array([ident.state_gradient(*objective_grid.state(x), objective)[0]])
+        return np.array([judge.state_gradient(*objective_grid.state(x), objective)[0]])
 
     def df(x: np.ndarray) -> np.ndarray:
-        _, dq, dqd, dqdd = ident.state_gradient(*objective_grid.state(x), objective)
+        _, dq, dqd, dqdd = judge.state_gradient(*objective_grid.state(x), objective)
         return objective_grid.chain(dq, dqd, dqdd).reshape(1, -1)
 
     def torque(x: np.ndarray) -> np.ndarray:
@@ -275,7 +282,7 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
     before = _trajectory(series, initial, time, start, excited, n)
     before_head = _head(before, one_period)
     _, closest = clearance.closest(head.q[int(np.argmin(distances))])
-    summary = {
+    summary: dict[str, Any] = {
         "objective": objective,
         "identified": {"inertial": "base parameters of the moving bodies", "effects": effects,
                        "base_parameters": ident.size},
@@ -300,6 +307,13 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
             "position_upper_rad": _per_joint(joints, lim.upper),
         },
     }
+    if separation is not None:
+        summary["separation"] = {
+            "candidates": separation.names,
+            "difference_x_floor": {"initial": round(separation.rms_x_floor(before_head.q, before_head.qd,
+                                                                           before_head.qdd), 4),
+                                   "designed": round(separation.rms_x_floor(head.q, head.qd, head.qdd), 4)},
+        }
     return DesignResult(design=design, joints=list(joints), coefficients=x.reshape(len(excited), -1), start=start,
                         limits=lim, trajectory=trajectory, torque=tau, clearance=distances, closest_pair=closest,
                         summary=summary)

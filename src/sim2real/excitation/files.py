@@ -5,6 +5,7 @@ Every number is written with a fixed format, so the same inputs give the same by
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Mapping
 from pathlib import Path
@@ -20,6 +21,8 @@ import yaml  # noqa: E402
 from sim2real.excitation.config import load_design  # noqa: E402
 from sim2real.excitation.design import DesignResult, design_trajectory  # noqa: E402
 from sim2real.fitting import load_nominal  # noqa: E402
+from sim2real.errors import InputError  # noqa: E402
+from sim2real.excitation.separation import Separation, confounded_pair, fitted_candidates  # noqa: E402
 from sim2real.io import atomic_path, read_validated_yaml, write_json, write_text  # noqa: E402
 
 PNG_METADATA = {"Software": None}
@@ -102,7 +105,12 @@ def markdown(result: DesignResult, robot: str, outputs: Mapping[str, str]) -> st
         f"{s['identified']['base_parameters']} base parameters: the inertial parameters of the moving bodies and "
         f"{', '.join(s['identified']['effects'])} (configs/{robot}/model.yaml).", "",
         f"- Objective: **{s['objective']}**, {s['objective_value']['initial']:.6g} -> "
-        f"{s['objective_value']['designed']:.6g} (minimised).",
+        f"{s['objective_value']['designed']:.6g} (minimised)." + (
+            f" The run that tells {' from '.join(s['separation']['candidates'])} apart: their fitted predictions "
+            f"differ by {s['separation']['difference_x_floor']['designed']:.3g}x the noise floor (RMS over joints "
+            f"and samples; {s['separation']['difference_x_floor']['initial']:.3g}x on a random run of the same "
+            f"limits). Add it to configs/{robot}/measurements.yaml with `role: fit` once recorded."
+            if "separation" in s else ""),
         f"- Condition number of the identification regressor (unit-norm columns, each joint scaled by its noise "
         f"floor): **{s['condition_number']['initial']:.4g} -> {s['condition_number']['designed']:.4g}** "
         "(the initial guess is a random series scaled into the limits, as the lab's excitation is drawn).",
@@ -140,16 +148,35 @@ def markdown(result: DesignResult, robot: str, outputs: Mapping[str, str]) -> st
 
 
 def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path, mjcf: str | Path,
-                     robot_config: str | Path, model_config: str | Path | None, outputs: Mapping[str, str]) -> DesignResult:
-    """Design ``name`` of ``config`` and write its outputs (keys csv, trajectory, json, md, figure)."""
+                     robot_config: str | Path, model_config: str | Path | None, outputs: Mapping[str, str],
+                     ladder: str | Path | None = None) -> DesignResult:
+    """Design ``name`` of ``config`` and write its outputs (keys csv, trajectory, json, md, figure).
+
+    A name ``separate-<a>-vs-<b>`` designs the run that tells the confounded candidates a and b of
+    ``ladder`` (results/{robot}/sysid/ladder.json) apart, with the file's default settings (or its own entry).
+    """
     from sim2real.sysid import load_model_config
 
-    design = load_design(config, name)
+    pair = confounded_pair(name)
+    design = load_design(config, name, allow_default=pair is not None)
     robot_settings = read_validated_yaml(robot_config, "robot.schema.yaml")
     effects = load_model_config(model_config)["effects"] if model_config and Path(model_config).exists() else []
     nominal = load_nominal(urdf, design.joints, robot_settings.get("armature"), robot_settings.get("flange"))
+    separation = None
+    if pair is not None:
+        if ladder is None:
+            raise InputError(config, f"designs/{name}", "a separating design needs the diagnosis",
+                             f"build it with snakemake results/{robot}/excitation/{name}.csv")
+        document = json.loads(Path(ladder).read_text(encoding="utf-8"))
+        if document.get("joints") != design.joints:
+            raise InputError(config, "joints", f"are not the joints of {ladder} ({document.get('joints')})",
+                             "list the identified joints in the excitation.yaml `joints`")
+        floor = design.per_joint("noise_floor")
+        if floor is None:
+            floor = np.array([document["noise_floor"]["torque_rmse"]["per_joint"][j] for j in design.joints])
+        separation = Separation(nominal, fitted_candidates(document, pair, str(ladder)), floor, str(ladder))
     result = design_trajectory(design, nominal, mjcf, robot_settings.get("home") or {}, effects, urdf,
-                               log=logging.info)
+                               log=logging.info, separation=separation)
     write_csv(result, outputs["csv"])
     rate = float(design.settings["trajectory_rate_hz"])
     write_text(outputs["trajectory"], yaml.safe_dump(joint_trajectory(result, rate), sort_keys=False, width=200,

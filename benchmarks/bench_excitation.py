@@ -1,0 +1,109 @@
+"""Designed against random excitation on the lab's real_arm_like Panda (issue 19).
+
+Builds, in a temporary copy of the project, the designed excitation ``identification``
+(configs/panda/excitation.yaml, full quality unless ``--coarse``) and the lab runs that play it
+(scenario ``real_arm_like_designed``) beside the lab's random Fourier excitation of the same duration
+(``real_arm_like``). Both fits are judged on the same independent holdout run (random excitation, seed 12).
+Prints, for each: the condition number of the identification regressor (the design's metric, on the
+measured motion), the link-inertia condition number gap.md reports, the width of the bootstrap intervals
+of the inertial parameters, and the final rung's holdout RMSE per joint; and the design's time.
+
+    python benchmarks/bench_excitation.py [--coarse]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+from buildtree import copy_repo, edit_yaml, make_fast, run_snakemake  # noqa: E402
+
+from sim2real.excitation.config import load_design  # noqa: E402
+from sim2real.excitation.information import Identification, condition_number, identification_effects  # noqa: E402
+from sim2real.fitting import load_nominal  # noqa: E402
+from sim2real.measurements import load_prepared_runs  # noqa: E402
+from sim2real.sysid import load_model_config, run_sysid  # noqa: E402
+
+CASES = {"random (lab)": "real_arm_like", "designed": "real_arm_like_designed"}
+HOLDOUT = "results/panda/lab/real_arm_like/holdout.parquet"
+
+
+def interval_widths(intervals: dict) -> dict[str, float]:
+    """Median width of the link masses' (kg) and centres of mass' (mm) bootstrap intervals."""
+    widths: dict[str, list[float]] = {"mass": [], "com": []}
+    for body in (intervals.get("link_inertia") or {}).get("bodies", {}).values():
+        if isinstance(body, dict):
+            if "mass" in body:
+                widths["mass"].append(float(body["mass"][1] - body["mass"][0]))
+            for pair in body.get("com", []):
+                widths["com"].append(1000.0 * float(pair[1] - pair[0]))
+    return {k: float(np.median(v)) if v else float("nan") for k, v in widths.items()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--coarse", action="store_true", help="the tests' coarse design (seconds, not minutes)")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = copy_repo(ROOT, Path(tmp) / "project")
+        full_design = (tree / "configs/panda/excitation.yaml").read_text()
+        make_fast(tree)  # coarse CoACD parts (the clearance check uses them) and, for now, a coarse design
+        if not args.coarse:
+            (tree / "configs/panda/excitation.yaml").write_text(full_design)
+        runs = [f"results/panda/lab/{scenario}/fit.parquet" for scenario in CASES.values()] + [HOLDOUT]
+        run_snakemake(tree, *runs, "results/panda/excitation/identification.json", timeout=3600)
+        with open(tree / "results/panda/benchmarks/excitation/identification.tsv") as handle:
+            design_seconds = float(next(csv.DictReader(handle, delimiter="\t"))["s"])
+        design = yaml.safe_load((tree / "results/panda/excitation/identification.json").read_text())
+        model = load_model_config(tree / "configs/panda/model.yaml")
+        robot = yaml.safe_load((tree / "configs/panda/robot.yaml").read_text())
+        settings = load_design(tree / "configs/panda/excitation.yaml", "identification")
+        joints = settings.joints
+        nominal = load_nominal(tree / "results/panda/panda.urdf", joints, robot["armature"], robot["flange"])
+        dyn = nominal.dynamics
+        ident = Identification(nominal, identification_effects(model["effects"]), settings.per_joint("noise_floor"),
+                               dyn.lower, dyn.upper, dyn.velocity_limit, settings.per_joint("acceleration_limit"))
+        print(f"design: {design['solver']['status']} after {design['solver']['iterations']} IPOPT iterations, "
+              f"{design_seconds:.1f} s (rule time); condition number {design['condition_number']['initial']:.4g} "
+              f"(its random start) -> {design['condition_number']['designed']:.4g}; closest approach "
+              f"{design['min_clearance_m'] * 1000:.1f} mm")
+        print(f"model: {', '.join(model['effects'])}; both fits judged on {HOLDOUT}")
+        rows = []
+        for label, scenario in CASES.items():
+            listing = tree / f"{scenario}.measurements.yaml"
+            listing.write_text(yaml.safe_dump({"runs": [
+                {"name": "fit", "path": f"results/panda/lab/{scenario}/fit.parquet", "role": "fit"},
+                {"name": "holdout", "path": HOLDOUT, "role": "holdout"}]}))
+            _, prepared, _ = load_prepared_runs(listing, joints, tree)
+            fit_run = prepared[0]
+            step = max(1, len(fit_run.time) // 2000)
+            cond = condition_number(ident.matrix(fit_run.q[::step], fit_run.qd[::step], fit_run.qdd[::step]))
+            out = Path(tmp) / scenario
+            document = run_sysid("panda", tree / "results/panda/panda.urdf", tree / "configs/panda/robot.yaml",
+                                 tree / "configs/panda/model.yaml", listing, out / "ladder.json",
+                                 out / "params.yaml", out / "calibration.yaml", root=tree)
+            rung = document["ladder"][-1]
+            link = rung["params"]["link_inertia"]
+            widths = interval_widths(rung.get("intervals") or {})
+            holdout = rung["metrics"]["torque_rmse"]
+            rows.append((label, cond, link["condition_number"], widths, holdout,
+                         rung["metrics"]["torque_x_floor"]["per_joint"]))
+        print()
+        print(f"{'excitation':14s} {'cond (design)':>13s} {'cond (gap.md)':>13s} {'mass CI [kg]':>12s} "
+              f"{'COM CI [mm]':>11s} {'holdout RMSE [N*m]':>18s}  per joint x floor")
+        for label, cond, link_cond, widths, holdout, x_floor in rows:
+            print(f"{label:14s} {cond:13.4g} {link_cond:13.4g} {widths['mass']:12.4g} {widths['com']:11.4g} "
+                  f"{holdout['overall']:18.4g}  " + " ".join(f"{x:.2f}" for x in x_floor.values()))
+
+
+if __name__ == "__main__":
+    main()
