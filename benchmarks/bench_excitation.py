@@ -40,7 +40,7 @@ HOLDOUT = "results/panda/lab/real_arm_like/holdout.parquet"
 def interval_widths(intervals: dict) -> dict[str, float]:
     """Median width of the link masses' (kg) and centres of mass' (mm) bootstrap intervals."""
     widths: dict[str, list[float]] = {"mass": [], "com": []}
-    for body in (intervals.get("link_inertia") or {}).get("bodies", {}).values():
+    for body in (intervals.get("link_inertia") or {}).get("links", {}).values():
         if isinstance(body, dict):
             if "mass" in body:
                 widths["mass"].append(float(body["mass"][1] - body["mass"][0]))

@@ -227,3 +227,16 @@ def test_the_run_that_separates_confounded_candidates(designed: Path, tmp_path: 
     assert after["status"] == "add_effect" and after["candidates"][0]["effect"] == "viscous_friction"
     coulomb = next(c for c in after["candidates"] if c["effect"] == "coulomb_friction")
     assert coulomb["evidence"]["x_floor_after"] > after["candidates"][0]["evidence"]["x_floor_after"] + 0.3
+
+
+def test_gap_md_names_the_design_when_the_inertias_are_poorly_pinned() -> None:
+    from sim2real.report import ILL_CONDITIONED, _identified_markdown
+
+    def rung(condition: float) -> dict:
+        body = {"moved": False, "mass_change_kg": 0.0, "com_shift_mm": 0.0, "divergence": 0.0, "implausible": []}
+        return {"params": {"link_inertia": {"base_parameters": 43, "condition_number": condition,
+                                            "bodies": {"panda_link1": body}}}}
+
+    poorly = "\n".join(_identified_markdown(rung(3 * ILL_CONDITIONED), "panda"))
+    assert "`snakemake results/panda/excitation/identification.csv`" in poorly
+    assert "excitation/" not in "\n".join(_identified_markdown(rung(0.5 * ILL_CONDITIONED), "panda"))

@@ -168,7 +168,10 @@ def _inertia_prior_text(prior: Any) -> str | None:
     return text + "."
 
 
-def _identified_markdown(rung: Mapping[str, Any]) -> list[str]:
+ILL_CONDITIONED = 1000.0  # a link-inertia condition number above this: the data pin the parameters poorly
+
+
+def _identified_markdown(rung: Mapping[str, Any], robot: str) -> list[str]:
     """What the data identified of the link inertias (last rung): a richer excitation is needed when little;
     which bodies moved beyond plausible (a missing effect soaked up) and the CAD prior's weight."""
     link = rung.get("params", {}).get("link_inertia")
@@ -182,6 +185,10 @@ def _identified_markdown(rung: Mapping[str, Any]) -> list[str]:
              f"{10 * len(bodies)} inertial parameters); condition number of the excitation "
              f"{link['condition_number']:.3g} (the scaled regressor's largest over smallest singular value on those "
              "directions: above ~1000 a richer excitation trajectory would pin them down better).", "",
+             *([f"**These data pin the link inertias poorly** (condition number above {ILL_CONDITIONED:g}): record a "
+                f"run designed for them, `snakemake results/{robot}/excitation/identification.csv` (a design of "
+                f"configs/{robot}/excitation.yaml, optimised for this model within the arm's limits), and add it "
+                "to the fit runs.", ""] if link["condition_number"] > ILL_CONDITIONED else []),
              f"Moved from the URDF: {', '.join(moved) or 'none'}. Stayed at the URDF values (not seen or not "
              f"needed by these data): {', '.join(stayed) or 'none'}.", ""]
     prior = _inertia_prior_text((rung.get("consistency") or {}).get("inertia_prior"))
@@ -330,7 +337,7 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
             for note in rung.get("notes", []):
                 if note.startswith("physical consistency"):
                     lines += ["", f"**Rung {k}:** {note}."]
-        lines += _identified_markdown(gap["ladder"][-1])
+        lines += _identified_markdown(gap["ladder"][-1], gap["robot"])
         lines += ["", f"![Model ladder]({figures['ladder']})"]
     if "diagnosis" in gap:
         lines += ["", "## Diagnosis", ""] + _diagnosis_markdown(gap["diagnosis"])

@@ -22,6 +22,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+import scipy.sparse
 
 from sim2real.errors import InputError
 from sim2real.excitation.clearance import Clearance
@@ -156,15 +157,16 @@ def _torque_jacobian(nominal: NominalModel, q: np.ndarray, qd: np.ndarray, qdd: 
 
 
 def _scaled_start(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray, seed: int) -> np.ndarray:
-    """A random series at rest at t = 0, scaled to START_FILL of the tightest position, velocity or
+    """A random series at rest at t = 0, each joint scaled to START_FILL of its tightest position, velocity or
     acceleration limit (the lab's excitation is drawn the same way)."""
     x = random_start(series, np.random.default_rng(seed))
     q, qd, qdd = grid.state(x)
     room = np.minimum(grid.start - lim.lower, lim.upper - grid.start)[excited]
-    ratios = [room / np.max(np.abs(q - grid.start)[:, excited], axis=0),
-              lim.velocity[excited] / np.max(np.abs(qd[:, excited]), axis=0),
-              lim.acceleration[excited] / np.max(np.abs(qdd[:, excited]), axis=0)]
-    return START_FILL * float(np.min(np.concatenate(ratios))) * x
+    ratios = np.min([room / np.max(np.abs(q - grid.start)[:, excited], axis=0),
+                     lim.velocity[excited] / np.max(np.abs(qd[:, excited]), axis=0),
+                     lim.acceleration[excited] / np.max(np.abs(qdd[:, excited]), axis=0)], axis=0)
+    # Scaling one joint's coefficients keeps it at rest at t = 0 (the rest constraints are per joint).
+    return (START_FILL * ratios[:, None] * x.reshape(len(excited), -1)).ravel()
 
 
 def check_trajectory(nominal: NominalModel, trajectory: Trajectory, lim: Limits, start: np.ndarray,
@@ -354,6 +356,12 @@ def _short_samples(clearance: Clearance, grid: _Grid, x: np.ndarray, margin: flo
     return out
 
 
+def _sparse(matrix: np.ndarray) -> ca.DM:
+    """A CasADi sparse matrix: each joint's limit rows touch its own coefficients only, and IPOPT's KKT system
+    stays small when CasADi knows it."""
+    return ca.DM(scipy.sparse.csc_matrix(matrix))
+
+
 def _solve(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray, f, df, torque, torque_jac,
            n: int, objective_grid: _Grid, clearance: Clearance, active: Sequence[float], margin: float,
            x0: np.ndarray, max_iterations: int) -> tuple[np.ndarray, str, int]:
@@ -366,13 +374,13 @@ def _solve(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray,
         upper.append(np.asarray(hi, dtype=float).ravel())
 
     rest = series.rest_constraints()
-    add(ca.mtimes(ca.DM(rest), x), np.zeros(len(rest)), np.zeros(len(rest)))
+    add(ca.mtimes(_sparse(rest), x), np.zeros(len(rest)), np.zeros(len(rest)))
     count = len(grid.time)
     for state_map, lo, hi in ((grid.maps[0], lim.lower - grid.start, lim.upper - grid.start),
                               (grid.maps[1], -lim.velocity, lim.velocity),
                               (grid.maps[2], -lim.acceleration, lim.acceleration)):
         rows = state_map[:, excited].reshape(-1, series.size)
-        add(ca.mtimes(ca.DM(rows), x), np.tile(lo[excited], count), np.tile(hi[excited], count))
+        add(ca.mtimes(_sparse(rows), x), np.tile(lo[excited], count), np.tile(hi[excited], count))
     tau_count = len(objective_grid.time) * n
     callbacks = [_Numeric("objective", series.size, 1, f, df),
                  _Numeric("torque", series.size, tau_count, torque, torque_jac)]
@@ -389,7 +397,7 @@ def _solve(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray,
 
         callbacks.append(_Numeric("clearance", series.size, len(active), distance, distance_jac))
         add(callbacks[2](x), np.full(len(active), margin), np.full(len(active), np.inf))
-    nlp = {"x": x, "f": callbacks[0](x), "g": ca.vertcat(*constraints)}
+    nlp = {"x": x, "f": callbacks[0](x), "g": ca.densify(ca.vertcat(*constraints))}
     options = {"ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": max_iterations,
                "ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False, "ipopt.tol": 1e-6,
                "ipopt.acceptable_tol": 1e-3}
