@@ -201,7 +201,7 @@ def read_run(path: str | Path) -> Run:
         k = int(bad[0]) + 1
         raise InputError(
             path, f"column 'time', {_row_label(path, k)}",
-            f"time does not increase ({time[k - 1]!r} then {time[k]!r}; {bad.size} such step(s))",
+            f"time does not increase ({float(time[k - 1]):.9g} s then {float(time[k]):.9g} s; {bad.size} such step(s))",
             "sort the samples by time and drop duplicated stamps",
         )
     if time.size < MIN_SAMPLES or time[-1] - time[0] < MIN_DURATION_S:
