@@ -421,3 +421,11 @@ def test_selector_error_names_the_available_elements_in_plain_english() -> None:
     assert _plural("body") == "bodies"
     assert _plural("hinge/slide joint") == "hinge/slide joints"
     assert _plural("colliding geom") == "colliding geoms"
+
+
+def test_physics_randomization_not_a_map_is_an_input_error() -> None:
+    """Found by tests/test_fuzz_inputs.py (issue 21): an AttributeError before the schema's message."""
+    from sim2real.dr.config import validate_config
+
+    with pytest.raises(InputError, match="dr.yaml: key 'physics_randomization'"):
+        validate_config({"physics_randomization": True}, "configs/panda/dr.yaml")

@@ -259,3 +259,30 @@ def test_mcap_bag_converts_to_run(tmp_path):
     assert run.meta["torque_sensor"] == "link"  # a Panda's effort is tau_J, measured after the gearbox
     assert run.time[0] == 0.0 and run.time.size == t.size
     assert np.allclose(run.q, q) and np.allclose(run.tau_cmd, 2.0 * qdd) and np.allclose(run.tau, 2.0 * qdd + 0.1)
+
+
+def test_header_only_table_is_too_short(tmp_path):
+    """Found by tests/test_fuzz_inputs.py (issue 21): an IndexError instead of the message."""
+    header, _ = good_rows()
+    path = write_csv(tmp_path / "empty.csv", header, [])
+    with pytest.raises(InputError, match=r"empty.csv: column 'time': run too short to judge \(0 samples"):
+        load_run(path)
+
+
+@pytest.mark.parametrize("edit", ["absurd_stamp", "rate_in_khz"])
+def test_absurd_stamp_or_rate_is_refused_before_the_grid(tmp_path, edit):
+    """Found by tests/test_fuzz_inputs.py (issue 21): one stamp of 1e300 s made prepare_run allocate a
+    grid of 1e303 points (the process was killed for memory)."""
+    header, rows = good_rows()
+    meta = dict(META)
+    if edit == "absurd_stamp":
+        rows[-1][0] = 1e300
+    else:
+        meta["sample_rate_hz"] = 1e6  # the log is at 1 kHz
+    path = write_csv(tmp_path / "log.csv", header, rows, meta)
+    with pytest.raises(InputError) as error:
+        prepare_run(load_run(path))
+    message = str(error.value)
+    assert "log.csv: column 'time'" in message and "grid points" in message and "Fix:" in message
+    if edit == "absurd_stamp":
+        assert "row 2999" in message and "largest gap 1e+300 s" in message
