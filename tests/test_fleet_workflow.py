@@ -42,7 +42,8 @@ def test_drifted_arm_is_named_unchanged_arm_is_not(tmp_path: Path) -> None:
     edit_yaml(tree / "configs/panda/lab.yaml", short_runs)
     (tree / "configs/panda/measurements.yaml").write_text(_campaign("fleet_drift_2026_10", "panda_2", "2026-10"))
     campaigns = tree / "configs/panda/campaigns"
-    campaigns.mkdir()
+    for shipped in campaigns.glob("*.yaml"):  # the shipped demo's second campaign: this test brings its own
+        shipped.unlink()
     (campaigns / "panda_2-2026-11.yaml").write_text(_campaign("fleet_drift_2026_11", "panda_2", "2026-11"))
     (campaigns / "panda_3-2026-10.yaml").write_text(_campaign("fleet_steady_2026_10", "panda_3", "2026-10"))
     (campaigns / "panda_3-2026-11.yaml").write_text(_campaign("fleet_steady_2026_11", "panda_3", "2026-11"))

@@ -103,7 +103,8 @@ def test_each_bad_input_ends_in_its_one_line_message(tmp_path: Path) -> None:
     backwards["time"][200:] -= 1.0
     (tree / "configs/panda/measurements.yaml").write_text(campaign(write_run(tree, "nan", nan)))
     campaigns = tree / "configs/panda/campaigns"
-    campaigns.mkdir()
+    for shipped in campaigns.glob("*.yaml"):  # the shipped fleet demo's campaign
+        shipped.unlink()
     for name, table, date in (("unknown", unknown, "2026-01"), ("degrees", degrees, "2026-02"),
                               ("backwards", backwards, "2026-03")):
         (campaigns / f"{name}.yaml").write_text(campaign(write_run(tree, name, table), date))
