@@ -1,7 +1,12 @@
 # sim2real: every robot asset and every gap report is a build output of this DAG.
 from snakemake.utils import min_version, validate
 
+import sim2real.cli as _sim2real_cli
+
 min_version("9.0")
+# An InputError (bad input: file, key, fix) reaches the user as its one-line message, printed last; its
+# traceback goes to the rule's log (sim2real.cli: rule_entry in every script, these two hooks here).
+_sim2real_cli.one_line_input_errors()
 
 
 configfile: "configs/config.yaml"
@@ -28,3 +33,7 @@ rule all:
     default_target: True
     input:
         all_targets(),
+
+
+onerror:
+    _sim2real_cli.input_errors_last(log)

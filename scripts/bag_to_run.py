@@ -1,15 +1,14 @@
 """Snakemake script: ROS 2 bag (MCAP) -> measurement run (sim2real.bags.mcap_to_run)."""
 
-import logging
-
+from sim2real.cli import rule_entry
 from sim2real.bags import mcap_to_run
 
-logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
-mcap_to_run(
-    snakemake.input.bag,
-    snakemake.output.run,
-    robot=snakemake.wildcards.robot,
-    joint_topic=snakemake.params.joint_topic,
-    command_topic=snakemake.params.command_topic,
-    torque_sensor=snakemake.params.torque_sensor,
-)
+with rule_entry(snakemake):
+    mcap_to_run(
+        snakemake.input.bag,
+        snakemake.output.run,
+        robot=snakemake.wildcards.robot,
+        joint_topic=snakemake.params.joint_topic,
+        command_topic=snakemake.params.command_topic,
+        torque_sensor=snakemake.params.torque_sensor,
+    )

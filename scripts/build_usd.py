@@ -2,11 +2,11 @@
 
 import logging
 
+from sim2real.cli import rule_entry
 from sim2real.collision import parts_by_uri
 from sim2real.usd import build_usd
 
-logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
-try:
+with rule_entry(snakemake):
     summary = build_usd(
         snakemake.input.urdf,
         snakemake.input.config,
@@ -16,6 +16,3 @@ try:
         snakemake.output.geometry,
     )
     logging.info("bodies %s; joints %s", summary["bodies"], summary["joints"])
-except Exception:
-    logging.exception("failed")  # the log names the bad input too
-    raise

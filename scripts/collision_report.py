@@ -2,10 +2,10 @@
 
 import logging
 
+from sim2real.cli import rule_entry
 from sim2real.collision import Tolerance, collision_report
 
-logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
-try:
+with rule_entry(snakemake):
     names = list(snakemake.params.names)
     report = collision_report(
         dict(zip(names, snakemake.input.parts, strict=True)),
@@ -16,6 +16,3 @@ try:
     )
     for name in report["flagged"]:
         logging.warning("%s misses the shape: %s", name, "; ".join(report["meshes"][name]["flag_reasons"]))
-except Exception:
-    logging.exception("failed")  # the log names the bad input too
-    raise

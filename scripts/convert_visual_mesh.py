@@ -1,12 +1,7 @@
 """Snakemake script: visual DAE -> one OBJ per material + parts.json (sim2real.meshes)."""
 
-import logging
-
+from sim2real.cli import rule_entry
 from sim2real.meshes import convert_visual_mesh
 
-logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
-try:
+with rule_entry(snakemake):
     convert_visual_mesh(snakemake.input[0], snakemake.output[0], snakemake.params.uri)
-except Exception:
-    logging.exception("failed")  # the log names the bad input too
-    raise

@@ -1,12 +1,13 @@
 """Snakemake script: dr.json (+ sysid/params.yaml when built) -> coverage, summary table and figure."""
 
-import contextlib
+import logging
 
+from sim2real.cli import rule_entry
 from sim2real.dr import build_summary
 
 snakemake = globals()["snakemake"]
 
-with open(snakemake.log[0], "w", encoding="utf-8") as log, contextlib.redirect_stderr(log):
+with rule_entry(snakemake):
     identified = list(snakemake.input.identified)
     coverage = build_summary(
         snakemake.input.dr,
@@ -16,6 +17,6 @@ with open(snakemake.log[0], "w", encoding="utf-8") as log, contextlib.redirect_s
         snakemake.output.figure,
         strict=bool(snakemake.params.strict),
     )
-    print(f"coverage: {coverage['status']}", file=log)
+    logging.info("coverage: %s", coverage["status"])
     for warning in coverage["warnings"]:
-        print(f"WARNING: {warning}", file=log)
+        logging.warning("%s", warning)

@@ -1,18 +1,17 @@
 """Snakemake script: excitation.yaml design -> trajectory CSV, ROS 2 JointTrajectory, report (sim2real.excitation)."""
 
-import logging
-
+from sim2real.cli import rule_entry
 from sim2real.excitation.files import build_excitation
 
-logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
-build_excitation(
-    snakemake.wildcards.robot,
-    snakemake.input.config,
-    snakemake.wildcards.design,
-    snakemake.input.urdf,
-    snakemake.input.mjcf,
-    snakemake.input.robot_config,
-    snakemake.input.model[0] if snakemake.input.model else None,
-    {key: str(value) for key, value in snakemake.output.items()},
-    ladder=snakemake.input.ladder[0] if snakemake.input.ladder else None,
-)
+with rule_entry(snakemake):
+    build_excitation(
+        snakemake.wildcards.robot,
+        snakemake.input.config,
+        snakemake.wildcards.design,
+        snakemake.input.urdf,
+        snakemake.input.mjcf,
+        snakemake.input.robot_config,
+        snakemake.input.model[0] if snakemake.input.model else None,
+        {key: str(value) for key, value in snakemake.output.items()},
+        ladder=snakemake.input.ladder[0] if snakemake.input.ladder else None,
+    )

@@ -1,18 +1,17 @@
 """Snakemake script: measurements vs model -> gap.json, gap.md, figures (sim2real.gap.build_gap_report)."""
 
-import logging
-
+from sim2real.cli import rule_entry
 from sim2real.gap import build_gap_report
 
-logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
-build_gap_report(
-    snakemake.wildcards.robot,
-    snakemake.input.urdf,
-    snakemake.input.mjcf,
-    snakemake.input.measurements,
-    snakemake.output.json,
-    snakemake.output.md,
-    {"torque": snakemake.output.torque, "residual_velocity": snakemake.output.residual_velocity,
-     "regimes": snakemake.output.regimes, "ladder": snakemake.output.ladder},
-    precomputed_path=snakemake.input.ladder[0] if snakemake.input.ladder else None,
-)
+with rule_entry(snakemake):
+    build_gap_report(
+        snakemake.wildcards.robot,
+        snakemake.input.urdf,
+        snakemake.input.mjcf,
+        snakemake.input.measurements,
+        snakemake.output.json,
+        snakemake.output.md,
+        {"torque": snakemake.output.torque, "residual_velocity": snakemake.output.residual_velocity,
+         "regimes": snakemake.output.regimes, "ladder": snakemake.output.ladder},
+        precomputed_path=snakemake.input.ladder[0] if snakemake.input.ladder else None,
+    )

@@ -1,16 +1,15 @@
 """Snakemake script: simulate one virtual-lab run (sim2real.lab.run_lab_scenario_run)."""
 
-import logging
-
+from sim2real.cli import rule_entry
 from sim2real.lab import run_lab_scenario_run
 
-logging.basicConfig(filename=snakemake.log[0], filemode="w", level=logging.INFO, format="%(levelname)s %(message)s")
-run_lab_scenario_run(
-    snakemake.input.mjcf,
-    snakemake.input.config,
-    snakemake.wildcards.robot,
-    snakemake.wildcards.scenario,
-    snakemake.wildcards.run,
-    snakemake.output.run,
-    excitation=snakemake.input.excitation[0] if snakemake.input.excitation else None,
-)
+with rule_entry(snakemake):
+    run_lab_scenario_run(
+        snakemake.input.mjcf,
+        snakemake.input.config,
+        snakemake.wildcards.robot,
+        snakemake.wildcards.scenario,
+        snakemake.wildcards.run,
+        snakemake.output.run,
+        excitation=snakemake.input.excitation[0] if snakemake.input.excitation else None,
+    )

@@ -411,3 +411,21 @@ def test_snakemake_builds_dr_json_and_summary_reproducibly(tmp_path: Path, mjcf:
     rerun = subprocess.run(snakemake + ["--forceall"], capture_output=True, text=True)
     assert rerun.returncode == 0, rerun.stderr[-3000:]
     assert {o: (tmp_path / o).read_bytes() for o in outputs} == first
+
+
+def test_selector_error_names_the_available_elements_in_plain_english() -> None:
+    """Found by tests/test_input_errors.py (issue 21): the message said "available body with masss"."""
+    from sim2real.dr.resolve import _plural
+
+    assert _plural("body with mass") == "bodies with mass"
+    assert _plural("body") == "bodies"
+    assert _plural("hinge/slide joint") == "hinge/slide joints"
+    assert _plural("colliding geom") == "colliding geoms"
+
+
+def test_physics_randomization_not_a_map_is_an_input_error() -> None:
+    """Found by tests/test_fuzz_inputs.py (issue 21): an AttributeError before the schema's message."""
+    from sim2real.dr.config import validate_config
+
+    with pytest.raises(InputError, match="dr.yaml: key 'physics_randomization'"):
+        validate_config({"physics_randomization": True}, "configs/panda/dr.yaml")

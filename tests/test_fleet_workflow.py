@@ -42,7 +42,8 @@ def test_drifted_arm_is_named_unchanged_arm_is_not(tmp_path: Path) -> None:
     edit_yaml(tree / "configs/panda/lab.yaml", short_runs)
     (tree / "configs/panda/measurements.yaml").write_text(_campaign("fleet_drift_2026_10", "panda_2", "2026-10"))
     campaigns = tree / "configs/panda/campaigns"
-    campaigns.mkdir()
+    for shipped in campaigns.glob("*.yaml"):  # the shipped demo's second campaign: this test brings its own
+        shipped.unlink()
     (campaigns / "panda_2-2026-11.yaml").write_text(_campaign("fleet_drift_2026_11", "panda_2", "2026-11"))
     (campaigns / "panda_3-2026-10.yaml").write_text(_campaign("fleet_steady_2026_10", "panda_3", "2026-10"))
     (campaigns / "panda_3-2026-11.yaml").write_text(_campaign("fleet_steady_2026_11", "panda_3", "2026-11"))
@@ -77,3 +78,23 @@ def test_drifted_arm_is_named_unchanged_arm_is_not(tmp_path: Path) -> None:
     assert change["text"] in md
     assert "panda_3: no identified value changed between 2026-10 and 2026-11" in md
     assert (tree / "results/fleet/parameters.png").stat().st_size > 10_000
+
+
+def test_shipped_demo_names_the_worn_joint(tmp_path: Path) -> None:
+    """The fleet demo as shipped (issue 21): the default campaign's Panda measured again with a worn
+    joint 4 (configs/panda/campaigns/panda-2026-11.yaml, lab scenario real_arm_like_worn_2026_11).
+    Lab runs, fits and bootstrap at the shipped settings; fast CoACD (no effect on the dynamics)."""
+    tree = copy_repo(ROOT, tmp_path / "repo")
+    make_fast(tree)
+    edit_yaml(tree / "configs/config.yaml", lambda c: c.update(robots=["panda"]))
+    run_snakemake(tree, "results/fleet.md")
+    fleet = json.loads((tree / "results/fleet.json").read_text())
+    (arm,) = fleet["arms"]
+    assert (arm["arm"], [c["date"] for c in arm["campaigns"]]) == ("panda", ["2026-10", "2026-11"])
+    (change,) = arm["changes"]  # the worn joint, and nothing else
+    assert (change["effect"], change["joint"], change["direction"]) == ("asymmetric_friction", "panda_joint4", "rose")
+    assert change["parameter"] == "amplitude"
+    assert change["before"]["value"] == pytest.approx(1.28, abs=0.05)
+    assert change["after"]["value"] == pytest.approx(1.727, abs=0.05)
+    md = (tree / "results/fleet.md").read_text()
+    assert change["text"] in md and md.count("rose from") + md.count("fell from") == 1

@@ -85,7 +85,7 @@ def test_messy_real_log_irregular_stamps_repeats_no_commands_no_qd(tmp_path):
     ("mutate", "expected"),
     [
         (lambda h, r: r[37].__setitem__(1, float("nan")), ["q.panda_joint1", "row 37", "line 39", "NaN"]),
-        (lambda h, r: r[100].__setitem__(0, r[99][0]), ["column 'time'", "row 100", "does not increase"]),
+        (lambda h, r: r[100].__setitem__(0, r[99][0]), ["column 'time'", "row 100", "does not increase", " s then "]),
         (lambda h, r: [h.__setitem__(k, h[k].replace("panda_joint1", "elbow")) for k in (1, 3)], ["q.elbow", "unknown joint"]),
         (lambda h, r: h.__setitem__(1, "q.elbow"), ["tau.<joint>", "missing for elbow; without q for panda_joint1"]),
         (lambda h, r: [row.__setitem__(1, row[1] * 180 / np.pi + 90.0) for row in r], ["q.panda_joint1", "degrees"]),
@@ -102,6 +102,7 @@ def test_bad_input_names_file_column_row(tmp_path, mutate, expected):
         load_run(path, known_joints=JOINTS)
     message = str(info.value)
     assert "bad.csv" in message and "Fix:" in message
+    assert "np." not in message  # numbers as the user wrote them, not numpy reprs (np.float64(1.99))
     for part in expected:
         assert part in message
 
@@ -258,3 +259,30 @@ def test_mcap_bag_converts_to_run(tmp_path):
     assert run.meta["torque_sensor"] == "link"  # a Panda's effort is tau_J, measured after the gearbox
     assert run.time[0] == 0.0 and run.time.size == t.size
     assert np.allclose(run.q, q) and np.allclose(run.tau_cmd, 2.0 * qdd) and np.allclose(run.tau, 2.0 * qdd + 0.1)
+
+
+def test_header_only_table_is_too_short(tmp_path):
+    """Found by tests/test_fuzz_inputs.py (issue 21): an IndexError instead of the message."""
+    header, _ = good_rows()
+    path = write_csv(tmp_path / "empty.csv", header, [])
+    with pytest.raises(InputError, match=r"empty.csv: column 'time': run too short to judge \(0 samples"):
+        load_run(path)
+
+
+@pytest.mark.parametrize("edit", ["absurd_stamp", "rate_in_khz"])
+def test_absurd_stamp_or_rate_is_refused_before_the_grid(tmp_path, edit):
+    """Found by tests/test_fuzz_inputs.py (issue 21): one stamp of 1e300 s made prepare_run allocate a
+    grid of 1e303 points (the process was killed for memory)."""
+    header, rows = good_rows()
+    meta = dict(META)
+    if edit == "absurd_stamp":
+        rows[-1][0] = 1e300
+    else:
+        meta["sample_rate_hz"] = 1e6  # the log is at 1 kHz
+    path = write_csv(tmp_path / "log.csv", header, rows, meta)
+    with pytest.raises(InputError) as error:
+        prepare_run(load_run(path))
+    message = str(error.value)
+    assert "log.csv: column 'time'" in message and "grid points" in message and "Fix:" in message
+    if edit == "absurd_stamp":
+        assert "row 2999" in message and "largest gap 1e+300 s" in message

@@ -118,6 +118,23 @@ BAD_INPUTS = {
         '<xacro:calibrated_dynamics joint="panda_finger_joint1"',
         ["joint 'panda_finger_joint1' (prismatic)", "has no <limit>"],
     ),
+    # found by tests/test_fuzz_inputs.py (issue 21): a ValueError, or accepted
+    "non-numeric mass": (
+        "ur5/ur5.urdf.xacro", 'name="base_link" mesh="base" mass="4.0"', 'name="base_link" mesh="base" mass="4 kg"',
+        ["link 'base_link' <inertial> <mass> value", "'4 kg' is not a number"],
+    ),
+    "infinite effort": (
+        "panda/panda.urdf.xacro", 'effort="100" velocity="0.2"/>', 'effort="inf" velocity="0.2"/>',
+        ["joint 'panda_finger_joint1' (prismatic)", "effort is inf"],
+    ),
+    "zero velocity limit": (
+        "panda/panda.urdf.xacro", 'effort="100" velocity="0.2"/>', 'effort="100" velocity="0"/>',
+        ["joint 'panda_finger_joint1' (prismatic)", "velocity is 0.0"],
+    ),
+    "infinite range": (
+        "panda/panda.urdf.xacro", '<limit lower="0.0" upper="0.04"', '<limit lower="0.0" upper="1e400"',
+        ["joint 'panda_finger_joint1' (prismatic)", "upper=inf is not a range"],
+    ),
     "unknown package": (
         "ur5/ur5.urdf.xacro", "package://example-robot-data/robots/ur_description", "package://ur_nowhere/robots/ur_description",
         ["ur5.urdf.xacro", "<visual> mesh", "unknown package 'ur_nowhere'", "ROS_PACKAGE_PATH"],

@@ -5,6 +5,7 @@ from __future__ import annotations
 import fnmatch
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,17 @@ import yaml
 
 from collision_usd_build import ROBOT, fast_panda_build
 from sim2real.collision import part_files
-from sim2real.usd import axis_frame, build_usd, compliance_errors, principal_inertia, read_urdf
+from sim2real.usd import (
+    CLASSIC_CHECKS,
+    PACKAGE_ONLY_VALIDATORS,
+    PHYSICS_VALIDATORS,
+    axis_frame,
+    build_usd,
+    compliance_errors,
+    principal_inertia,
+    read_urdf,
+    validator_names,
+)
 from sim2real.urdf import mesh_names
 
 pxr = pytest.importorskip("pxr")
@@ -45,10 +56,71 @@ def test_stage_units_root_and_compliance(built: Path, stage: Usd.Stage) -> None:
     assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
     root = stage.GetDefaultPrim()
     assert root.GetPath() == "/panda" and root.HasAPI(UsdPhysics.ArticulationRootAPI)
-    from pxr import UsdUtils
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no DeprecationWarning (UsdUtils.ComplianceChecker is gone), no other
+        assert compliance_errors(built / "results" / ROBOT / "usd" / f"{ROBOT}.usda") == []
 
-    assert hasattr(UsdUtils, "ComplianceChecker"), "the pinned usd-core runs the classic usdchecker checks"
-    assert compliance_errors(built / "results" / ROBOT / "usd" / f"{ROBOT}.usda") == []
+
+def test_validators_replace_every_classic_check_and_add_physics() -> None:
+    names = validator_names()
+    for check, validators in CLASSIC_CHECKS.items():
+        assert set(validators) <= set(names), check
+    assert set(PHYSICS_VALIDATORS) <= set(names)
+    assert not set(names) & PACKAGE_ONLY_VALIDATORS
+
+
+def test_validators_catch_what_the_classic_checker_caught(tmp_path: Path) -> None:
+    """A stage breaking one classic check (and one physics rule) at a time: each is an error."""
+    from pxr import Sdf
+
+    def errors_of(author) -> list[str]:
+        path = tmp_path / f"{author.__name__}.usda"
+        stage = Usd.Stage.CreateNew(str(path))
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+        root = UsdGeom.Xform.Define(stage, "/robot")
+        stage.SetDefaultPrim(root.GetPrim())
+        author(stage)
+        stage.GetRootLayer().Save()
+        return compliance_errors(path)
+
+    def fine(stage: Usd.Stage) -> None:
+        UsdGeom.Cube.Define(stage, "/robot/box")
+
+    def no_default_prim(stage: Usd.Stage) -> None:
+        stage.ClearDefaultPrim()
+
+    def no_up_axis(stage: Usd.Stage) -> None:
+        stage.ClearMetadata("upAxis")
+
+    def missing_reference(stage: Usd.Stage) -> None:
+        stage.DefinePrim("/robot/part").GetReferences().AddReference("./nowhere.usda")
+
+    def nested_gprims(stage: Usd.Stage) -> None:
+        UsdGeom.Cube.Define(stage, "/robot/box")
+        UsdGeom.Sphere.Define(stage, "/robot/box/ball")
+
+    def binding_without_api(stage: Usd.Stage) -> None:
+        material = UsdShade.Material.Define(stage, "/robot/red")
+        box = UsdGeom.Cube.Define(stage, "/robot/box").GetPrim()
+        box.CreateRelationship("material:binding").SetTargets([material.GetPath()])
+
+    def joint_to_nowhere(stage: Usd.Stage) -> None:
+        joint = UsdPhysics.RevoluteJoint.Define(stage, "/robot/joint")
+        joint.CreateBody0Rel().SetTargets([Sdf.Path("/robot/missing_link")])
+
+    assert errors_of(fine) == []
+    expected = {
+        no_default_prim: "usdValidation:StageMetadataChecker",
+        no_up_axis: "usdGeomValidators:StageMetadataChecker",
+        missing_reference: "usdUtilsValidators:MissingReferenceValidator",
+        nested_gprims: "usdGeomValidators:EncapsulationChecker",
+        binding_without_api: "usdShadeValidators:MaterialBindingApiAppliedValidator",
+        joint_to_nowhere: "usdPhysicsValidators:PhysicsJointChecker",
+    }
+    for author, validator in expected.items():
+        found = errors_of(author)
+        assert any(e.startswith(validator) for e in found), (author.__name__, found)
 
 
 def test_joints_limits_in_degrees_and_drives_per_degree(built: Path, stage: Usd.Stage) -> None:

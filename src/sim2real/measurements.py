@@ -46,6 +46,9 @@ if TYPE_CHECKING:
 SIGNAL_KINDS = ("q", "qd", "tau", "tau_cmd", "q_cmd")
 MIN_DURATION_S = 1.0
 MIN_SAMPLES = 100
+# A uniform grid more than this many times denser than the logged samples means a gap, a stamp in other
+# units or a sample_rate_hz that is not the log's: refused before it is allocated.
+MAX_GRID_PER_SAMPLE = 20
 # More than a turn plus a margin: no revolute joint angle in rad, but common in degrees.
 DEGREES_THRESHOLD_RAD = 2 * np.pi + 0.5
 DEFAULT_CUTOFF_HZ = 10.0
@@ -201,13 +204,14 @@ def read_run(path: str | Path) -> Run:
         k = int(bad[0]) + 1
         raise InputError(
             path, f"column 'time', {_row_label(path, k)}",
-            f"time does not increase ({time[k - 1]!r} then {time[k]!r}; {bad.size} such step(s))",
+            f"time does not increase ({float(time[k - 1]):.9g} s then {float(time[k]):.9g} s; {bad.size} such step(s))",
             "sort the samples by time and drop duplicated stamps",
         )
-    if time.size < MIN_SAMPLES or time[-1] - time[0] < MIN_DURATION_S:
+    span = float(time[-1] - time[0]) if time.size else 0.0
+    if time.size < MIN_SAMPLES or span < MIN_DURATION_S:
         raise InputError(
             path, "column 'time'",
-            f"run too short to judge ({time.size} samples over {time[-1] - time[0]:.3f} s)",
+            f"run too short to judge ({time.size} samples over {span:.3f} s)",
             f"log at least {MIN_DURATION_S:g} s and {MIN_SAMPLES} samples of motion",
         )
 
@@ -306,7 +310,16 @@ def prepare_run(
     # 2. uniform grid
     rate = sample_rate_hz or run.meta.get("sample_rate_hz") or 1.0 / float(np.median(raw_steps))
     dt = 1.0 / float(rate)
-    n = int(np.floor((run.time[-1] - run.time[0]) / dt)) + 1
+    n_float = np.floor((run.time[-1] - run.time[0]) / dt) + 1
+    if not n_float <= MAX_GRID_PER_SAMPLE * run.time.size:  # NaN too: a rate or span no grid can hold
+        gap = int(np.argmax(raw_steps)) + 1
+        raise InputError(
+            run.path, f"column 'time', {_row_label(run.path, gap)}",
+            f"{run.time.size} samples span {float(run.time[-1] - run.time[0]):.6g} s, {n_float:.3g} grid points at "
+            f"{float(rate):.6g} Hz (largest gap {float(raw_steps[gap - 1]):.6g} s here)",
+            "log time in seconds, without gaps, and give sample_rate_hz in Hz (or leave it out)",
+        )
+    n = int(n_float)
     grid = run.time[0] + dt * np.arange(n)
 
     def resample(x: np.ndarray | None, t_src: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray | None:

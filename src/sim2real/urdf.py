@@ -25,6 +25,8 @@ The flange is ``panda_link8`` (Panda) / ``tool0`` (UR5), see ``robots/common/cal
 
 from __future__ import annotations
 
+import math
+
 import os
 import sys
 import xml.etree.ElementTree as ET
@@ -208,10 +210,17 @@ def _parse_xml(path: Path, text: str) -> ET.Element:
         raise InputError(path, f"line {exc.position[0]}", f"is not well-formed XML ({exc})", "fix the XML") from exc
 
 
-def _float_attr(element: ET.Element | None, name: str, default: float | None = None) -> float | None:
+def _float_attr(element: ET.Element | None, name: str, default: float | None = None,
+                source: Path | None = None, where: str | None = None) -> float | None:
+    """The attribute as a float (``default`` when absent); a non-number is an InputError naming ``where``."""
     if element is None or element.get(name) is None:
         return default
-    return float(element.get(name))  # type: ignore[arg-type]
+    text = element.get(name, "")
+    try:
+        return float(text)
+    except ValueError:
+        raise InputError(source, f"{where} <{element.tag}> {name}", f"'{text}' is not a number",
+                         f"write {name} as one decimal number") from None
 
 
 def check_inertial(link: ET.Element, source: Path) -> None:
@@ -220,12 +229,12 @@ def check_inertial(link: ET.Element, source: Path) -> None:
     inertial = link.find("inertial")
     if inertial is None:
         return  # a massless frame link (flange, TCP) is fine: it is fused or fixed
-    mass = _float_attr(inertial.find("mass"), "value")
     where = f"link '{name}' <inertial>"
+    mass = _float_attr(inertial.find("mass"), "value", None, source, where)
     if mass is None or not np.isfinite(mass) or mass < 0:
         raise InputError(source, where, f"mass {mass} is not a finite non-negative number", "give a mass in kg >= 0")
     inertia = inertial.find("inertia")
-    values = {k: _float_attr(inertia, k, 0.0) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+    values = {k: _float_attr(inertia, k, 0.0, source, where) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
     if mass == 0:
         if any(v != 0 for v in values.values()):
             raise InputError(source, where, "zero mass with a non-zero inertia", "give the link its mass, or zero inertia")
@@ -267,15 +276,19 @@ def check_joint(joint: ET.Element, source: Path) -> None:
             source, where, "has no <limit>",
             'add <limit lower="..." upper="..." effort="..." velocity="..."/> with the joint range and torque/force',
         )
-    effort = _float_attr(limit, "effort")
-    if effort is None or not effort > 0:
-        raise InputError(source, where, f"<limit> effort is {effort}", "set effort (N m or N) > 0 in <limit>")
+    effort = _float_attr(limit, "effort", None, source, where)
+    if effort is None or not 0 < effort < math.inf:
+        raise InputError(source, where, f"<limit> effort is {effort}", "set a finite effort (N m or N) > 0 in <limit>")
+    velocity = _float_attr(limit, "velocity", None, source, where)
+    if velocity is not None and not 0 < velocity < math.inf:
+        raise InputError(source, where, f"<limit> velocity is {velocity}",
+                         "set a finite velocity (rad/s or m/s) > 0 in <limit>, or leave it out")
     if jtype != "continuous":
-        lower, upper = _float_attr(limit, "lower"), _float_attr(limit, "upper")
-        if lower is None or upper is None or not lower < upper:
+        lower, upper = _float_attr(limit, "lower", None, source, where), _float_attr(limit, "upper", None, source, where)
+        if lower is None or upper is None or not -math.inf < lower < upper < math.inf:
             raise InputError(
                 source, where, f"<limit> lower={lower} upper={upper} is not a range",
-                "set lower < upper in <limit> (rad or m)",
+                "set finite lower < upper in <limit> (rad or m)",
             )
 
 

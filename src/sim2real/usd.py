@@ -431,8 +431,8 @@ def build_usd(
 
     ``visual_dirs``: built visual mesh directories (name = URI file stem), list or URI -> directory.
     ``collision_meshes``: URDF collision mesh URI -> convex part files (or one mesh file).
-    Returns a summary (bodies, joints, drives). Both layers pass ``UsdUtils.ComplianceChecker``
-    before they replace the outputs.
+    Returns a summary (bodies, joints, drives). Both layers pass USD's registered validators
+    (:func:`compliance_errors`) before they replace the outputs.
     """
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics, UsdShade
 
@@ -631,44 +631,63 @@ def _primitive(stage: Any, path: str, item: Geometry) -> Any:
 
 
 # usdz/ARKit packaging rules: this asset is a plain .usda pair, not a package.
-PACKAGE_ONLY_VALIDATORS = {"usdUtilsValidators:UsdzPackageValidator", "usdUtilsValidators:RootPackageValidator"}
+PACKAGE_ONLY_VALIDATORS = frozenset({"usdUtilsValidators:UsdzPackageValidator", "usdUtilsValidators:RootPackageValidator"})
+# Every check UsdUtils.ComplianceChecker (usdchecker's classic checks, removed in usd-core 26.8) made on
+# a non-ARKit asset, and the registered UsdValidation validators that make it now. compliance_errors
+# refuses a usd-core that lacks any of them, so no check is silently lost. The classic
+# ByteAlignment/Compression checks apply to usdz packages only (PACKAGE_ONLY_VALIDATORS); the classic
+# TextureChecker has no validator yet and nothing to check here (the writer authors no textures).
+CLASSIC_CHECKS = {
+    "StageMetadataChecker": ("usdValidation:StageMetadataChecker", "usdGeomValidators:StageMetadataChecker"),
+    "MissingReferenceChecker": ("usdUtilsValidators:MissingReferenceValidator",),
+    "PrimEncapsulationChecker": ("usdGeomValidators:EncapsulationChecker",
+                                 "usdShadeValidators:EncapsulationRulesValidator"),
+    "NormalMapTextureChecker": ("usdShadeValidators:NormalMapTextureValidator",),
+    "MaterialBindingAPIAppliedChecker": ("usdShadeValidators:MaterialBindingApiAppliedValidator",),
+    "SkelBindingAPIAppliedChecker": ("usdSkelValidators:SkelBindingApiAppliedValidator",),
+    "ShaderPropertyTypeConformanceChecker": ("usdShadeValidators:ShaderSdrCompliance",),
+}
+# The UsdPhysics checks the classic checker never had.
+PHYSICS_VALIDATORS = (
+    "usdPhysicsValidators:ArticulationChecker", "usdPhysicsValidators:ColliderChecker",
+    "usdPhysicsValidators:PhysicsJointChecker", "usdPhysicsValidators:RigidBodyChecker",
+)
+
+
+def validator_names() -> list[str]:
+    """Every registered UsdValidation validator the asset is checked with (all but the usdz-package ones).
+
+    Raises ``RuntimeError`` when the installed usd-core lacks a validator that replaces a classic check.
+    """
+    from pxr import UsdValidation
+
+    registry = UsdValidation.ValidationRegistry()
+    names = {str(m.name) for m in registry.GetAllValidatorMetadata() if not m.isSuite} - PACKAGE_ONLY_VALIDATORS
+    required = {n for ns in CLASSIC_CHECKS.values() for n in ns} | set(PHYSICS_VALIDATORS)
+    missing = sorted(required - names)
+    if missing:
+        raise RuntimeError(f"usd-core lacks the UsdValidation validators {', '.join(missing)}; "
+                           "install the usd-core pyproject.toml asks for (pip install -e .)")
+    return sorted(names)
 
 
 def compliance_errors(usd_path: str | Path) -> list[str]:
-    """Errors of USD's compliance checking on a USD file and the layers it references.
+    """Errors of USD's validation framework on a USD file and every layer it uses.
 
-    ``UsdUtils.ComplianceChecker`` (usdchecker's classic checks; usd-core < 26.8 still ships it,
-    hence the pin in pyproject.toml) and the UsdValidation framework that replaces it, whose
-    validators add UsdPhysics' articulation, joint, rigid-body and collider checks. Both run where
-    the installed pxr has them.
+    Runs every registered ``pxr.UsdValidation`` validator (:func:`validator_names`: core, UsdGeom,
+    UsdShade, UsdSkel, UsdUtils and UsdPhysics' articulation, joint, rigid-body and collider checks) on
+    the stage, its used layers and every prim; each error as "<validator>.<error>: <message>".
     """
-    import warnings
+    from pxr import Usd, UsdValidation
 
-    from pxr import Usd, UsdUtils
-
-    errors: list[str] = []
-    checker_class = getattr(UsdUtils, "ComplianceChecker", None)
-    if checker_class is not None:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)  # deprecated in favour of UsdValidation, run below
-            checker = checker_class(arkit=False, skipARKitRootLayerCheck=True, rootPackageOnly=False, skipVariants=False)
-        checker.CheckCompliance(str(usd_path))
-        errors += [f"ComplianceChecker: {e}" for e in list(checker.GetErrors()) + list(checker.GetFailedChecks())]
-    try:
-        from pxr import UsdValidation
-    except ImportError:
-        return errors
     registry = UsdValidation.ValidationRegistry()
-    names = sorted(str(m.name) for m in registry.GetAllValidatorMetadata() if str(m.name) not in PACKAGE_ONLY_VALIDATORS)
-    validators = [registry.GetOrLoadValidatorByName(name) for name in names]
-    context = UsdValidation.ValidationContext(validators)
+    context = UsdValidation.ValidationContext(registry.GetOrLoadValidatorsByName(validator_names()))
     stage = Usd.Stage.Open(str(usd_path))
-    errors += sorted(
+    return sorted(
         f"{error.GetIdentifier()}: {error.GetMessage()}"
         for error in context.Validate(stage)
         if error.GetType() == UsdValidation.ValidationErrorType.Error
     )
-    return errors
 
 
 @contextlib.contextmanager

@@ -32,7 +32,8 @@ def _preschema_checks(config: Any, path: str | Path | None) -> None:
     """Friendlier errors than the schema would give for template keys MuJoCo cannot represent."""
     if not isinstance(config, Mapping):
         return
-    friction = (config.get("physics_randomization") or {}).get("surface_friction")
+    physics = config.get("physics_randomization")
+    friction = physics.get("surface_friction") if isinstance(physics, Mapping) else None  # else the schema says why
     if isinstance(friction, Mapping):
         for key in ("static_friction_range", "dynamic_friction_range", "restitution_range"):
             if key in friction:

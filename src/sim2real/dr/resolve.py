@@ -40,6 +40,14 @@ from sim2real.io import read_yaml
 FORMAT_VERSION = 1
 
 
+def _plural(what: str) -> str:
+    """'body with mass' -> 'bodies with mass', 'colliding geom' -> 'colliding geoms'."""
+    head, with_, rest = what.partition(" with ")
+    words = head.split(" ")
+    words[-1] = words[-1][:-1] + "ies" if words[-1].endswith("y") else words[-1] + "s"
+    return " ".join(words) + with_ + rest
+
+
 def _match_selector(
     patterns: Sequence[str],
     candidates: Sequence[tuple[int, str]],
@@ -57,7 +65,7 @@ def _match_selector(
                 path,
                 f"key '{key}[{index}]'",
                 f"pattern '{pattern}' matches no {what} in {mjcf_label}",
-                f"correct the pattern (glob, case-sensitive) or remove it; available {what}s: {shown}",
+                f"correct the pattern (glob, case-sensitive) or remove it; available {_plural(what)}: {shown}",
             )
     return [(i, n) for i, n in candidates if any(fnmatch.fnmatchcase(n, p) for p in patterns)]
 
