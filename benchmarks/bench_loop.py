@@ -1,0 +1,177 @@
+"""One round of the gap loop, timed (issue 20): a change of model.yaml through to a new gap.json.
+
+Part 1, the Panda demo through Snakemake: after a cold build of ``results/panda/gap.json``, ``model.yaml``
+is changed (a comment, so the numbers stay the same) and the target rebuilt; the rule times of ``sysid``
+and ``gap_report`` come from their ``benchmark:`` files. Median of ``--repeats``.
+
+Part 2, where a round spends its time and how that grows with the log: the lab's ``real_arm_like`` arm is
+logged for each ``--lengths`` (seconds; default 20 s, 2 min, 10 min), and one round (``sysid.run_sysid`` +
+``gap.build_gap_report``, the two rules' functions) runs in a fresh process under cProfile. Stages are the
+cumulative time of the functions that do them (nested stages overlap: the diagnosis holds its candidates'
+fits). Peak memory is the process's maximum resident set.
+
+    python benchmarks/bench_loop.py [--repeats 3] [--lengths 20 120 600] [--skip-demo]
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import csv
+import json
+import multiprocessing
+import pstats
+import resource
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+from buildtree import copy_repo, edit_yaml, make_fast, run_snakemake  # noqa: E402
+
+# Stage -> (module file suffix, function name): cumulative time of that function in one round.
+STAGES = {
+    "read + prepare runs": [("measurements.py", "read_runs"), ("measurements.py", "prepare_runs"),
+                            ("measurements.py", "load_prepared_runs")],
+    "regressors": [("dynamics.py", "regressor")],
+    "nominal inverse dynamics": [("dynamics.py", "inverse_dynamics")],
+    "ladder (all rungs)": [("sysid.py", "fit_ladder")],
+    "  rung fit (incl. consistency, bootstrap)": [("fitting.py", "fit")],
+    "  nonlinear refinement": [("fitting.py", "_refine_nonlinear")],
+    "  consistent fit (SDP)": [("fitting.py", "_consistent_fit")],
+    "  prior weight (held-out CV)": [("inertial.py", "choose_prior_weight")],
+    "  bootstrap": [("fitting.py", "_block_bootstrap")],
+    "  diagnosis (candidate trials)": [("diagnosis.py", "diagnose")],
+    "gap: compute (replay, metrics)": [("gap.py", "compute_gap")],
+    "  replay in MuJoCo": [("gap.py", "replay")],
+    "gap: figures": [("report.py", "write_gap_figures")],
+    "writing": [("io.py", "write_json"), ("io.py", "write_yaml"), ("io.py", "write_text")],
+}
+
+
+def stage_times(stats: pstats.Stats) -> dict[str, float]:
+    out = {stage: 0.0 for stage in STAGES}
+    for (filename, _, function), (_, _, _, cumulative, _) in stats.stats.items():  # type: ignore[attr-defined]
+        for stage, targets in STAGES.items():
+            if any(filename.endswith(f"sim2real/{suffix}") and function == name for suffix, name in targets):
+                out[stage] += cumulative
+    return out
+
+
+def one_round(tree: str, measurements: str, out: str, queue: multiprocessing.Queue) -> None:
+    """In a fresh process: sysid then gap report on ``measurements``; stage times, wall time, peak RSS."""
+    from sim2real.gap import build_gap_report
+    from sim2real.sysid import run_sysid
+
+    t = Path(tree)
+    o = Path(out)
+    profiler = cProfile.Profile()
+    started = time.perf_counter()
+    profiler.enable()
+    run_sysid("panda", t / "results/panda/panda.urdf", t / "configs/panda/robot.yaml", t / "configs/panda/model.yaml",
+              measurements, o / "ladder.json", o / "params.yaml", o / "calibration.yaml", root=t)
+    sysid_s = time.perf_counter() - started
+    build_gap_report("panda", t / "results/panda/panda.urdf", t / "results/panda/mjcf/panda.xml", measurements,
+                     o / "gap.json", o / "gap.md", {k: o / f"{k}.png" for k in ("torque", "residual_velocity",
+                                                                               "regimes", "ladder")},
+                     precomputed_path=o / "ladder.json", root=t)
+    profiler.disable()
+    total = time.perf_counter() - started
+    stages = stage_times(pstats.Stats(profiler))
+    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    queue.put({"sysid_s": sysid_s, "gap_s": total - sysid_s, "total_s": total, "stages": stages, "peak_mib": peak_mib})
+
+
+def profiled_round(tree: Path, measurements: Path, out: Path) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    process = context.Process(target=one_round, args=(str(tree), str(measurements), str(out), queue))
+    process.start()
+    result = queue.get()
+    process.join()
+    return result
+
+
+def demo_rounds(tree: Path, repeats: int) -> None:
+    run_snakemake(tree, "results/panda/gap.json", timeout=3600)
+    model = tree / "configs/panda/model.yaml"
+    original = model.read_text()
+    rows = []
+    for k in range(repeats):
+        model.write_text(original + f"# bench_loop round {k}\n")  # a change of model.yaml, same numbers
+        run_snakemake(tree, "results/panda/gap.json", timeout=3600)
+        times = {}
+        for rule in ("sysid", "gap_report"):
+            with open(tree / f"results/panda/benchmarks/{rule}.tsv") as handle:
+                times[rule] = float(next(csv.DictReader(handle, delimiter="\t"))["s"])
+        rows.append(times)
+        print(f"  demo round {k + 1}: sysid {times['sysid']:.1f} s + gap_report {times['gap_report']:.1f} s = "
+              f"{times['sysid'] + times['gap_report']:.1f} s")
+    model.write_text(original)
+    for rule in ("sysid", "gap_report"):
+        print(f"  median {rule}: {statistics.median(r[rule] for r in rows):.1f} s")
+    print(f"  median round (sysid + gap_report): {statistics.median(r['sysid'] + r['gap_report'] for r in rows):.1f} s"
+          " (target: under 5 s)")
+
+
+def lab_runs(tree: Path, length_s: float) -> Path:
+    """real_arm_like fit and holdout runs of ``length_s`` each, through the DAG's own lab rule."""
+    scenario = f"real_arm_like_{int(length_s)}s"
+
+    def add(data: dict) -> None:
+        data["scenarios"][scenario] = {**data["scenarios"]["real_arm_like"], "duration_s": float(length_s)}
+
+    edit_yaml(tree / "configs/panda/lab.yaml", add)
+    run_snakemake(tree, *(f"results/panda/lab/{scenario}/{run}.parquet" for run in ("fit", "holdout")),
+                  timeout=7200)
+    listing = tree / f"{scenario}.measurements.yaml"
+    listing.write_text(yaml.safe_dump({"runs": [
+        {"name": run, "path": f"results/panda/lab/{scenario}/{run}.parquet", "role": run}
+        for run in ("fit", "holdout")]}))
+    return listing
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--lengths", type=float, nargs="+", default=[20.0, 120.0, 600.0])
+    parser.add_argument("--skip-demo", action="store_true")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = copy_repo(ROOT, Path(tmp) / "project")
+        make_fast(tree)  # coarse CoACD parts only: the loop's own settings stay the demo's
+        if not args.skip_demo:
+            print("Panda demo through Snakemake (rule times after a change of model.yaml):")
+            demo_rounds(tree, args.repeats)
+        else:
+            run_snakemake(tree, "results/panda/mjcf/panda.xml", "results/panda/panda.urdf", timeout=3600)
+        results = {}
+        for length in args.lengths:
+            listing = lab_runs(tree, length)
+            results[length] = profiled_round(tree, listing, Path(tmp) / f"round_{int(length)}")
+            r = results[length]
+            print(f"\nreal_arm_like, {length:g} s fit + {length:g} s holdout at 1 kHz: sysid {r['sysid_s']:.1f} s, "
+                  f"gap report {r['gap_s']:.1f} s, peak memory {r['peak_mib']:.0f} MiB (the process, cProfile on)")
+        lengths = list(results)
+        print("\nstage [s]" + "".join(f"{f'{L:g} s log':>14s}" for L in lengths)
+              + (f"{'x ' + f'{lengths[-1]:g}/{lengths[-2]:g}':>12s}" if len(lengths) > 1 else ""))
+        for stage in STAGES:
+            values = [results[L]["stages"][stage] for L in lengths]
+            ratio = (f"{values[-1] / values[-2]:12.1f}" if len(values) > 1 and values[-2] > 0 else "")
+            print(f"{stage:42s}" + "".join(f"{v:14.2f}" for v in values) + ratio)
+        totals = [results[L]["total_s"] for L in lengths]
+        print(f"{'round (sysid + gap report)':42s}" + "".join(f"{v:14.2f}" for v in totals)
+              + (f"{totals[-1] / totals[-2]:12.1f}" if len(totals) > 1 else "") + "   (target: 10 min < 5x 2 min)")
+        print(json.dumps({f"{L:g}": {k: round(v, 3) for k, v in results[L]["stages"].items()} for L in lengths}),
+              file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
