@@ -521,3 +521,17 @@ def test_run_metadata_says_where_the_torque_sensor_sits(dev, tmp_path):
     bad.write_text(yaml.safe_dump(data))
     with pytest.raises(InputError):
         load_lab_config(bad)
+
+
+def test_a_scenario_without_runs_names_the_key(tmp_path) -> None:
+    """Found by tests/test_fuzz_inputs.py: no runs under `defaults` nor under a scenario was a KeyError."""
+    import pytest
+    import yaml
+
+    from sim2real.errors import InputError
+    from sim2real.lab import load_lab_config
+
+    path = tmp_path / "lab.yaml"
+    path.write_text(yaml.safe_dump({"joints": ["panda_joint1"], "scenarios": {"quiet": {"duration_s": 4}}}))
+    with pytest.raises(InputError, match=r"scenarios/quiet/runs: the scenario has no runs"):
+        load_lab_config(path)

@@ -7,11 +7,12 @@ failure never leaves a partial output behind.
 from __future__ import annotations
 
 import contextlib
+import copy
 import json
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator, Mapping
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -120,3 +121,15 @@ def validate(data: Any, schema_name: str, path: str | Path | None = None) -> Any
 def read_validated_yaml(path: str | Path, schema_name: str) -> Any:
     data = read_yaml(path)
     return validate(data, schema_name, path)
+
+
+def merge_settings(base: Mapping[str, Any], override: Mapping[str, Any], replace: Collection[str] = ()) -> dict[str, Any]:
+    """``override`` merged into a copy of ``base``, nested maps key by key (a config's ``defaults`` under each
+    entry); the keys in ``replace`` are taken whole from ``override`` (a scenario's own ``effects``)."""
+    out = copy.deepcopy(dict(base))
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping) and key not in replace:
+            out[key] = merge_settings(out[key], value, replace)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out

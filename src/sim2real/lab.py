@@ -65,7 +65,6 @@ loop (:func:`simulate_run`) on the same models and state, and the config's valid
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -74,7 +73,7 @@ import mujoco
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.io import read_validated_yaml, write_yaml
+from sim2real.io import merge_settings, read_validated_yaml, write_yaml
 
 EFFECTS = (
     "viscous_friction",
@@ -111,23 +110,17 @@ DEFAULTS: dict[str, Any] = {
 # configuration
 
 
-def _merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
-    out = copy.deepcopy(dict(base))
-    for key, value in override.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping) and key != "effects":
-            out[key] = _merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
-
-
 def load_lab_config(path: str | Path) -> dict[str, Any]:
     """Validated lab.yaml with defaults merged into every scenario: {joints, scenarios: {name: settings}}."""
     path = Path(path)
     data = read_validated_yaml(path, "lab.schema.yaml")
-    base = _merge(DEFAULTS, data.get("defaults", {}))
-    scenarios = {name: _merge(base, spec or {}) for name, spec in data["scenarios"].items()}
+    base = merge_settings(DEFAULTS, data.get("defaults", {}), replace=("effects",))
+    scenarios = {name: merge_settings(base, spec or {}, replace=("effects",))
+                 for name, spec in data["scenarios"].items()}
     for name, scenario in scenarios.items():
+        if not scenario.get("runs"):
+            raise InputError(path, f"scenarios/{name}/runs", "the scenario has no runs",
+                             "list runs ({name, seed, role}) under `defaults` or under the scenario")
         names = [run["name"] for run in scenario["runs"]]
         if len(set(names)) != len(names):
             raise InputError(path, f"scenarios/{name}/runs", "duplicate run names", "give each run a unique name")

@@ -6,7 +6,6 @@ so that every error names the excitation file, the key and the fix.
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.io import read_validated_yaml
+from sim2real.io import merge_settings, read_validated_yaml
 
 DEFAULTS: dict[str, Any] = {
     "duration_s": 20.0,
@@ -86,16 +85,6 @@ class Design:
         return np.full(len(self.joints), float(value))
 
 
-def _merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
-    out = copy.deepcopy(dict(base))
-    for key, value in override.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = _merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
-
-
 def load_designs(path: str | Path) -> dict[str, Design]:
     """Every design of the file, defaults merged, with the checks that need no robot."""
     path = Path(path)
@@ -103,10 +92,10 @@ def load_designs(path: str | Path) -> dict[str, Design]:
     joints = list(data["joints"])
     if len(set(joints)) != len(joints):
         raise InputError(path, "joints", "a joint is listed twice", "list each joint once")
-    base = _merge(DEFAULTS, data.get("defaults") or {})
+    base = merge_settings(DEFAULTS, data.get("defaults") or {})
     designs = {}
     for name, spec in data["designs"].items():
-        design = Design(name, path, joints, [], _merge(base, spec or {}))
+        design = Design(name, path, joints, [], merge_settings(base, spec or {}))
         excite = list(design.settings.get("excite") or joints)
         unknown = [j for j in excite if j not in joints]
         if unknown:
@@ -124,7 +113,7 @@ def load_design(path: str | Path, name: str, allow_default: bool = False) -> Des
     if name not in designs and allow_default:
         data = read_validated_yaml(Path(path), "excitation.schema.yaml")
         joints = list(data["joints"])
-        design = Design(name, Path(path), joints, [], _merge(DEFAULTS, data.get("defaults") or {}))
+        design = Design(name, Path(path), joints, [], merge_settings(DEFAULTS, data.get("defaults") or {}))
         design = Design(name, Path(path), joints, list(design.settings.get("excite") or joints), design.settings)
         _check_period(design)
         return design
