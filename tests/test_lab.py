@@ -521,3 +521,13 @@ def test_run_metadata_says_where_the_torque_sensor_sits(dev, tmp_path):
     bad.write_text(yaml.safe_dump(data))
     with pytest.raises(InputError):
         load_lab_config(bad)
+
+
+def test_scenario_without_runs_anywhere_is_an_input_error(tmp_path):
+    """Found by tests/test_fuzz_inputs.py (issue 21): a KeyError when neither defaults nor the scenario list runs."""
+    data = yaml.safe_load((REPO / "configs/panda/lab.yaml").read_text())
+    del data["defaults"]["runs"]
+    path = tmp_path / "lab.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(InputError, match=r"lab.yaml: scenarios/\w+/runs: no runs.*Fix: list runs under defaults"):
+        load_lab_config(path)

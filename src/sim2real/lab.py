@@ -128,6 +128,10 @@ def load_lab_config(path: str | Path) -> dict[str, Any]:
     base = _merge(DEFAULTS, data.get("defaults", {}))
     scenarios = {name: _merge(base, spec or {}) for name, spec in data["scenarios"].items()}
     for name, scenario in scenarios.items():
+        if "runs" not in scenario:
+            raise InputError(path, f"scenarios/{name}/runs", "no runs: neither the scenario nor defaults lists any",
+                             "list runs under defaults: (or the scenario), e.g. runs: [{name: fit, seed: 1, role: fit}, "
+                             "{name: holdout, seed: 2, role: holdout}]")
         names = [run["name"] for run in scenario["runs"]]
         if len(set(names)) != len(names):
             raise InputError(path, f"scenarios/{name}/runs", "duplicate run names", "give each run a unique name")
