@@ -429,3 +429,16 @@ def test_physics_randomization_not_a_map_is_an_input_error() -> None:
 
     with pytest.raises(InputError, match="dr.yaml: key 'physics_randomization'"):
         validate_config({"physics_randomization": True}, "configs/panda/dr.yaml")
+
+
+def test_range_beyond_floating_point_or_an_endless_delay_is_an_input_error(panda_model: mujoco.MjModel) -> None:
+    """Found by tests/test_fuzz_inputs.py (issue 21): a kp scale of 1.8e306 times kp overflowed to inf
+    and write_json failed (ValueError); a delay of 1e6 s asked for a history buffer of 5e8 samples."""
+    config = panda_config()
+    config["physics_randomization"]["actuator_gains"]["kp_range"] = [0.7, 1.8e306]
+    with pytest.raises(InputError, match=r"key 'physics_randomization/actuator_gains'.*beyond floating point"):
+        dr.resolve_config(config, panda_model, config_path="dr.yaml")
+    config = panda_config()
+    config["physics_randomization"]["action_delay"]["delay_range"] = [0.01, 1.0e6]
+    with pytest.raises(InputError, match=r"key 'physics_randomization/action_delay'.*history samples"):
+        dr.resolve_config(config, panda_model, config_path="dr.yaml")

@@ -28,11 +28,12 @@ from sim2real.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = int(os.environ.get("SIM2REAL_FUZZ_EXAMPLES", "0")) or None
+RANDOM = os.environ.get("SIM2REAL_FUZZ_RANDOM") == "1"  # benchmarks/fuzz_inputs.py --seed: explore beyond the fixed seed
 
 
 def fuzz(examples: int) -> settings:
     """Fixed seed, no example database, ``examples`` cases (``SIM2REAL_FUZZ_EXAMPLES`` overrides)."""
-    return settings(derandomize=True, max_examples=EXAMPLES or examples, deadline=None, database=None,
+    return settings(derandomize=not RANDOM, max_examples=EXAMPLES or examples, deadline=None, database=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 
 
@@ -107,17 +108,17 @@ def broken(draw: st.DrawFn, base: Any, extra_values: st.SearchStrategy = st.noth
         action = draw(st.sampled_from(["replace", "replace", "remove", "add"]))
         if not path:
             if action == "replace":
-                doc = draw(JUNK)
+                doc = copy.deepcopy(draw(JUNK))
             continue
         target = parent[path[-1]]
         if action == "replace":
-            parent[path[-1]] = draw(st.one_of(JUNK, extra_values))
+            parent[path[-1]] = copy.deepcopy(draw(st.one_of(JUNK, extra_values)))  # never a strategy's own object
         elif action == "remove":
             del parent[path[-1]]
         elif isinstance(target, dict):
-            target[draw(st.text(min_size=1, max_size=6))] = draw(JUNK)
+            target[draw(st.text(min_size=1, max_size=6))] = copy.deepcopy(draw(JUNK))
         elif isinstance(target, list):
-            target.append(draw(JUNK))
+            target.append(copy.deepcopy(draw(JUNK)))
     return doc
 
 

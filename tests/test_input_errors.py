@@ -7,6 +7,7 @@ built one where only dr.yaml is under test (``--allowed-rules`` keeps Snakemake 
 
 from __future__ import annotations
 
+import logging
 import os
 import subprocess
 import sys
@@ -71,6 +72,37 @@ def campaign(path: str, date: str | None = None) -> str:
     if date:
         data["campaign"] = {"arm": "panda", "date": date}
     return yaml.safe_dump(data, sort_keys=False)
+
+
+def test_rule_entry_logs_the_traceback_and_prints_the_message(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """The entry of every script, without Snakemake: what the log and stderr get, and what onerror finds."""
+    from types import SimpleNamespace
+
+    from sim2real.cli import INPUT_ERROR_MARK, input_error_lines, rule_entry
+    from sim2real.errors import InputError
+
+    log = tmp_path / "logs" / "rule.log"
+    log.parent.mkdir()
+    job = SimpleNamespace(log=[str(log)])
+    with pytest.raises(SystemExit) as exit_:
+        with rule_entry(job):
+            raise InputError("configs/x.yaml", "key 'a'", "is wrong\nacross lines", "fix it")
+    assert exit_.value.code == 1
+    assert capsys.readouterr().err == "configs/x.yaml: key 'a': is wrong across lines. Fix: fix it\n"
+    text = log.read_text()
+    assert "Traceback (most recent call last)" in text and "raise InputError(" in text
+    assert text.splitlines()[-1] == INPUT_ERROR_MARK + "configs/x.yaml: key 'a': is wrong across lines. Fix: fix it"
+    main_log = tmp_path / "snakemake.log"
+    main_log.write_text(f"Error in rule x:\n    jobid: 3\n    log: {log} (check log file(s) for error details)\n")
+    assert input_error_lines(main_log) == ["configs/x.yaml: key 'a': is wrong across lines. Fix: fix it"]
+    with pytest.raises(KeyError):  # a bug propagates, traceback and all
+        with rule_entry(job):
+            raise KeyError("bug")
+    assert "KeyError: 'bug'" in log.read_text()
+    root = logging.getLogger()
+    for handler in [h for h in root.handlers if isinstance(h, logging.FileHandler)]:
+        root.removeHandler(handler)
+        handler.close()
 
 
 def test_robot_without_folder_one_line_at_parse_time(tmp_path: Path) -> None:

@@ -523,15 +523,11 @@ def test_run_metadata_says_where_the_torque_sensor_sits(dev, tmp_path):
         load_lab_config(bad)
 
 
-def test_a_scenario_without_runs_names_the_key(tmp_path) -> None:
-    """Found by tests/test_fuzz_inputs.py: no runs under `defaults` nor under a scenario was a KeyError."""
-    import pytest
-    import yaml
-
-    from sim2real.errors import InputError
-    from sim2real.lab import load_lab_config
-
+def test_scenario_without_runs_anywhere_is_an_input_error(tmp_path):
+    """Found by tests/test_fuzz_inputs.py (issue 21): a KeyError when neither defaults nor the scenario list runs."""
+    data = yaml.safe_load((REPO / "configs/panda/lab.yaml").read_text())
+    del data["defaults"]["runs"]
     path = tmp_path / "lab.yaml"
-    path.write_text(yaml.safe_dump({"joints": ["panda_joint1"], "scenarios": {"quiet": {"duration_s": 4}}}))
-    with pytest.raises(InputError, match=r"scenarios/quiet/runs: the scenario has no runs"):
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(InputError, match=r"lab.yaml: scenarios/\w+/runs: no runs.*Fix: list runs under defaults"):
         load_lab_config(path)

@@ -58,9 +58,10 @@ def _print_pending() -> None:
 
 
 def _defer(lines: Sequence[str]) -> None:
-    if not _PENDING:
-        atexit.register(_print_pending)
-    _PENDING.extend(line for line in lines if line not in _PENDING)
+    new = [line for line in dict.fromkeys(lines) if line not in _PENDING]
+    if new and not _PENDING:
+        atexit.register(_print_pending)  # once: _PENDING is never emptied
+    _PENDING.extend(new)
 
 
 def _input_error_in(error: BaseException | None) -> InputError | str | None:

@@ -119,8 +119,9 @@ def load_lab_config(path: str | Path) -> dict[str, Any]:
                  for name, spec in data["scenarios"].items()}
     for name, scenario in scenarios.items():
         if not scenario.get("runs"):
-            raise InputError(path, f"scenarios/{name}/runs", "the scenario has no runs",
-                             "list runs ({name, seed, role}) under `defaults` or under the scenario")
+            raise InputError(path, f"scenarios/{name}/runs", "no runs: neither the scenario nor defaults lists any",
+                             "list runs under defaults: (or the scenario), e.g. runs: [{name: fit, seed: 1, role: fit}, "
+                             "{name: holdout, seed: 2, role: holdout}]")
         names = [run["name"] for run in scenario["runs"]]
         if len(set(names)) != len(names):
             raise InputError(path, f"scenarios/{name}/runs", "duplicate run names", "give each run a unique name")

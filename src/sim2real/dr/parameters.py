@@ -207,10 +207,12 @@ def sensor_candidates(model: mujoco.MjModel, sensor_type: int) -> list[tuple[int
 
 
 def apply_operation(operation: str, nominal: np.ndarray, declared: np.ndarray) -> np.ndarray:
-    if operation == "scale":
-        return nominal * declared
-    if operation == "add":
-        return nominal + declared
+    """Absolute values; an overflow gives inf, which resolve_config refuses with the key to fix."""
+    with np.errstate(over="ignore"):
+        if operation == "scale":
+            return nominal * declared
+        if operation == "add":
+            return nominal + declared
     if operation == "abs":
         if np.shape(declared) == nominal.shape:
             return np.array(declared, dtype=float)

@@ -38,6 +38,9 @@ from sim2real.errors import InputError
 from sim2real.io import read_yaml
 
 FORMAT_VERSION = 1
+# MuJoCo allocates an actuator's history buffer of this many samples per actuator at most (a delay of
+# 100 s at 1 ms): beyond it a delay range is a typo, not a bus latency.
+MAX_HISTORY_SAMPLES = 100_000
 
 
 def _plural(what: str) -> str:
@@ -207,12 +210,21 @@ def resolve_config(
         physics.append(_resolve_physics_channel(term_cfg, parameter, model, config_path, mjcf_label))
     noise = [_resolve_noise(name, noise_cfg[name], model, config_path, mjcf_label) for name in sorted(noise_cfg)]
 
+    for channel in physics:
+        _check_finite(channel, config_path)
     timestep = float(model.opt.timestep)
     delay_samples = 0
     for channel in physics:
         if channel["channel"] == "delay":
             max_delay = max(t["range"][0][1] for t in channel["targets"])
             delay_samples = required_history_samples(max_delay, timestep)
+            if delay_samples > MAX_HISTORY_SAMPLES:
+                raise InputError(
+                    config_path, f"key 'physics_randomization/{channel['term']}'",
+                    f"a delay of {fmt(max_delay)} s needs {delay_samples} actuator history samples at the "
+                    f"{fmt(timestep)} s time step (at most {MAX_HISTORY_SAMPLES})",
+                    "randomize delays of milliseconds to a fraction of a second",
+                )
     return {
         "format_version": FORMAT_VERSION,
         "robot": robot,
@@ -223,6 +235,27 @@ def resolve_config(
         "curriculum": curriculum_levels(config, config_path),
         "actuator_history_samples": delay_samples,
     }
+
+
+def _check_finite(channel: Mapping[str, Any], path: str | Path | None) -> None:
+    """Every resolved number is finite: a huge scale times a nominal value overflows to inf."""
+
+    def numbers(value: Any) -> list[float]:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return [float(value)]
+        if isinstance(value, Mapping):
+            return [x for v in value.values() for x in numbers(v)]
+        if isinstance(value, (list, tuple)):
+            return [x for v in value for x in numbers(v)]
+        return []
+
+    for target in channel["targets"]:
+        if not all(math.isfinite(x) for x in numbers(target)):
+            raise InputError(
+                path, f"key 'physics_randomization/{channel['term']}'",
+                f"the range resolves to a value beyond floating point on '{target.get('name')}' ({channel['channel']})",
+                "use a range whose bounds (times the nominal value, for operation: scale) stay finite",
+            )
 
 
 def required_history_samples(max_delay: float, timestep: float) -> int:
