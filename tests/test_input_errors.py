@@ -147,7 +147,7 @@ def test_each_bad_input_ends_in_its_one_line_message(tmp_path: Path) -> None:
         ("robots/ur5/ur5.urdf.xacro", "limit"),
         ("configs/panda/dr.yaml", "physics_randomization/body_mass/range", "reversed", "Fix: write it as [0.9, 1.1]"),
         ("data/panda/nan.csv", "q.panda_joint3", "NaN"),
-        ("joint(s) elbow", "not in the robot description", "Fix:"),  # names the URDF (run_sysid's probe), not the CSV
+        ("data/panda/unknown.csv", "column q.elbow", "is not in", "Fix: name the columns after the URDF"),
         ("data/panda/degrees.csv", "q.panda_joint4", "degrees", "Fix:"),
         ("data/panda/backwards.csv", "column 'time', row 200", "1.99 s then 1 s", "Fix:"),
     ])

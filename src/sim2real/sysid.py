@@ -312,6 +312,12 @@ def run_sysid(
     robot_config = read_yaml(robot_config_path) or {}
     # each run file is read once; the joints and limits to check the runs against come from the first run
     entries, runs, settings = read_runs(measurement_list, root)
+    probe = RigidBodyModel(urdf_path)
+    for run in runs:
+        unknown = [j for j in run.joint_names if j not in probe.joint_names]
+        if unknown:  # the run's column names the joint: the file to edit is the run, not the URDF
+            raise InputError(run.path, f"column q.{unknown[0]}", f"joint '{unknown[0]}' is not in {urdf_path}",
+                             f"name the columns after the URDF's joints ({', '.join(probe.joint_names)})")
     probe = RigidBodyModel(urdf_path, runs[0].joint_names)
     limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(probe.joint_names, probe.lower, probe.upper, strict=True)}
     prepared = prepare_runs(runs, settings, probe.joint_names, limits)
