@@ -3,7 +3,9 @@
 Builds, in a temporary copy of the project, the designed excitation ``identification``
 (configs/panda/excitation.yaml, full quality unless ``--coarse``) and the lab runs that play it
 (scenario ``real_arm_like_designed``) beside the lab's random Fourier excitation of the same duration
-(``real_arm_like``). Both fits are judged on the same independent holdout run (random excitation, seed 12).
+(``real_arm_like``), and the same design with the D-optimal objective. Every fit is judged on two holdout runs
+of the same arm: the lab's random one (seed 12, drawn like the random fit run) and one drawn unlike any fit
+run (another series).
 Prints, for each: the condition number of the identification regressor (the design's metric, on the
 measured motion), the link-inertia condition number gap.md reports, the width of the bootstrap intervals
 of the inertial parameters, and the final rung's holdout RMSE per joint; and the design's time.
@@ -35,7 +37,7 @@ from sim2real.sysid import load_model_config, run_sysid  # noqa: E402
 
 CASES = {"random (lab)": "real_arm_like", "designed": "real_arm_like_designed",
          "designed (D)": "real_arm_like_d_optimal"}
-HOLDOUT = "results/panda/lab/real_arm_like/holdout.parquet"
+HOLDOUTS = ["results/panda/lab/real_arm_like/holdout.parquet", "results/panda/lab/real_arm_like_other/holdout.parquet"]
 LAB_VELOCITY_FRACTION = 0.5  # configs/panda/lab.yaml defaults/excitation/velocity_fraction
 
 
@@ -76,7 +78,14 @@ def main() -> None:
             data["scenarios"]["real_arm_like_d_optimal"] = scenario
 
         edit_yaml(tree / "configs/panda/lab.yaml", d_optimal_scenario)
-        runs = [f"results/panda/lab/{scenario}/fit.parquet" for scenario in CASES.values()] + [HOLDOUT]
+        # A second holdout drawn unlike every fit run: another series (4 harmonics of another base frequency,
+        # other amplitudes, another seed) on the same arm. The first is drawn like the random fit run.
+        edit_yaml(tree / "configs/panda/lab.yaml", lambda data: data["scenarios"].update(real_arm_like_other={
+            **data["scenarios"]["real_arm_like"],
+            "excitation": {"harmonics": 4, "base_frequency_rad_s": 0.6, "position_fraction": 0.4,
+                           "velocity_fraction": 0.4},
+            "runs": [{"name": "holdout", "seed": 21, "role": "holdout"}]}))
+        runs = [f"results/panda/lab/{scenario}/fit.parquet" for scenario in CASES.values()] + HOLDOUTS
         run_snakemake(tree, *runs, "results/panda/excitation/identification.json",
                       "results/panda/excitation/identification_d_optimal.json", timeout=3600)
         for name in ("identification", "identification_d_optimal"):
@@ -95,32 +104,33 @@ def main() -> None:
         dyn = nominal.dynamics
         ident = Identification(nominal, identification_effects(model["effects"]), settings.per_joint("noise_floor"),
                                dyn.lower, dyn.upper, dyn.velocity_limit, settings.per_joint("acceleration_limit"))
-        print(f"model: {', '.join(model['effects'])}; both fits judged on {HOLDOUT}")
+        print(f"model: {', '.join(model['effects'])}")
         rows = []
-        for label, scenario in CASES.items():
+        for (label, scenario), holdout in [(case, h) for h in HOLDOUTS for case in CASES.items()]:
+            print(f"  {label}: fit on {scenario}/fit, judged on {holdout}")
             listing = tree / f"{scenario}.measurements.yaml"
             listing.write_text(yaml.safe_dump({"runs": [
                 {"name": "fit", "path": f"results/panda/lab/{scenario}/fit.parquet", "role": "fit"},
-                {"name": "holdout", "path": HOLDOUT, "role": "holdout"}]}))
+                {"name": "holdout", "path": holdout, "role": "holdout"}]}))
             _, prepared, _ = load_prepared_runs(listing, joints, tree)
             fit_run = prepared[0]
             step = max(1, len(fit_run.time) // 2000)
             cond = condition_number(ident.matrix(fit_run.q[::step], fit_run.qd[::step], fit_run.qdd[::step]))
-            out = Path(tmp) / scenario
+            out = Path(tmp) / scenario / Path(holdout).parent.name
             document = run_sysid("panda", tree / "results/panda/panda.urdf", tree / "configs/panda/robot.yaml",
                                  tree / "configs/panda/model.yaml", listing, out / "ladder.json",
                                  out / "params.yaml", out / "calibration.yaml", root=tree)
             rung = document["ladder"][-1]
             link = rung["params"]["link_inertia"]
             widths = interval_widths(rung.get("intervals") or {})
-            holdout = rung["metrics"]["torque_rmse"]
-            rows.append((label, cond, link["condition_number"], widths, holdout,
+            holdout_rmse = rung["metrics"]["torque_rmse"]
+            rows.append((f"{label} / {Path(holdout).parent.name}", cond, link["condition_number"], widths, holdout_rmse,
                          rung["metrics"]["torque_x_floor"]["per_joint"]))
         print()
-        print(f"{'excitation':14s} {'cond (design)':>13s} {'cond (gap.md)':>13s} {'mass CI [kg]':>12s} "
+        print(f"{'excitation / holdout':42s} {'cond (design)':>13s} {'cond (gap.md)':>13s} {'mass CI [kg]':>12s} "
               f"{'COM CI [mm]':>11s} {'holdout RMSE [N*m]':>18s}  per joint x floor")
         for label, cond, link_cond, widths, holdout, x_floor in rows:
-            print(f"{label:14s} {cond:13.4g} {link_cond:13.4g} {widths['mass']:12.4g} {widths['com']:11.4g} "
+            print(f"{label:42s} {cond:13.4g} {link_cond:13.4g} {widths['mass']:12.4g} {widths['com']:11.4g} "
                   f"{holdout['overall']:18.4g}  " + " ".join(f"{x:.2f}" for x in x_floor.values()))
 
 
