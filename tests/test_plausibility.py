@@ -103,7 +103,7 @@ def test_a_doubled_mass_is_flagged_on_its_body(info):
 def test_gap_md_names_implausible_bodies_and_the_priors_weight(info):
     values = link_values(info, changed(info, "panda_link3", mass_scale=2.0))
     rung = {"effects": ["link_inertia"], "params": {"link_inertia": values}, "consistency": {"status": "optimal"}}
-    text = "\n".join(_identified_markdown(rung))
+    text = "\n".join(_identified_markdown(rung, "panda"))
     assert "| body | moved | mass change [kg] | COM shift [mm] | divergence from CAD | plausible |" in text
     assert "| panda_link3 | yes | +3.23 | 0 | 1.23 | mass changed by +100% (3.23 -> 6.46 kg) |" in text
     assert "| panda_link1 | no | +0 | 0 | 0 | yes |" in text
@@ -113,18 +113,18 @@ def test_gap_md_names_implausible_bodies_and_the_priors_weight(info):
 
     rung["consistency"]["inertia_prior"] = {"weight": 0.003, "chosen_by": "the fit runs' cross-validated error",
                                            "grid": [1e-4, 1e-3, 3e-3, 1e-2], "scores": [0.061, 0.052, 0.05, 0.058]}
-    text = "\n".join(_identified_markdown(rung))
+    text = "\n".join(_identified_markdown(rung, "panda"))
     assert ("The inertial prior (the entropic pull of every link towards its CAD inertials) has weight 0.003, "
             "chosen by the fit runs' cross-validated error among 0.0001 (score 0.061), 0.001 (score 0.052), "
             "0.003 (score 0.05), 0.01 (score 0.058).") in text
     del rung["consistency"]["inertia_prior"]["scores"]
-    assert "among 4 weights from 0.0001 to 0.01." in "\n".join(_identified_markdown(rung))
+    assert "among 4 weights from 0.0001 to 0.01." in "\n".join(_identified_markdown(rung, "panda"))
 
     plausible = {"effects": ["link_inertia"], "params": {"link_inertia": link_values(info, np.zeros(70))}}
-    text = "\n".join(_identified_markdown(plausible))
+    text = "\n".join(_identified_markdown(plausible, "panda"))
     assert "beyond plausible" not in text and "| panda_link7 | no | +0 | 0 | 0 | yes |" in text
     # A ladder.json written before these checks: no plausibility known.
     old = json.loads(json.dumps(plausible))
     for body in old["params"]["link_inertia"]["bodies"].values():
         del body["implausible"]
-    assert "| panda_link2 | no | +0 | 0 | 0 | n/a |" in "\n".join(_identified_markdown(old))
+    assert "| panda_link2 | no | +0 | 0 | 0 | n/a |" in "\n".join(_identified_markdown(old, "panda"))

@@ -78,7 +78,8 @@ class Clearance:
         self.model = spec.compile()
         self.model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         self.data = mujoco.MjData(self.model)
-        mujoco.mj_resetDataKeyframe(self.model, self.data, 0) if self.model.nkey else None
+        if self.model.nkey:  # joints the design does not move (the fingers) stay at the home keyframe
+            mujoco.mj_resetDataKeyframe(self.model, self.data, 0)
         self.qadr = np.array([self.model.jnt_qposadr[self.model.joint(j).id] for j in joints])
 
     def _pair_name(self, g1: int, g2: int) -> str:

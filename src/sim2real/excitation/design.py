@@ -169,9 +169,8 @@ def _scaled_start(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.n
     return (START_FILL * ratios[:, None] * x.reshape(len(excited), -1)).ravel()
 
 
-def check_trajectory(nominal: NominalModel, trajectory: Trajectory, lim: Limits, start: np.ndarray,
-                     clearance: Clearance, margin: float, excited: np.ndarray,
-                     ) -> tuple[list[str], np.ndarray, np.ndarray]:
+def check_trajectory(nominal: NominalModel, trajectory: Trajectory, lim: Limits, clearance: Clearance,
+                     margin: float, excited: np.ndarray) -> tuple[list[str], np.ndarray, np.ndarray]:
     """Every limit at every sample: the failures (empty when none), the torques and the clearances."""
     failures = []
     tol = 1e-9
@@ -269,8 +268,8 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
     scale = 1.0
     for _ in range(40):
         trajectory = _trajectory(series, x * scale, time, start, excited, n)
-        failures, tau, distances = check_trajectory(nominal, _head(trajectory, one_period), lim, start, clearance,
-                                                    margin, excited)
+        failures, tau, distances = check_trajectory(nominal, _head(trajectory, one_period), lim, clearance, margin,
+                                                    excited)
         if not failures:
             break
         log(f"dense check at {rate:g} Hz failed ({', '.join(failures)}); scaling the motion by {scale * 0.97:.3g}")
