@@ -144,8 +144,8 @@ def test_duration_shorter_than_a_period(designed: Path, tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"designs/identification/duration_s: 5 s is shorter than one period") as err:
         load_designs(path)
     assert str(path) in str(err.value) and "Fix:" in str(err.value)
-    path = _broken(designed, tmp_path, lambda c: c["defaults"].update(duration_s=15.0))
-    with pytest.raises(InputError, match=r"1.5 periods.*Fix: use duration_s 20 \(2 periods\)"):
+    path = _broken(designed, tmp_path, lambda c: c["defaults"].update(duration_s=30.0))
+    with pytest.raises(InputError, match=r"1.5 periods.*Fix: use duration_s 40 \(2 periods\)"):
         load_designs(path)
 
 
