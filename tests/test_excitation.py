@@ -110,7 +110,8 @@ def test_collision_free_on_the_built_mjcf(designed: Path) -> None:
     assert distance >= margin - 1e-3, distance  # a 25 ms grid can miss the closest sample by a hair
     summary = yaml.safe_load((designed / "results/panda/excitation/identification.json").read_text())
     assert summary["min_clearance_m"] >= margin
-    assert summary["condition_number"]["designed"] < summary["condition_number"]["initial"]
+    # The design improves on its random start by its own objective (minimised), even in a few iterations.
+    assert summary["objective_value"]["designed"] < summary["objective_value"]["initial"], summary["objective_value"]
     report = (designed / "results/panda/excitation/identification.md").read_text()
     assert "Closest approach to collision" in report and "condition number" in report.lower()
 
