@@ -3,7 +3,7 @@
 Builds, in a temporary copy of the project, the designed excitation ``identification``
 (configs/panda/excitation.yaml, full quality unless ``--coarse``) and the lab runs that play it
 (scenario ``real_arm_like_designed``) beside the lab's random Fourier excitation of the same duration
-(``real_arm_like``), and the same design with the other objective (``condition``). Every fit is judged on two holdout runs
+(``real_arm_like``), and the same design with the D-optimal objective. Every fit is judged on two holdout runs
 of the same arm: the lab's random one (seed 12, drawn like the random fit run) and one drawn unlike any fit
 run (another series).
 Prints, for each: the condition number of the identification regressor (the design's metric, on the
@@ -36,7 +36,7 @@ from sim2real.measurements import load_prepared_runs  # noqa: E402
 from sim2real.sysid import load_model_config, run_sysid  # noqa: E402
 
 CASES = {"random (lab)": "real_arm_like", "designed": "real_arm_like_designed",
-         "designed (condition)": "real_arm_like_condition"}
+         "designed (D)": "real_arm_like_d_optimal"}
 HOLDOUTS = ["results/panda/lab/real_arm_like/holdout.parquet", "results/panda/lab/real_arm_like_other/holdout.parquet"]
 LAB_VELOCITY_FRACTION = 0.5  # configs/panda/lab.yaml defaults/excitation/velocity_fraction
 
@@ -63,21 +63,21 @@ def main() -> None:
         make_fast(tree)  # coarse CoACD parts (the clearance check uses them) and, for now, a coarse design
         if not args.coarse:
             (tree / "configs/panda/excitation.yaml").write_text(full_design)
-        # The same design with the condition objective, played by the lab in a scenario of its own; both within
+        # The same design with the D-optimal objective, played by the lab in a scenario of its own; both within
         # the velocity envelope of the lab's random excitation (half the velocity limit), for a fair comparison.
         def designs(data: dict) -> None:
             data["defaults"]["margins"]["velocity_fraction"] = 1.0 - LAB_VELOCITY_FRACTION
-            data["designs"]["identification_condition"] = {"objective": "condition"}
+            data["designs"]["identification_d_optimal"] = {"objective": "d_optimal"}
 
         edit_yaml(tree / "configs/panda/excitation.yaml", designs)
 
-        def condition_scenario(data: dict) -> None:
+        def d_optimal_scenario(data: dict) -> None:
             scenario = dict(data["scenarios"]["real_arm_like_designed"])
-            scenario["runs"] = [dict(run, excitation="identification_condition") if run.get("excitation") else run
+            scenario["runs"] = [dict(run, excitation="identification_d_optimal") if run.get("excitation") else run
                                 for run in scenario["runs"]]
-            data["scenarios"]["real_arm_like_condition"] = scenario
+            data["scenarios"]["real_arm_like_d_optimal"] = scenario
 
-        edit_yaml(tree / "configs/panda/lab.yaml", condition_scenario)
+        edit_yaml(tree / "configs/panda/lab.yaml", d_optimal_scenario)
         # A second holdout drawn unlike every fit run: another series (4 harmonics of another base frequency,
         # other amplitudes, another seed) on the same arm. The first is drawn like the random fit run.
         edit_yaml(tree / "configs/panda/lab.yaml", lambda data: data["scenarios"].update(real_arm_like_other={
@@ -87,8 +87,8 @@ def main() -> None:
             "runs": [{"name": "holdout", "seed": 21, "role": "holdout"}]}))
         runs = [f"results/panda/lab/{scenario}/fit.parquet" for scenario in CASES.values()] + HOLDOUTS
         run_snakemake(tree, *runs, "results/panda/excitation/identification.json",
-                      "results/panda/excitation/identification_condition.json", timeout=3600)
-        for name in ("identification", "identification_condition"):
+                      "results/panda/excitation/identification_d_optimal.json", timeout=3600)
+        for name in ("identification", "identification_d_optimal"):
             with open(tree / f"results/panda/benchmarks/excitation/{name}.tsv") as handle:
                 design_seconds = float(next(csv.DictReader(handle, delimiter="\t"))["s"])
             design = yaml.safe_load((tree / f"results/panda/excitation/{name}.json").read_text())
