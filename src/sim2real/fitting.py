@@ -492,8 +492,10 @@ class _Problem:
                     total = total + term
         return total
 
-    def predict(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray]) -> np.ndarray:
-        design, sizes = self.shifted_design(nonlinear)
+    def predict(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray],
+                shifted: tuple[np.ndarray, list[int]] | None = None) -> np.ndarray:
+        """The prediction; ``shifted``: :meth:`shifted_design` at ``nonlinear`` when the caller has it already."""
+        design, sizes = self.shifted_design(nonlinear) if shifted is None else shifted
         return self.base(theta, nonlinear) + design @ _flatten_theta(self.effects, theta, sizes)
 
 
@@ -537,7 +539,7 @@ def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndar
     for _ in range(iterations if has_offset else 1):
         flat = _solve_linear(shifted, tau - problem.base(theta, nonlinear), problem.weights)
         theta = _split_theta(problem.effects, flat, sizes)
-    residual = tau - problem.predict(theta, nonlinear)
+    residual = tau - problem.predict(theta, nonlinear, (shifted, sizes))
     return theta, residual, sizes
 
 
