@@ -218,6 +218,10 @@ class _ConsistentProgram:
         self.root.value = term.root
         self.target_root.value = term.target_root
         self.weight.value = float(regularization)
+        # cvxpy keeps the last solve's Clarabel solver, and a solve after another differs from a first one in the
+        # last bits, which the refinements downstream amplify: without it every solve is a first one, so the
+        # numbers do not depend on which fit ran before (the diagnosis fits its candidates in parallel).
+        getattr(self.problem, "_solver_cache", {}).clear()
         started = time.perf_counter()
         try:
             self.problem.solve(solver=cp.CLARABEL)
