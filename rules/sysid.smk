@@ -21,7 +21,8 @@ rule sysid:
         "results/{robot}/logs/{campaign}sysid.log",
     benchmark:
         "results/{robot}/benchmarks/{campaign}sysid.tsv"
-    threads: 1
+    # the diagnosis fits its candidates side by side (sim2real.diagnosis.trial_fits)
+    threads: 2
     resources:
         mem_mb=768,
         runtime=5,

@@ -30,7 +30,9 @@ each joint still above its floor and the candidate that comes closest there (``p
 
 from __future__ import annotations
 
+import multiprocessing
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -134,6 +136,38 @@ def _joint_text(joints: Sequence[str], before: Mapping[str, float], after: Mappi
     return ", ".join(f"{j} {before[j]:.2g}x -> {after[j]:.2g}x" for j in joints)
 
 
+_TRIAL_INPUTS: dict[str, Any] = {}  # a worker's share of trial_fits' inputs (set by _share in each worker)
+
+
+def _share(inputs: dict[str, Any]) -> None:
+    _TRIAL_INPUTS.update(inputs)
+
+
+def _trial(name: str, inputs: Mapping[str, Any] | None = None) -> tuple[fitting.FitResult, np.ndarray]:
+    """One candidate fitted as its rung will be: the current nonlinear parameters refined again or held,
+    whichever predicts better (:func:`sim2real.fitting.fit_on_the_previous`); (fit, holdout residual)."""
+    c = _TRIAL_INPUTS if inputs is None else inputs
+    result, residual, _ = fitting.fit_on_the_previous(
+        [*c["model_effects"], name], c["nominal"], c["fit_data"], c["holdout_data"], c["nonlinear_fixed"],
+        c["settings"], fit_signals=c["fit_signals"], holdout_signals=c["holdout_signals"], uncertainty=False)
+    return result, residual
+
+
+def trial_fits(names: Sequence[str], workers: int, **inputs: Any) -> dict[str, tuple[fitting.FitResult, np.ndarray]]:
+    """Each candidate of ``names`` fitted by :func:`_trial`, on up to ``workers`` processes side by side.
+
+    The workers are forked, so they share the inputs (the nominal model, the signals and their regressors)
+    without copying them; each fit is the computation one process does, so the numbers are the same
+    (:func:`sim2real.sysid.run_sysid` holds BLAS to one thread). Only the results travel back.
+    """
+    workers = min(int(workers), len(names))
+    if workers <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+        return {name: _trial(name, inputs) for name in names}
+    context = multiprocessing.get_context("fork")
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_share, initargs=(inputs,)) as pool:
+        return dict(zip(names, pool.map(_trial, names), strict=True))
+
+
 def diagnose(
     model_effects: Sequence[str],
     nominal: Any,
@@ -147,6 +181,7 @@ def diagnose(
     nonlinear_fixed: Mapping[str, np.ndarray] | None = None,
     candidates: Sequence[str] | None = None,
     link: str = "body",
+    workers: int = 1,
 ) -> dict[str, Any]:
     """Rank every effect of ``candidates`` (default: the library) not in ``model_effects`` by the
     holdout residual it removes; ``link`` names the link of the model judged (:data:`LINK_TEXT`).
@@ -155,7 +190,7 @@ def diagnose(
     current model's holdout residual (judged minus predicted torque). Each candidate is fitted exactly
     as its rung would be (:func:`sim2real.fitting.fit`, physically consistent, the current model's
     nonlinear parameters ``nonlinear_fixed`` held), so ``rmse_after`` is the holdout error the ladder
-    delivers when the user adds it.
+    delivers when the user adds it. ``workers``: processes that fit the candidates side by side (:func:`trial_fits`).
     """
     settings = dict(settings or {})
     limits = {**DEFAULT_DIAGNOSIS, **settings.get("diagnosis", {})}
@@ -176,7 +211,7 @@ def diagnose(
     ratio = float(np.sqrt(np.mean(x_now**2)))
     excess_now = np.clip(sse_now - rows, 0.0, None)  # per joint, above white noise at the floor
     above = [j for j, x in zip(joints, x_now, strict=True) if x > limits["noise_floor_factor"]]
-    ranked_candidates, skipped = [], []
+    ranked_candidates, skipped, tried = [], [], []
     residuals_after: dict[str, np.ndarray] = {}
     for name in candidates if candidates is not None else EFFECTS:
         effect = EFFECTS[name]
@@ -200,10 +235,13 @@ def diagnose(
                 "on commands the same column is the actuator's (actuator_gain, command_bias)",
             })
             continue
-        # Fitted as its rung will be: the current nonlinear parameters refined again or held, as predicts better.
-        result, residual, _ = fitting.fit_on_the_previous(
-            [*model_effects, name], nominal, fit_data, holdout_data, nonlinear_fixed, settings.get("fit"),
-            fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=False)
+        tried.append(name)
+    trials = trial_fits(tried, workers, model_effects=list(model_effects), nominal=nominal, fit_data=fit_data,
+                        holdout_data=holdout_data, nonlinear_fixed=nonlinear_fixed, settings=settings.get("fit"),
+                        fit_signals=fit_signals, holdout_signals=holdout_signals)
+    for name in tried:
+        effect = EFFECTS[name]
+        result, residual = trials[name]
         scaled = residual / unit
         sse_after = _sse(scaled)
         gain = total_now - float(sse_after.sum())

@@ -76,13 +76,15 @@ def fit_ladder(
     holdout_signals: Signals | None = None,
     link: str = "body",
     candidates: Sequence[str] | None = None,
+    workers: int = 1,
 ) -> tuple[dict[str, Any], FitResult]:
     """Every rung (nominal, then each effect added in turn) fitted and judged; diagnosis of the last.
 
     Returns the ``ladder.json`` content (keys ``ladder``, ``diagnosis``, ``noise_floor``,
     ``state_domain``, ...) and the last rung's fit. One link of the model (:mod:`sim2real.actuator`):
     ``link`` names it in the diagnosis, ``candidates`` are the effects the diagnosis tries, and the
-    signals (default: the nominal model's on the data) say what the judged torque is predicted from.
+    signals (default: the nominal model's on the data) say what the judged torque is predicted from;
+    ``workers``: processes the diagnosis fits its candidates on.
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
@@ -149,7 +151,7 @@ def fit_ladder(
             effect_names, nominal, fit_data, holdout_data, residual,
             {"fit": diagnosis_fit, "diagnosis": settings.get("diagnosis", {})},
             fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot, nonlinear_fixed=result.nonlinear,
-            candidates=candidates, link=link,
+            candidates=candidates, link=link, workers=workers,
         )
     return round_floats(document), result
 
@@ -160,13 +162,15 @@ def fit_model(
     runs: Mapping[str, Sequence[PreparedRun]],
     settings: Mapping[str, Any] | None = None,
     robot: str = "{robot}",
+    workers: int = 1,
 ) -> tuple[dict[str, Any], list[FitResult]]:
     """Both links of the model (:mod:`sim2real.actuator`) on prepared runs by role (``fit``, ``holdout``).
 
     The body link's ladder and diagnosis are the document's ``ladder`` and ``diagnosis`` (on runs
     without a torque sensor: both links together, judged on the command); with a sensor and commands the
     actuator link's are under ``actuator``; ``links`` says what these runs can tell apart. Returns the
-    ``ladder.json`` content and the last rung's fit of each link fitted.
+    ``ladder.json`` content and the last rung's fit of each link fitted. ``workers``: processes the
+    diagnoses fit their candidates on.
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
@@ -184,6 +188,7 @@ def fit_model(
     document, result = fit_ladder(
         body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
         candidates=actuator.candidates_of_link("body", sensor) if mode == "separate" or sensor == "link" else None,
+        workers=workers,
     )
     results = [result]
     if body_link == "body":
@@ -197,7 +202,7 @@ def fit_model(
             actuator.effects_of_link(effect_names, "actuator", sensor), nominal, link_data["fit"][0],
             link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
             holdout_signals=signals["holdout"], link="actuator",
-            candidates=actuator.candidates_of_link("actuator", sensor),
+            candidates=actuator.candidates_of_link("actuator", sensor), workers=workers,
         )
         document["actuator"] = {
             "judged": "measured torque (tau) predicted from the commanded torque (tau_cmd); no dynamics"
@@ -302,8 +307,33 @@ def run_sysid(
     params_yaml: str | Path,
     calibration_yaml: str | Path,
     root: str | Path = ".",
+    threads: int = 1,
 ) -> dict[str, Any]:
-    """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration."""
+    """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration.
+
+    ``threads``: the diagnosis fits its candidates on that many processes. BLAS runs on one thread whatever
+    the environment says: the fit's last digits depend on how its sums are split among threads, and
+    ladder.json is byte-identical on any machine only if they are never split.
+    """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run_sysid(robot, urdf_path, robot_config_path, model_config_path, measurement_list, ladder_json,
+                          params_yaml, calibration_yaml, root, threads)
+
+
+def _run_sysid(
+    robot: str,
+    urdf_path: str | Path,
+    robot_config_path: str | Path,
+    model_config_path: str | Path,
+    measurement_list: str | Path,
+    ladder_json: str | Path,
+    params_yaml: str | Path,
+    calibration_yaml: str | Path,
+    root: str | Path,
+    threads: int,
+) -> dict[str, Any]:
     from sim2real.effects import calibration_from_params
     from sim2real.io import read_yaml, write_json, write_yaml
     from sim2real.measurements import prepare_runs, read_runs
@@ -330,7 +360,7 @@ def run_sysid(
         if not by_role[role]:
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
-    document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot)
+    document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot, workers=threads)
     params = params_document(results, nominal, document["torque_source"], robot)
     write_json(ladder_json, document)
     write_yaml(params_yaml, params)
