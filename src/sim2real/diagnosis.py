@@ -30,9 +30,7 @@ each joint still above its floor and the candidate that comes closest there (``p
 
 from __future__ import annotations
 
-import multiprocessing
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -41,6 +39,7 @@ from sim2real import fitting
 from sim2real.effects import EFFECTS
 from sim2real.effects.base import Signals, per_joint_dict
 from sim2real.excitation.separation import separation_name
+from sim2real.forked import map_forked
 
 DEFAULT_DIAGNOSIS: dict[str, float] = {
     "min_explained": 0.3,  # a candidate must remove this share of the holdout residual beyond the noise floor
@@ -136,36 +135,21 @@ def _joint_text(joints: Sequence[str], before: Mapping[str, float], after: Mappi
     return ", ".join(f"{j} {before[j]:.2g}x -> {after[j]:.2g}x" for j in joints)
 
 
-_TRIAL_INPUTS: dict[str, Any] = {}  # a worker's share of trial_fits' inputs (set by _share in each worker)
-
-
-def _share(inputs: dict[str, Any]) -> None:
-    _TRIAL_INPUTS.update(inputs)
-
-
-def _trial(name: str, inputs: Mapping[str, Any] | None = None) -> tuple[fitting.FitResult, np.ndarray]:
+def _trial(name: str, model_effects: Sequence[str], nominal: Any, fit_data: Any, holdout_data: Any,
+           nonlinear_fixed: Mapping[str, np.ndarray] | None, settings: Mapping[str, Any] | None,
+           fit_signals: Signals, holdout_signals: Signals) -> tuple[fitting.FitResult, np.ndarray]:
     """One candidate fitted as its rung will be: the current nonlinear parameters refined again or held,
     whichever predicts better (:func:`sim2real.fitting.fit_on_the_previous`); (fit, holdout residual)."""
-    c = _TRIAL_INPUTS if inputs is None else inputs
     result, residual, _ = fitting.fit_on_the_previous(
-        [*c["model_effects"], name], c["nominal"], c["fit_data"], c["holdout_data"], c["nonlinear_fixed"],
-        c["settings"], fit_signals=c["fit_signals"], holdout_signals=c["holdout_signals"], uncertainty=False)
+        [*model_effects, name], nominal, fit_data, holdout_data, nonlinear_fixed, settings,
+        fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=False)
     return result, residual
 
 
 def trial_fits(names: Sequence[str], workers: int, **inputs: Any) -> dict[str, tuple[fitting.FitResult, np.ndarray]]:
-    """Each candidate of ``names`` fitted by :func:`_trial`, on up to ``workers`` processes side by side.
-
-    The workers are forked, so they share the inputs (the nominal model, the signals and their regressors)
-    without copying them; each fit is the computation one process does, so the numbers are the same
-    (:func:`sim2real.sysid.run_sysid` holds BLAS to one thread). Only the results travel back.
-    """
-    workers = min(int(workers), len(names))
-    if workers <= 1 or "fork" not in multiprocessing.get_all_start_methods():
-        return {name: _trial(name, inputs) for name in names}
-    context = multiprocessing.get_context("fork")
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_share, initargs=(inputs,)) as pool:
-        return dict(zip(names, pool.map(_trial, names), strict=True))
+    """Each candidate of ``names`` fitted by :func:`_trial`, on up to ``workers`` processes side by side
+    (:func:`sim2real.forked.map_forked`: the same numbers as one after the other)."""
+    return dict(zip(names, map_forked(_trial, names, workers, inputs), strict=True))
 
 
 def diagnose(

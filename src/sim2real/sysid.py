@@ -24,6 +24,7 @@ from sim2real.diagnosis import diagnose as run_diagnosis
 from sim2real.dynamics import RigidBodyModel
 from sim2real.effects import Signals, get_effect
 from sim2real.errors import InputError
+from sim2real.forked import Forked
 from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
     DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
     joint_weights,
@@ -185,6 +186,9 @@ def fit_model(
                          fit_settings["fit_rate_hz"])
         for role in ("fit", "holdout")
     }
+    # The actuator link does not depend on the body link: on two or more threads it is fitted beside it.
+    beside = (Forked(_actuator_link, effect_names, nominal, runs, settings, robot, sensor, 1, fork=workers > 1)
+              if mode == "separate" else None)
     document, result = fit_ladder(
         body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
         candidates=actuator.candidates_of_link("body", sensor) if mode == "separate" or sensor == "link" else None,
@@ -194,16 +198,8 @@ def fit_model(
     if body_link == "body":
         _note_drive(document.get("diagnosis"), "body", sensor)
     confounded = list(document.get("diagnosis", {}).get("confounded", []))
-    if mode == "separate":
-        link_data = {role: actuator.actuator_data(runs[role], joints) for role in ("fit", "holdout")}
-        signals = {role: actuator.actuator_signals(*link_data[role], nominal) for role in link_data}
-        link_settings = {**settings, "fit": {**fit_settings, **actuator.ACTUATOR_FIT_SETTINGS}}
-        section, link_result = fit_ladder(
-            actuator.effects_of_link(effect_names, "actuator", sensor), nominal, link_data["fit"][0],
-            link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
-            holdout_signals=signals["holdout"], link="actuator",
-            candidates=actuator.candidates_of_link("actuator", sensor), workers=workers,
-        )
+    if beside is not None:
+        section, link_result = beside.result()
         document["actuator"] = {
             "judged": "measured torque (tau) predicted from the commanded torque (tau_cmd); no dynamics"
             if sensor == "motor" else "link-side measured torque (tau) predicted from the commanded torque "
@@ -215,6 +211,24 @@ def fit_model(
         results.append(link_result)
     document["links"] = round_floats(actuator.separability(mode, effect_names, confounded, sensor))
     return document, results
+
+
+def _actuator_link(
+    effect_names: Sequence[str], nominal: NominalModel, runs: Mapping[str, Sequence[PreparedRun]],
+    settings: Mapping[str, Any], robot: str, sensor: str, workers: int,
+) -> tuple[dict[str, Any], FitResult]:
+    """The actuator link's ladder and diagnosis (:func:`fit_ladder` on the command and the measured torque)."""
+    joints = nominal.joint_names
+    fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
+    link_data = {role: actuator.actuator_data(runs[role], joints) for role in ("fit", "holdout")}
+    signals = {role: actuator.actuator_signals(*link_data[role], nominal) for role in link_data}
+    link_settings = {**settings, "fit": {**fit_settings, **actuator.ACTUATOR_FIT_SETTINGS}}
+    return fit_ladder(
+        actuator.effects_of_link(effect_names, "actuator", sensor), nominal, link_data["fit"][0],
+        link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
+        holdout_signals=signals["holdout"], link="actuator",
+        candidates=actuator.candidates_of_link("actuator", sensor), workers=workers,
+    )
 
 
 def _note_drive(diagnosis: dict[str, Any] | None, link: str, sensor: str) -> None:
