@@ -85,7 +85,8 @@ def fit_ladder(
     ``state_domain``, ...) and the last rung's fit. One link of the model (:mod:`sim2real.actuator`):
     ``link`` names it in the diagnosis, ``candidates`` are the effects the diagnosis tries, and the
     signals (default: the nominal model's on the data) say what the judged torque is predicted from;
-    ``workers``: processes the diagnosis fits its candidates on.
+    ``workers``: processes the rungs' two ways (:func:`sim2real.fitting.fit_on_the_previous`) and the
+    diagnosis's candidates are fitted on.
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
@@ -98,7 +99,8 @@ def fit_ladder(
         effects = list(effect_names[:k])
         previous = result.nonlinear if result is not None else None
         result, _, carried = fit_on_the_previous(effects, nominal, fit_data, holdout_data, previous, fit_settings,
-                                                 fit_signals=fit_signals, holdout_signals=holdout_signals)
+                                                 fit_signals=fit_signals, holdout_signals=holdout_signals,
+                                                 workers=workers)
         metrics, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
         x_floor = floor_units(residual, holdout_data.noise_floor)
         rung: dict[str, Any] = {
