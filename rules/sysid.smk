@@ -21,9 +21,11 @@ rule sysid:
         "results/{robot}/logs/{campaign}sysid.log",
     benchmark:
         "results/{robot}/benchmarks/{campaign}sysid.tsv"
-    threads: 1
+    # the diagnosis fits its candidates side by side (sim2real.diagnosis.trial_fits)
+    threads: 2
     resources:
-        mem_mb=768,
+        # forked workers share the parent's pages, but the benchmark sums every process's resident set
+        mem_mb=1536,
         runtime=5,
     script:
         "../scripts/sysid.py"

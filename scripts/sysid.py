@@ -15,5 +15,6 @@ with rule_entry(snakemake):
         snakemake.output.ladder,
         snakemake.output.params,
         snakemake.output.calibration,
+        threads=snakemake.threads,
     )
     logging.info("diagnosis: %s", document.get("diagnosis", {}).get("verdict"))

@@ -39,6 +39,7 @@ from sim2real import fitting
 from sim2real.effects import EFFECTS
 from sim2real.effects.base import Signals, per_joint_dict
 from sim2real.excitation.separation import separation_name
+from sim2real.forked import map_forked
 
 DEFAULT_DIAGNOSIS: dict[str, float] = {
     "min_explained": 0.3,  # a candidate must remove this share of the holdout residual beyond the noise floor
@@ -134,6 +135,23 @@ def _joint_text(joints: Sequence[str], before: Mapping[str, float], after: Mappi
     return ", ".join(f"{j} {before[j]:.2g}x -> {after[j]:.2g}x" for j in joints)
 
 
+def _trial(name: str, model_effects: Sequence[str], nominal: Any, fit_data: Any, holdout_data: Any,
+           nonlinear_fixed: Mapping[str, np.ndarray] | None, settings: Mapping[str, Any] | None,
+           fit_signals: Signals, holdout_signals: Signals) -> tuple[fitting.FitResult, np.ndarray]:
+    """One candidate fitted as its rung will be: the current nonlinear parameters refined again or held,
+    whichever predicts better (:func:`sim2real.fitting.fit_on_the_previous`); (fit, holdout residual)."""
+    result, residual, _ = fitting.fit_on_the_previous(
+        [*model_effects, name], nominal, fit_data, holdout_data, nonlinear_fixed, settings,
+        fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=False)
+    return result, residual
+
+
+def trial_fits(names: Sequence[str], workers: int, **inputs: Any) -> dict[str, tuple[fitting.FitResult, np.ndarray]]:
+    """Each candidate of ``names`` fitted by :func:`_trial`, on up to ``workers`` processes side by side
+    (:func:`sim2real.forked.map_forked`: the same numbers as one after the other)."""
+    return dict(zip(names, map_forked(_trial, names, workers, inputs), strict=True))
+
+
 def diagnose(
     model_effects: Sequence[str],
     nominal: Any,
@@ -147,6 +165,7 @@ def diagnose(
     nonlinear_fixed: Mapping[str, np.ndarray] | None = None,
     candidates: Sequence[str] | None = None,
     link: str = "body",
+    workers: int = 1,
 ) -> dict[str, Any]:
     """Rank every effect of ``candidates`` (default: the library) not in ``model_effects`` by the
     holdout residual it removes; ``link`` names the link of the model judged (:data:`LINK_TEXT`).
@@ -155,7 +174,7 @@ def diagnose(
     current model's holdout residual (judged minus predicted torque). Each candidate is fitted exactly
     as its rung would be (:func:`sim2real.fitting.fit`, physically consistent, the current model's
     nonlinear parameters ``nonlinear_fixed`` held), so ``rmse_after`` is the holdout error the ladder
-    delivers when the user adds it.
+    delivers when the user adds it. ``workers``: processes that fit the candidates side by side (:func:`trial_fits`).
     """
     settings = dict(settings or {})
     limits = {**DEFAULT_DIAGNOSIS, **settings.get("diagnosis", {})}
@@ -176,7 +195,7 @@ def diagnose(
     ratio = float(np.sqrt(np.mean(x_now**2)))
     excess_now = np.clip(sse_now - rows, 0.0, None)  # per joint, above white noise at the floor
     above = [j for j, x in zip(joints, x_now, strict=True) if x > limits["noise_floor_factor"]]
-    ranked_candidates, skipped = [], []
+    ranked_candidates, skipped, tried = [], [], []
     residuals_after: dict[str, np.ndarray] = {}
     for name in candidates if candidates is not None else EFFECTS:
         effect = EFFECTS[name]
@@ -200,10 +219,13 @@ def diagnose(
                 "on commands the same column is the actuator's (actuator_gain, command_bias)",
             })
             continue
-        # Fitted as its rung will be: the current nonlinear parameters refined again or held, as predicts better.
-        result, residual, _ = fitting.fit_on_the_previous(
-            [*model_effects, name], nominal, fit_data, holdout_data, nonlinear_fixed, settings.get("fit"),
-            fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=False)
+        tried.append(name)
+    trials = trial_fits(tried, workers, model_effects=list(model_effects), nominal=nominal, fit_data=fit_data,
+                        holdout_data=holdout_data, nonlinear_fixed=nonlinear_fixed, settings=settings.get("fit"),
+                        fit_signals=fit_signals, holdout_signals=holdout_signals)
+    for name in tried:
+        effect = EFFECTS[name]
+        result, residual = trials[name]
         scaled = residual / unit
         sse_after = _sse(scaled)
         gain = total_now - float(sse_after.sum())

@@ -45,6 +45,7 @@ from sim2real.dynamics import RigidBodyModel
 from sim2real.effects import Effect, Signals, get_effect
 from sim2real.effects.actuation_delay import MAX_DELAY, shift_prediction
 from sim2real.errors import InputError
+from sim2real.forked import map_forked
 from sim2real.metrics import rmse
 
 DELAY_STEP_S = 2e-4  # half-step of the central difference of the prediction in the delay (bootstrap)
@@ -492,8 +493,10 @@ class _Problem:
                     total = total + term
         return total
 
-    def predict(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray]) -> np.ndarray:
-        design, sizes = self.shifted_design(nonlinear)
+    def predict(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray],
+                shifted: tuple[np.ndarray, list[int]] | None = None) -> np.ndarray:
+        """The prediction; ``shifted``: :meth:`shifted_design` at ``nonlinear`` when the caller has it already."""
+        design, sizes = self.shifted_design(nonlinear) if shifted is None else shifted
         return self.base(theta, nonlinear) + design @ _flatten_theta(self.effects, theta, sizes)
 
 
@@ -537,7 +540,7 @@ def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndar
     for _ in range(iterations if has_offset else 1):
         flat = _solve_linear(shifted, tau - problem.base(theta, nonlinear), problem.weights)
         theta = _split_theta(problem.effects, flat, sizes)
-    residual = tau - problem.predict(theta, nonlinear)
+    residual = tau - problem.predict(theta, nonlinear, (shifted, sizes))
     return theta, residual, sizes
 
 
@@ -840,6 +843,7 @@ def fit_on_the_previous(
     fit_signals: Signals | None = None,
     holdout_signals: Signals | None = None,
     uncertainty: bool = True,
+    workers: int = 1,
 ) -> tuple[FitResult, np.ndarray, str]:
     """A model fitted on top of the previous one: (fit, holdout residual, how its nonlinear parameters were set).
 
@@ -849,7 +853,8 @@ def fit_on_the_previous(
     the new effect should explain. The fit runs alone cannot tell which generalises (the refinement
     always lowers the fit residual); the one whose holdout residual is smaller, each joint in units of
     its own floor, is kept. The diagnosis and the ladder use this same rule, so a rung delivers what
-    its diagnosis promised. ``"refined"`` also when there is nothing to hold.
+    its diagnosis promised. ``"refined"`` also when there is nothing to hold. ``workers``: with two, both
+    ways are fitted side by side (:func:`sim2real.forked.map_forked`).
     """
     previous = {k: v for k, v in (previous or {}).items() if np.size(v)}
     if fit_signals is None:
@@ -864,13 +869,16 @@ def fit_on_the_previous(
         _, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
         return residual, float(np.sum((residual * weights) ** 2))
 
-    refined = fit(effect_names, nominal, fit_data, settings, signals=fit_signals, uncertainty=uncertainty,
-                  nonlinear_start=previous)
+    ways = [{"uncertainty": uncertainty, "nonlinear_start": previous}]
+    if previous:
+        ways.append({"uncertainty": False, "nonlinear_fixed": previous})
+    fits = map_forked(_fit_way, ways, workers, {"effect_names": effect_names, "nominal": nominal, "data": fit_data,
+                                                "settings": settings, "signals": fit_signals})
+    refined = fits[0]
     residual, score = judged(refined)
     if not previous:
         return refined, residual, "refined"
-    held = fit(effect_names, nominal, fit_data, settings, signals=fit_signals, uncertainty=False,
-               nonlinear_fixed=previous)
+    held = fits[1]
     held_residual, held_score = judged(held)
     if held_score >= score:
         return refined, residual, "refined"
@@ -878,6 +886,11 @@ def fit_on_the_previous(
         held = fit(effect_names, nominal, fit_data, settings, signals=fit_signals, uncertainty=True,
                    nonlinear_fixed=previous)
     return held, held_residual, "held"
+
+
+def _fit_way(way: Mapping[str, Any], **inputs: Any) -> FitResult:
+    """:func:`fit` with one way of carrying the previous nonlinear parameters (:func:`fit_on_the_previous`)."""
+    return fit(**inputs, **way)
 
 
 def _consistent_fit(

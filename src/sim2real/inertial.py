@@ -191,22 +191,37 @@ class _ConsistentProgram:
               scale: np.ndarray | None = None) -> ConsistentSolution:
         """Solve on rows ``design`` (rows, p) ~ ``target`` (rows,) with the prior's weight ``regularization``;
         ``scale``: the columns' scale (default: their norms on these rows)."""
-        import time
+        return self.solve_prepared(self.prepare(design, target, scale), regularization)
 
-        import cvxpy as cp
-
-        self.scale = _column_scale(design) if scale is None else scale
-        self.inverse_scale.value = 1.0 / self.scale
-        an = design / self.scale
+    def prepare(self, design: np.ndarray, target: np.ndarray, scale: np.ndarray | None = None) -> _DataTerm:
+        """The data term of rows ``design`` ~ ``target`` as the program takes it (the costly part of a solve:
+        the cross-validation solves each training set at every prior weight, so it is computed once)."""
+        scale = _column_scale(design) if scale is None else scale
+        an = design / scale
         gram = an.T @ an
         rhs = an.T @ target
         eigval, eigvec = np.linalg.eigh(gram)
         keep = eigval > 1e-12 * max(eigval.max(), 1e-300)
         root = np.sqrt(np.where(keep, eigval, 0.0))
         rows = max(target.size, 1)
-        self.root.value = (root[:, None] * eigvec.T) / np.sqrt(rows)
-        self.target_root.value = np.where(keep, (eigvec.T @ rhs) / np.where(keep, root, 1.0), 0.0) / np.sqrt(rows)
+        return _DataTerm(scale, (root[:, None] * eigvec.T) / np.sqrt(rows),
+                         np.where(keep, (eigvec.T @ rhs) / np.where(keep, root, 1.0), 0.0) / np.sqrt(rows))
+
+    def solve_prepared(self, term: _DataTerm, regularization: float) -> ConsistentSolution:
+        """Solve a prepared data term (:meth:`prepare`) with the prior's weight ``regularization``."""
+        import time
+
+        import cvxpy as cp
+
+        self.scale = term.scale
+        self.inverse_scale.value = 1.0 / self.scale
+        self.root.value = term.root
+        self.target_root.value = term.target_root
         self.weight.value = float(regularization)
+        # cvxpy keeps the last solve's Clarabel solver, and a solve after another differs from a first one in the
+        # last bits, which the refinements downstream amplify: without it every solve is a first one, so the
+        # numbers do not depend on which fit ran before (the diagnosis fits its candidates in parallel).
+        getattr(self.problem, "_solver_cache", {}).clear()
         started = time.perf_counter()
         try:
             self.problem.solve(solver=cp.CLARABEL)
@@ -217,6 +232,15 @@ class _ConsistentProgram:
             raise InfeasibleFit(f"the consistent fit found no solution (solver status: {self.problem.status})")
         return ConsistentSolution(np.asarray(self.z.value) / self.scale, str(self.problem.status), elapsed,
                                   float(self.problem.value))
+
+
+@dataclass
+class _DataTerm:
+    """A least-squares data term reduced to its square root (p x p) in scaled coefficients."""
+
+    scale: np.ndarray
+    root: np.ndarray
+    target_root: np.ndarray
 
 
 def _column_scale(a: np.ndarray) -> np.ndarray:
@@ -313,8 +337,9 @@ def choose_prior_weight(
         train = np.setdiff1d(np.arange(a.shape[0]), held)
         train_design, train_target = a[train].reshape(-1, p), target[train].reshape(-1)
         test_design, test_target = a[held].reshape(-1, p), target[held].reshape(-1)
+        term = program.prepare(train_design, train_target, scale)
         for g, relative in enumerate(grid):
-            solution = program.solve(train_design, train_target, relative * floor_variance, scale)
+            solution = program.solve_prepared(term, relative * floor_variance)
             squared[g] += float(np.sum((test_design @ solution.coefficients - test_target) ** 2))
     scores = np.sqrt(squared / max(target.size, 1))
     best = float(scores.min())

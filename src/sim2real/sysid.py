@@ -24,6 +24,7 @@ from sim2real.diagnosis import diagnose as run_diagnosis
 from sim2real.dynamics import RigidBodyModel
 from sim2real.effects import Signals, get_effect
 from sim2real.errors import InputError
+from sim2real.forked import Forked
 from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
     DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
     joint_weights,
@@ -76,13 +77,16 @@ def fit_ladder(
     holdout_signals: Signals | None = None,
     link: str = "body",
     candidates: Sequence[str] | None = None,
+    workers: int = 1,
 ) -> tuple[dict[str, Any], FitResult]:
     """Every rung (nominal, then each effect added in turn) fitted and judged; diagnosis of the last.
 
     Returns the ``ladder.json`` content (keys ``ladder``, ``diagnosis``, ``noise_floor``,
     ``state_domain``, ...) and the last rung's fit. One link of the model (:mod:`sim2real.actuator`):
     ``link`` names it in the diagnosis, ``candidates`` are the effects the diagnosis tries, and the
-    signals (default: the nominal model's on the data) say what the judged torque is predicted from.
+    signals (default: the nominal model's on the data) say what the judged torque is predicted from;
+    ``workers``: processes the rungs' two ways (:func:`sim2real.fitting.fit_on_the_previous`) and the
+    diagnosis's candidates are fitted on.
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
@@ -95,7 +99,8 @@ def fit_ladder(
         effects = list(effect_names[:k])
         previous = result.nonlinear if result is not None else None
         result, _, carried = fit_on_the_previous(effects, nominal, fit_data, holdout_data, previous, fit_settings,
-                                                 fit_signals=fit_signals, holdout_signals=holdout_signals)
+                                                 fit_signals=fit_signals, holdout_signals=holdout_signals,
+                                                 workers=workers)
         metrics, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
         x_floor = floor_units(residual, holdout_data.noise_floor)
         rung: dict[str, Any] = {
@@ -149,7 +154,7 @@ def fit_ladder(
             effect_names, nominal, fit_data, holdout_data, residual,
             {"fit": diagnosis_fit, "diagnosis": settings.get("diagnosis", {})},
             fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot, nonlinear_fixed=result.nonlinear,
-            candidates=candidates, link=link,
+            candidates=candidates, link=link, workers=workers,
         )
     return round_floats(document), result
 
@@ -160,13 +165,15 @@ def fit_model(
     runs: Mapping[str, Sequence[PreparedRun]],
     settings: Mapping[str, Any] | None = None,
     robot: str = "{robot}",
+    workers: int = 1,
 ) -> tuple[dict[str, Any], list[FitResult]]:
     """Both links of the model (:mod:`sim2real.actuator`) on prepared runs by role (``fit``, ``holdout``).
 
     The body link's ladder and diagnosis are the document's ``ladder`` and ``diagnosis`` (on runs
     without a torque sensor: both links together, judged on the command); with a sensor and commands the
     actuator link's are under ``actuator``; ``links`` says what these runs can tell apart. Returns the
-    ``ladder.json`` content and the last rung's fit of each link fitted.
+    ``ladder.json`` content and the last rung's fit of each link fitted. ``workers``: processes the
+    diagnoses fit their candidates on.
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
@@ -181,24 +188,20 @@ def fit_model(
                          fit_settings["fit_rate_hz"])
         for role in ("fit", "holdout")
     }
+    # The actuator link does not depend on the body link: on two or more threads it is fitted beside it.
+    beside = (Forked(_actuator_link, effect_names, nominal, runs, settings, robot, sensor, 1, fork=workers > 1)
+              if mode == "separate" else None)
     document, result = fit_ladder(
         body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
         candidates=actuator.candidates_of_link("body", sensor) if mode == "separate" or sensor == "link" else None,
+        workers=workers,
     )
     results = [result]
     if body_link == "body":
         _note_drive(document.get("diagnosis"), "body", sensor)
     confounded = list(document.get("diagnosis", {}).get("confounded", []))
-    if mode == "separate":
-        link_data = {role: actuator.actuator_data(runs[role], joints) for role in ("fit", "holdout")}
-        signals = {role: actuator.actuator_signals(*link_data[role], nominal) for role in link_data}
-        link_settings = {**settings, "fit": {**fit_settings, **actuator.ACTUATOR_FIT_SETTINGS}}
-        section, link_result = fit_ladder(
-            actuator.effects_of_link(effect_names, "actuator", sensor), nominal, link_data["fit"][0],
-            link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
-            holdout_signals=signals["holdout"], link="actuator",
-            candidates=actuator.candidates_of_link("actuator", sensor),
-        )
+    if beside is not None:
+        section, link_result = beside.result()
         document["actuator"] = {
             "judged": "measured torque (tau) predicted from the commanded torque (tau_cmd); no dynamics"
             if sensor == "motor" else "link-side measured torque (tau) predicted from the commanded torque "
@@ -210,6 +213,24 @@ def fit_model(
         results.append(link_result)
     document["links"] = round_floats(actuator.separability(mode, effect_names, confounded, sensor))
     return document, results
+
+
+def _actuator_link(
+    effect_names: Sequence[str], nominal: NominalModel, runs: Mapping[str, Sequence[PreparedRun]],
+    settings: Mapping[str, Any], robot: str, sensor: str, workers: int,
+) -> tuple[dict[str, Any], FitResult]:
+    """The actuator link's ladder and diagnosis (:func:`fit_ladder` on the command and the measured torque)."""
+    joints = nominal.joint_names
+    fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
+    link_data = {role: actuator.actuator_data(runs[role], joints) for role in ("fit", "holdout")}
+    signals = {role: actuator.actuator_signals(*link_data[role], nominal) for role in link_data}
+    link_settings = {**settings, "fit": {**fit_settings, **actuator.ACTUATOR_FIT_SETTINGS}}
+    return fit_ladder(
+        actuator.effects_of_link(effect_names, "actuator", sensor), nominal, link_data["fit"][0],
+        link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
+        holdout_signals=signals["holdout"], link="actuator",
+        candidates=actuator.candidates_of_link("actuator", sensor), workers=workers,
+    )
 
 
 def _note_drive(diagnosis: dict[str, Any] | None, link: str, sensor: str) -> None:
@@ -302,8 +323,33 @@ def run_sysid(
     params_yaml: str | Path,
     calibration_yaml: str | Path,
     root: str | Path = ".",
+    threads: int = 1,
 ) -> dict[str, Any]:
-    """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration."""
+    """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration.
+
+    ``threads``: the diagnosis fits its candidates on that many processes. BLAS runs on one thread whatever
+    the environment says: the fit's last digits depend on how its sums are split among threads, and
+    ladder.json is byte-identical on any machine only if they are never split.
+    """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run_sysid(robot, urdf_path, robot_config_path, model_config_path, measurement_list, ladder_json,
+                          params_yaml, calibration_yaml, root, threads)
+
+
+def _run_sysid(
+    robot: str,
+    urdf_path: str | Path,
+    robot_config_path: str | Path,
+    model_config_path: str | Path,
+    measurement_list: str | Path,
+    ladder_json: str | Path,
+    params_yaml: str | Path,
+    calibration_yaml: str | Path,
+    root: str | Path,
+    threads: int,
+) -> dict[str, Any]:
     from sim2real.effects import calibration_from_params
     from sim2real.io import read_yaml, write_json, write_yaml
     from sim2real.measurements import prepare_runs, read_runs
@@ -330,7 +376,7 @@ def run_sysid(
         if not by_role[role]:
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
-    document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot)
+    document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot, workers=threads)
     params = params_document(results, nominal, document["torque_source"], robot)
     write_json(ladder_json, document)
     write_yaml(params_yaml, params)
