@@ -6,12 +6,14 @@ never truth.yaml, exactly like the pipeline.
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 import yaml
+from threadpoolctl import threadpool_limits
 
 from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
 from sim2real import sysid
@@ -21,6 +23,9 @@ from sim2real.measurements import estimate_noise_floor, load_prepared_runs
 # Fast settings: decimated fit grid, few bootstrap replicates, a small refinement subset.
 FAST_FIT = {"fit_rate_hz": 100.0, "bootstrap_replicates": 20, "refine_max_samples": 1500}
 LAB_DURATION_S = 8.0
+# The fits spread their candidates and links over the machine's cores, as the sysid rule does with its
+# threads: the same numbers on any count (tests/test_loop_pinned.py), in less wall time.
+WORKERS = min(2, os.cpu_count() or 1)
 
 
 class Lab:
@@ -71,7 +76,9 @@ class Lab:
     def model(self, scenario: str, effects: list[str], with_sensor: bool = True) -> dict[str, Any]:
         """ladder.json content of both links (``sysid.fit_model``); ``with_sensor=False`` drops tau."""
         listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
-        document, _ = sysid.fit_model(effects, self.nominal, self.prepared(listing), {"fit": FAST_FIT}, "panda")
+        with threadpool_limits(limits=1, user_api="blas"):  # one BLAS thread per worker, as in run_sysid
+            document, _ = sysid.fit_model(effects, self.nominal, self.prepared(listing), {"fit": FAST_FIT}, "panda",
+                                          workers=WORKERS)
         return document
 
     def data(self, scenario: str) -> tuple[sysid.TorqueData, sysid.TorqueData]:
@@ -88,8 +95,9 @@ class Lab:
 
     def ladder(self, scenario: str, effects: list[str], diagnose: bool = True) -> dict[str, Any]:
         fit_data, holdout_data = self.data(scenario)
-        document, _ = sysid.fit_ladder(effects, self.nominal, fit_data, holdout_data, {"fit": FAST_FIT}, "panda",
-                                       diagnose=diagnose)
+        with threadpool_limits(limits=1, user_api="blas"):
+            document, _ = sysid.fit_ladder(effects, self.nominal, fit_data, holdout_data, {"fit": FAST_FIT}, "panda",
+                                           diagnose=diagnose, workers=WORKERS)
         return document
 
 
