@@ -13,9 +13,10 @@ The fitting core's names are re-exported here (``sysid.fit``, ``sysid.TorqueData
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import functools
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of 
     kept_segments, load_nominal, make_signals, predict, resolve_armature, run_from_prepared, stack_runs,
 )
 from sim2real.measurements import PreparedRun, estimate_noise_floor
+
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
 def round_floats(tree: Any, digits: int = 6) -> Any:
@@ -313,6 +317,20 @@ def load_model_config(path: str | Path) -> dict[str, Any]:
     return {"effects": effects, "fit": dict(data.get("fit") or {}), "diagnosis": dict(data.get("diagnosis") or {})}
 
 
+def _one_blas_thread(function: Callable[P, R]) -> Callable[P, R]:
+    """Run ``function`` with BLAS on one thread whatever the environment says: the fit's last digits depend on
+    how its sums are split among threads, and ladder.json is byte-identical on any machine only if they never are."""
+    @functools.wraps(function)
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(limits=1, user_api="blas"):
+            return function(*args, **kwargs)
+
+    return wrapper
+
+
+@_one_blas_thread
 def run_sysid(
     robot: str,
     urdf_path: str | Path,
@@ -327,29 +345,8 @@ def run_sysid(
 ) -> dict[str, Any]:
     """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration.
 
-    ``threads``: the diagnosis fits its candidates on that many processes. BLAS runs on one thread whatever
-    the environment says: the fit's last digits depend on how its sums are split among threads, and
-    ladder.json is byte-identical on any machine only if they are never split.
+    ``threads``: the diagnosis fits its candidates on that many processes (BLAS on one thread each).
     """
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _run_sysid(robot, urdf_path, robot_config_path, model_config_path, measurement_list, ladder_json,
-                          params_yaml, calibration_yaml, root, threads)
-
-
-def _run_sysid(
-    robot: str,
-    urdf_path: str | Path,
-    robot_config_path: str | Path,
-    model_config_path: str | Path,
-    measurement_list: str | Path,
-    ladder_json: str | Path,
-    params_yaml: str | Path,
-    calibration_yaml: str | Path,
-    root: str | Path,
-    threads: int,
-) -> dict[str, Any]:
     from sim2real.effects import calibration_from_params
     from sim2real.io import read_yaml, write_json, write_yaml
     from sim2real.measurements import prepare_runs, read_runs
