@@ -125,3 +125,29 @@ def test_reality_gap_metric_matches_source_chapter():
     assert g["score"] == pytest.approx(0.3 * 0.5 + 0.2 * 0.5 + 0.15 * 0.5 + 0.15 * 0.1 + 0.1 * 0.5 + 0.1 * 0.5)
     assert g["grade"] == "high"
     assert reality_gap(1.0, 5.0, 50.0, 0.0, 3.0, None)["grade"] == "very_high"
+
+
+def test_replay_models_drop_only_meshes_that_change_nothing(lab):
+    """The replay's models leave out the mesh geoms of bodies with explicit inertias: same motion, to the bit."""
+    import mujoco
+
+    from sim2real.gap import ReplayModels
+    from sim2real.lab import arm_spec, compile_arm
+
+    full, qadr, dadr = compile_arm(arm_spec(lab["mjcf"], PANDA_JOINTS), PANDA_JOINTS)
+    models = ReplayModels(lab["mjcf"])
+    lean, lean_qadr, lean_dadr = models.get(PANDA_JOINTS)
+    assert models.get(PANDA_JOINTS)[0] is lean  # compiled once per distinct model
+    assert lean.nmesh < full.nmesh  # a body without an explicit inertia keeps its meshes (they give its mass)
+    assert np.array_equal(qadr, lean_qadr) and np.array_equal(dadr, lean_dadr)
+    trajectories = []
+    for model in (full, lean):
+        data = mujoco.MjData(model)
+        data.qpos[qadr] = np.linspace(-0.5, 0.5, len(PANDA_JOINTS))
+        rows = []
+        for step in range(300):
+            data.ctrl[:] = 5.0 * np.sin(0.05 * step + np.arange(model.nu))
+            mujoco.mj_step(model, data)
+            rows.append(np.concatenate([data.qpos, data.qvel]))
+        trajectories.append(np.array(rows))
+    assert np.array_equal(trajectories[0], trajectories[1])

@@ -81,25 +81,93 @@ def torque_metrics(measured: np.ndarray, residual: np.ndarray, joints: Sequence[
 # state domain
 
 
+def _meshes_inert(spec: mujoco.MjSpec) -> bool:
+    """Whether the mesh geoms of bodies with an explicit inertia change no number of the replay.
+
+    They do not when contacts are off (``arm_spec``), fluid forces are off (the ellipsoid model reads geoms),
+    sleeping is off (it reads ``dof_length``, which the compiler takes from the geoms) and the compiler keeps
+    explicit inertias (it then ignores the geoms' masses).
+    """
+    return bool(spec.option.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT
+                and not spec.option.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP
+                and not spec.option.density and not spec.option.viscosity
+                and spec.compiler.inertiafromgeom != mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE)
+
+
+def _drop_inert_meshes(spec: mujoco.MjSpec) -> None:
+    """Delete the mesh geoms (and their meshes) that cannot change a number of the replay (``_meshes_inert``).
+
+    Loading and processing the meshes is most of a compile (about 1.2 s of 1.3 s on the Panda).
+    """
+    if not _meshes_inert(spec):
+        return
+    for geom in list(spec.geoms):
+        if geom.type == mujoco.mjtGeom.mjGEOM_MESH and geom.parent.explicitinertial:
+            spec.delete(geom)
+    used = {geom.meshname for geom in spec.geoms}
+    for mesh in list(spec.meshes):
+        if mesh.name not in used:
+            spec.delete(mesh)
+
+
+class ReplayModels:
+    """The compiled arm of each distinct model of one report, each compiled once.
+
+    The state domain, the armature and every rung's replay (the actuator link's first rung is the body
+    link's last) would otherwise each parse and compile the same MJCF again. The MJCF is parsed and
+    stripped of its inert meshes once; each model is a copy of that spec with its effects written in.
+    """
+
+    def __init__(self, mjcf_path: str | Path) -> None:
+        self.mjcf_path = mjcf_path
+        self._bases: dict[tuple[str, ...], mujoco.MjSpec] = {}
+        self._models: dict[tuple[tuple[str, ...], str], tuple[mujoco.MjModel, np.ndarray, np.ndarray]] = {}
+
+    def _spec(self, joints: Sequence[str], identified: Mapping[str, Any] | None, strip: bool) -> mujoco.MjSpec:
+        from sim2real.effects import apply_to_spec
+        from sim2real.lab import arm_spec
+
+        if not strip:
+            spec = arm_spec(self.mjcf_path, joints)
+        else:
+            if tuple(joints) not in self._bases:
+                base = arm_spec(self.mjcf_path, joints)
+                _drop_inert_meshes(base)
+                self._bases[tuple(joints)] = base
+            spec = self._bases[tuple(joints)].copy()
+        if identified:
+            apply_to_spec(spec, dict(identified), include_urdf_effects=True)
+        return spec
+
+    def get(self, joints: Sequence[str], identified: Mapping[str, Any] | None = None,
+            ) -> tuple[mujoco.MjModel, np.ndarray, np.ndarray]:
+        """(model, qpos addresses, dof addresses) of the arm with ``identified`` written in (None: as built)."""
+        from sim2real.lab import compile_arm
+
+        key = (tuple(joints), json.dumps(identified or None, sort_keys=True))
+        if key not in self._models:
+            spec = self._spec(joints, identified, strip=True)
+            if not _meshes_inert(spec):  # an effect switched on something that reads the geoms: keep them all
+                spec = self._spec(joints, identified, strip=False)
+            self._models[key] = compile_arm(spec, joints)
+        return self._models[key]
+
+
 def replay(
     mjcf_path: str | Path, prepared: PreparedRun, horizon_s: float,
-    identified: Mapping[str, Any] | None = None,
+    identified: Mapping[str, Any] | None = None, models: ReplayModels | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Multiple-shooting replay of tau_cmd: (simulated q, simulated qd, index of the compared samples).
 
     ``identified``: fitted effects in the shape of params.yaml (``effects``, ``torque_source``) to write
     into the model first, so that a rung of the model ladder is replayed as it was fitted.
+    ``models``: compiled models of ``mjcf_path`` to reuse (one report replays the same model several times).
     """
-    from sim2real.effects import apply_to_spec
-    from sim2real.lab import arm_spec, compile_arm
-
     assert prepared.tau_cmd is not None
     joints = prepared.joint_names
-    spec = arm_spec(mjcf_path, joints)
-    if identified:
-        apply_to_spec(spec, dict(identified), include_urdf_effects=True)
-    model, qadr, dadr = compile_arm(spec, joints)
-    model.opt.timestep = prepared.dt
+    models = models if models is not None else ReplayModels(mjcf_path)
+    model, qadr, dadr = models.get(joints, identified)
+    model.opt.timestep = prepared.dt  # set on every call: a shared model may have replayed a run of another rate
     seg = max(2, int(round(horizon_s / prepared.dt)))
     n_seg = (prepared.time.size - 1) // seg
     if n_seg < 1:
@@ -185,7 +253,7 @@ def fidelity_grade(mean_abs_position_error: float) -> str:
 
 
 def state_domain(mjcf_path: str | Path, runs: Sequence[TorqueComparison], horizon_s: float,
-                 tau_rmse: float) -> dict[str, Any]:
+                 tau_rmse: float, models: ReplayModels | None = None) -> dict[str, Any]:
     """State-domain metrics over all runs with commands, or a plain 'skipped' with the reason."""
     usable = [c for c in runs if c.run.tau_cmd is not None]
     if not usable:
@@ -195,7 +263,7 @@ def state_domain(mjcf_path: str | Path, runs: Sequence[TorqueComparison], horizo
     sims, reals, simv, realv, contacts = [], [], [], [], []
     for c in usable:
         try:
-            q_sim, qd_sim, idx = replay(mjcf_path, c.run, horizon_s)
+            q_sim, qd_sim, idx = replay(mjcf_path, c.run, horizon_s, models=models)
         except ValueError as exc:
             return {"status": "skipped", "reason": f"run '{c.run.name}': {exc} (horizon {horizon_s} s)"}
         sims.append(q_sim)
@@ -233,19 +301,20 @@ def state_domain(mjcf_path: str | Path, runs: Sequence[TorqueComparison], horizo
 
 def ladder_position_rmse(
     mjcf_path: str | Path, comparisons: Sequence[TorqueComparison], horizon_s: float,
-    ladder: Sequence[Mapping[str, Any]], torque_source: str | None,
+    ladder: Sequence[Mapping[str, Any]], torque_source: str | None, models: ReplayModels | None = None,
 ) -> list[dict[str, Any] | None]:
     """Position RMSE of each rung's replay on the holdout runs with commands (None where there is none)."""
     holdout = [c for c in comparisons if c.role == "holdout" and c.run.tau_cmd is not None]
     if not holdout:
         return [None for _ in ladder]
     joints = holdout[0].run.joint_names
+    models = models if models is not None else ReplayModels(mjcf_path)
     out: list[dict[str, Any] | None] = []
     for rung in ladder:
         identified = {"effects": rung.get("params") or {}, "torque_source": torque_source}
         errors = []
         for c in holdout:
-            q_sim, _, idx = replay(mjcf_path, c.run, horizon_s, identified)
+            q_sim, _, idx = replay(mjcf_path, c.run, horizon_s, identified, models)
             error = q_sim - c.run.q[idx]
             errors.append(error[np.all(np.isfinite(error), axis=1)])
         out.append(rmse(np.concatenate(errors), joints))
@@ -359,15 +428,15 @@ def worst_windows(comparisons: Sequence[TorqueComparison], masks: Sequence[Mappi
 # assembly
 
 
-def model_armature(mjcf_path: str | Path, joints: Sequence[str]) -> dict[str, float]:
+def model_armature(mjcf_path: str | Path, joints: Sequence[str], models: ReplayModels | None = None,
+                   ) -> dict[str, float]:
     """Rotor inertia (armature) of the measured joints as the built MJCF has it.
 
     The URDF cannot hold armature; the MJCF gets it from configs/{robot}/robot.yaml. Reading it back
     from the MJCF keeps the Pinocchio model and the MuJoCo replay the same model.
     """
-    from sim2real.lab import arm_spec, compile_arm
-
-    model, _, dadr = compile_arm(arm_spec(mjcf_path, joints), joints)
+    models = models if models is not None else ReplayModels(mjcf_path)
+    model, _, dadr = models.get(joints)
     return {j: float(model.dof_armature[d]) for j, d in zip(joints, dadr)}
 
 
@@ -378,7 +447,8 @@ def compute_gap(
     """The gap.json content (validated) and the per-run comparisons (for figures)."""
     # each run file is read once; joints come from the first run, the model locks everything else
     entries, runs, settings = read_runs(measurement_list, root)
-    armature = model_armature(mjcf_path, runs[0].joint_names) if mjcf_path is not None else None
+    models = ReplayModels(mjcf_path) if mjcf_path is not None else None
+    armature = model_armature(mjcf_path, runs[0].joint_names, models) if mjcf_path is not None else None
     model = RigidBodyModel(urdf_path, runs[0].joint_names, armature=armature)
     limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(model.joint_names, model.lower, model.upper)}
     prepared = prepare_runs(runs, settings, model.joint_names, limits)
@@ -406,7 +476,7 @@ def compute_gap(
         metrics["state_domain"] = {"status": "skipped", "reason": "no MJCF given to replay the commands in"}
     else:
         metrics["state_domain"] = state_domain(mjcf_path, comparisons, settings["horizon_s"],
-                                               metrics["torque_rmse"]["overall"])
+                                               metrics["torque_rmse"]["overall"], models)
     if metrics["state_domain"]["status"] == "computed":
         metrics["position_rmse"] = metrics["state_domain"]["position_rmse"]
         metrics["velocity_rmse"] = metrics["state_domain"]["velocity_rmse"]
@@ -439,7 +509,7 @@ def compute_gap(
         if "ladder" in gap and mjcf_path is not None and metrics["state_domain"]["status"] == "computed":
             # Each rung replayed with its fitted effects written into the MJCF: the state-domain view of the ladder.
             positions = ladder_position_rmse(mjcf_path, comparisons, settings["horizon_s"], gap["ladder"],
-                                             precomputed.get("torque_source"))
+                                             precomputed.get("torque_source"), models)
             for rung, position in zip(gap["ladder"], positions):
                 if position is not None:
                     rung["metrics"]["position_rmse"] = position
@@ -448,7 +518,7 @@ def compute_gap(
                 body = gap["ladder"][-1].get("params") or {}
                 rungs = [{**rung, "params": {**body, **(rung.get("params") or {})}} for rung in gap["actuator"]["ladder"]]
                 positions = ladder_position_rmse(mjcf_path, comparisons, settings["horizon_s"], rungs,
-                                                 precomputed.get("torque_source"))
+                                                 precomputed.get("torque_source"), models)
                 for rung, position in zip(gap["actuator"]["ladder"], positions):
                     if position is not None:
                         rung["metrics"]["position_rmse"] = position

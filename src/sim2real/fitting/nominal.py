@@ -1,0 +1,196 @@
+"""The nominal model the fit starts from: the URDF's rigid bodies with the MJCF armature, what the effects
+need to know of it (bodies, flange, CAD inertials, collision-mesh ellipsoids and hulls), and the body
+link's signals (:func:`make_signals`)."""
+
+from __future__ import annotations
+
+import fnmatch
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from sim2real.dynamics import RigidBodyModel
+from sim2real.effects import Signals
+from sim2real.errors import InputError
+from sim2real.fitting.data import TorqueData, link_side
+
+
+def resolve_armature(patterns: Mapping[str, float] | None, joint_names: Sequence[str]) -> dict[str, float]:
+    """robot.yaml ``armature`` (joint name or glob -> value; first match wins) per joint."""
+    out: dict[str, float] = {}
+    for joint in joint_names:
+        for pattern, value in (patterns or {}).items():
+            if fnmatch.fnmatchcase(joint, pattern):
+                out[joint] = float(value)
+                break
+    return out
+
+
+def _urdf_link_parameters(urdf_path: Path) -> dict[str, np.ndarray]:
+    """Each URDF link's own dynamic parameters (Pinocchio order, about the link frame)."""
+    out: dict[str, np.ndarray] = {}
+    root = ET.parse(urdf_path).getroot()
+    for link in root.findall("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        mass = float(inertial.find("mass").get("value", "0"))
+        origin = inertial.find("origin")
+        xyz = np.array([float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
+        rpy = np.array([float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()])
+        el = inertial.find("inertia")
+        get = lambda k: float(el.get(k, "0")) if el is not None else 0.0  # noqa: E731
+        inertia = np.array(
+            [[get("ixx"), get("ixy"), get("ixz")], [get("ixy"), get("iyy"), get("iyz")], [get("ixz"), get("iyz"), get("izz")]]
+        )
+        rotation = pin.rpy.rpyToMatrix(rpy)
+        out[link.get("name")] = pin.Inertia(mass, xyz, rotation @ inertia @ rotation.T).toDynamicParameters()
+    return out
+
+
+def _collision_points(urdf_path: Path, link: ET.Element) -> np.ndarray | None:
+    """Vertices of a link's collision meshes in the link frame (None when a mesh cannot be read)."""
+    import trimesh
+
+    from sim2real.urdf import resolve_package_uri
+
+    points = []
+    for collision in link.findall("collision"):
+        mesh = collision.find("geometry/mesh")
+        if mesh is None:
+            return None  # primitives are rare on arms; without a mesh the body keeps the plain LMI
+        try:
+            loaded = trimesh.load(resolve_package_uri(mesh.get("filename", ""), source=urdf_path), force="mesh")
+        except Exception:  # noqa: BLE001 - an unreadable mesh only drops the optional, stronger constraint
+            return None
+        scale = np.array([float(v) for v in mesh.get("scale", "1 1 1").split()])
+        origin = collision.find("origin")
+        xyz = np.array([float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
+        rpy = np.array([float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()])
+        points.append(np.asarray(loaded.vertices) * scale @ pin.rpy.rpyToMatrix(rpy).T + xyz)
+    return np.vstack(points) if points else None
+
+
+def _body_points(urdf_path: Path, body_links: Sequence[str]) -> list[np.ndarray | None]:
+    """Collision-mesh vertices of each body's own link (link frame); None for the last body (it carries
+    tools and payloads, so its mass may lie outside its meshes) and where no mesh can be read."""
+    root = ET.parse(urdf_path).getroot()
+    links = {link.get("name"): link for link in root.findall("link")}
+    return [
+        _collision_points(urdf_path, links[name]) if name in links and index < len(body_links) - 1 else None
+        for index, name in enumerate(body_links)
+    ]
+
+
+def body_ellipsoids(
+    urdf_path: Path, body_links: Sequence[str], points: Sequence[np.ndarray | None] | None = None
+) -> list[np.ndarray | None]:
+    """Bounding ellipsoid (``sim2real.inertial`` Q form) of each body's own link, from its collision meshes.
+
+    The last body gets none: tools and payloads are mounted there, so its mass may lie outside its meshes.
+    ``points``: the bodies' mesh vertices when already read (:func:`_body_points`).
+    """
+    from sim2real.inertial import bounding_ellipsoid
+
+    points = _body_points(urdf_path, body_links) if points is None else points
+    return [bounding_ellipsoid(p) if p is not None and len(p) >= 4 else None for p in points]
+
+
+def body_hulls(
+    urdf_path: Path, body_links: Sequence[str], points: Sequence[np.ndarray | None] | None = None
+) -> list[np.ndarray | None]:
+    """Convex hull of each body's own collision meshes as facet equations ``(k, 4)``: ``n . x + d <= 0``
+    inside, ``n`` a unit outward normal (link frame). None where :func:`body_ellipsoids` has none (the
+    last body) or the vertices span no volume. Qhull on a few hundred vertices: ~1 ms a body."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    points = _body_points(urdf_path, body_links) if points is None else points
+    out: list[np.ndarray | None] = []
+    for p in points:
+        try:
+            out.append(np.asarray(ConvexHull(np.asarray(p, dtype=float)).equations) if p is not None and len(p) >= 4
+                       else None)
+        except (QhullError, ValueError):  # flat or degenerate meshes: no volume to be inside of
+            out.append(None)
+    return out
+
+
+@dataclass
+class NominalModel:
+    """The URDF model the fit starts from and everything effects need to know about it."""
+
+    dynamics: RigidBodyModel
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def joint_names(self) -> list[str]:
+        return self.dynamics.joint_names
+
+
+def load_nominal(
+    urdf_path: str | Path,
+    joint_names: Sequence[str],
+    armature: Mapping[str, float] | None = None,
+    flange: str | None = None,
+) -> NominalModel:
+    """Nominal model of the measured joints. ``armature``: robot.yaml patterns (the MJCF's armature)."""
+    urdf_path = Path(urdf_path)
+    dynamics = RigidBodyModel(urdf_path, joint_names, armature=resolve_armature(armature, joint_names))
+    model = dynamics.model
+    # Moving body of each joint (tree order) = the URDF child link of that joint.
+    body_links = []
+    for jid in range(1, model.njoints):
+        links = [f.name for f in model.frames if f.parentJoint == jid and f.type == pin.FrameType.BODY]
+        body_links.append(links[0] if links else model.names[jid])
+    last_joint = model.njoints - 1
+    flange_name = flange if flange and model.existFrame(flange) else body_links[-1]
+    placement = model.frames[model.getFrameId(flange_name)].placement
+    if model.frames[model.getFrameId(flange_name)].parentJoint != last_joint:
+        raise InputError(
+            urdf_path, f"flange '{flange_name}'", "is not carried by the last measured joint",
+            "set robot.yaml flange to a link fixed to the last arm link",
+        )
+    points = _body_points(urdf_path, body_links)  # the meshes are read once for the ellipsoids and hulls
+    info = {
+        "damping": dynamics.damping.copy(),
+        "friction": dynamics.friction.copy(),
+        "armature": dynamics.armature.copy(),
+        "inertial": dynamics.inertial_parameters(),
+        "body_links": body_links,
+        "n_bodies": model.njoints - 1,
+        "last_link": body_links[-1],
+        "flange": flange_name,
+        "flange_rotation": np.asarray(placement.rotation).copy(),
+        "flange_translation": np.asarray(placement.translation).copy(),
+        "link_own_inertial": _urdf_link_parameters(urdf_path),
+        "ellipsoids": body_ellipsoids(urdf_path, body_links, points),
+        "hulls": body_hulls(urdf_path, body_links, points),  # where a COM may plausibly lie (link_inertia)
+    }
+    return NominalModel(dynamics, info)
+
+
+def make_signals(nominal: NominalModel, data: TorqueData) -> Signals:
+    """The body link's signals: the judged torque predicted from the motion by the nominal model.
+
+    A link-side sensor measures what the links need, without the drive's rotor inertia, damping and
+    friction (those lie on the actuator link, :func:`sim2real.actuator.actuator_signals`).
+    """
+    dynamics = nominal.dynamics
+    tau_nominal = dynamics.inverse_dynamics(data.q, data.qd, data.qdd)
+    info = nominal.info
+    if link_side(data):
+        tau_nominal = tau_nominal - dynamics.drive_torque(data.qd, data.qdd)
+        # A drive effect found here acts after the sensor: it starts from nothing, not from the URDF's value.
+        info = {**info, **{key: np.zeros_like(np.asarray(info[key], dtype=float))
+                           for key in ("damping", "friction", "armature") if key in info}}
+    return Signals(
+        joint_names=list(data.joint_names), time=data.time, q=data.q, qd=data.qd, qdd=data.qdd,
+        tau_nominal=tau_nominal, segments=data.segments, tau=data.tau,
+        regressor_fn=lambda: dynamics.regressor(data.q, data.qd, data.qdd), nominal=info,
+    )
+

@@ -1,0 +1,284 @@
+"""One model on one data set: the design at given nonlinear parameters (``_Problem``), the linear solve
+with the nonlinear parameters projected out, their refinement by bounded least squares, and the
+fitted values (:class:`FitResult`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+
+from sim2real.effects import Effect, Signals
+from sim2real.effects.actuation_delay import MAX_DELAY, shift_prediction
+from sim2real.fitting.data import kept_segments
+
+
+@dataclass
+class FitResult:
+    effects: list[str]
+    theta: dict[str, np.ndarray]  # linear coefficients per effect
+    nonlinear: dict[str, np.ndarray]
+    states: dict[str, dict[str, Any]]
+    values: dict[str, Any]  # fitted values per effect (total, SI)
+    intervals: dict[str, Any]
+    fit_rmse: dict[str, Any]
+    notes: list[str] = field(default_factory=list)
+    consistency: dict[str, Any] = field(default_factory=dict)
+    unconstrained: FitResult | None = None  # the same rung without the physical constraints
+    after_sensor: bool = False  # the body link behind a link-side sensor: drive effects are the part after it
+
+
+class _Problem:
+    """Columns and targets of one model on one data set, for a given nonlinear parameter vector."""
+
+    def __init__(self, effects: list[Effect], signals: Signals, states: dict[str, dict[str, Any]],
+                 weights: np.ndarray | None = None) -> None:
+        self.effects = effects
+        self.signals = signals
+        self.states = states
+        # Per-joint weights of the data term (joint_weights): the fit solves in units of each joint's floor.
+        self.weights = np.ones(signals.n) if weights is None else np.asarray(weights, dtype=float)
+        self.static_columns: dict[str, np.ndarray] = {}
+        for effect in effects:
+            if not effect.time_shift and not effect.nonlinear:
+                self.static_columns[effect.name] = effect.columns(signals, states[effect.name], np.array([]))[0]
+        self.nl_sizes = [len(e.nonlinear_init(signals)) for e in effects]
+
+    def split_nonlinear(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        out, start = {}, 0
+        for effect, size in zip(self.effects, self.nl_sizes, strict=True):
+            out[effect.name] = np.asarray(x[start : start + size], dtype=float)
+            start += size
+        return out
+
+    def delay(self, nonlinear: dict[str, np.ndarray]) -> float:
+        """Time shift of the prediction: the command leads what it causes by the actuation delay."""
+        for effect in self.effects:
+            if effect.time_shift:
+                delay = float(nonlinear[effect.name][0])
+                return -delay if self.signals.forward else delay
+        return 0.0
+
+    def block(self, effect: Effect, nonlinear: dict[str, np.ndarray]) -> np.ndarray:
+        """One effect's columns (N, n, k) at the given nonlinear parameters (before the time shift)."""
+        cols = self.static_columns.get(effect.name)
+        if cols is None:
+            cols = effect.columns(self.signals, self.states[effect.name], nonlinear[effect.name])[0]
+        if self.signals.forward and effect.drive:
+            cols = -cols  # forward, the drive's terms are taken from the command before the link-side sensor
+        return cols
+
+    def shift(self, columns: np.ndarray, effects: Sequence[Effect], sizes: Sequence[int],
+              nonlinear: dict[str, np.ndarray]) -> np.ndarray:
+        """Columns as they enter the prediction: shifted by the delay, except a drive's on the actuator link
+        (the command is delayed; the rotor inertia and friction act on the motion as it is)."""
+        delay = self.delay(nonlinear)
+        shifted = shift_prediction(columns, self.signals.time, self.signals.segments, delay)
+        if delay != 0.0 and self.signals.forward:
+            held = np.concatenate([np.full(size, effect.drive) for effect, size in zip(effects, sizes, strict=True)]
+                                  or [np.zeros(0, dtype=bool)])
+            shifted[:, :, held] = columns[:, :, held]
+        return shifted
+
+    def shifted_design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:
+        design, sizes = self.design(nonlinear)
+        return self.shift(design, self.effects, sizes, nonlinear), sizes
+
+    def base(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray]) -> np.ndarray:
+        """The prediction without the linear columns: nominal and offsets, shifted; plus the unshifted term."""
+        out = shift_prediction(self.signals.tau_nominal + self.offsets(theta), self.signals.time,
+                               self.signals.segments, self.delay(nonlinear))
+        return out if self.signals.unshifted is None else out + self.signals.unshifted
+
+    def design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:
+        """Columns (N, n, p) at the given nonlinear parameters (before the time shift) and sizes."""
+        blocks, sizes = [], []
+        for effect in self.effects:
+            if effect.time_shift:
+                sizes.append(0)
+                continue
+            cols = self.block(effect, nonlinear)
+            blocks.append(cols)
+            sizes.append(cols.shape[2])
+        n_samples, n = self.signals.q.shape
+        design = np.concatenate(blocks, axis=2) if blocks else np.zeros((n_samples, n, 0))
+        return design, sizes
+
+    def offsets(self, theta: dict[str, np.ndarray]) -> np.ndarray:
+        total = np.zeros_like(self.signals.tau_nominal)
+        for effect in self.effects:
+            if effect.name in theta:
+                term = effect.offset(self.signals, self.states[effect.name], theta[effect.name])
+                if term is not None:
+                    total = total + term
+        return total
+
+    def predict(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray],
+                shifted: tuple[np.ndarray, list[int]] | None = None) -> np.ndarray:
+        """The prediction; ``shifted``: :meth:`shifted_design` at ``nonlinear`` when the caller has it already."""
+        design, sizes = self.shifted_design(nonlinear) if shifted is None else shifted
+        return self.base(theta, nonlinear) + design @ _flatten_theta(self.effects, theta, sizes)
+
+
+def _flatten_theta(effects: list[Effect], theta: dict[str, np.ndarray], sizes: list[int]) -> np.ndarray:
+    parts = [theta.get(e.name, np.zeros(s))[:s] for e, s in zip(effects, sizes, strict=True) if s]
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def _split_theta(effects: list[Effect], flat: np.ndarray, sizes: list[int]) -> dict[str, np.ndarray]:
+    out, start = {}, 0
+    for effect, size in zip(effects, sizes, strict=True):
+        out[effect.name] = flat[start : start + size]
+        start += size
+    return out
+
+
+def _solve_linear(design: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Minimum-norm least squares on unit-norm columns (collinear columns share, never blow up), each
+    joint's rows multiplied by its weight (:func:`joint_weights`).
+
+    Solved through the p x p Gram matrix (pseudo-inverse by SVD): the designs are tall
+    (samples x joints rows, tens of columns), so this is many times faster than a QR of the design.
+    """
+    if design.shape[2] == 0:
+        return np.zeros(0)
+    if weights is not None:
+        design, target = design * weights[None, :, None], target * weights[None, :]
+    a = design.reshape(-1, design.shape[2])
+    scale = np.linalg.norm(a, axis=0)
+    scale[scale == 0] = 1.0
+    a = a / scale
+    coef = np.linalg.lstsq(a.T @ a, a.T @ target.reshape(-1), rcond=1e-12)[0]
+    return coef / scale
+
+
+def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndarray], iterations: int = 3):
+    """Linear parameters at fixed nonlinear ones; offsets (payload inertia) by fixed-point iteration."""
+    shifted, sizes = problem.shifted_design(nonlinear)
+    has_offset = any(type(e).offset is not Effect.offset for e in problem.effects)
+    theta: dict[str, np.ndarray] = {}
+    for _ in range(iterations if has_offset else 1):
+        flat = _solve_linear(shifted, tau - problem.base(theta, nonlinear), problem.weights)
+        theta = _split_theta(problem.effects, flat, sizes)
+    residual = tau - problem.predict(theta, nonlinear, (shifted, sizes))
+    return theta, residual, sizes
+
+
+def _refine_nonlinear(
+    problem: _Problem, tau: np.ndarray, settings: Mapping[str, Any], fixed: Mapping[str, np.ndarray] | None = None,
+    start: Mapping[str, np.ndarray] | None = None,
+) -> dict[str, np.ndarray]:
+    """Nonlinear parameters by bounded least squares, the linear ones projected out.
+
+    ``fixed``: nonlinear values of some effects to hold (e.g. the current model's, while the
+    diagnosis tries a candidate on top of it); ``start``: values to start from but refine again (the
+    previous rung's: a friction smoothing refined before the rotor inertia was in the model is refined
+    again once it is); a delay given there starts from it instead of the grid.
+    """
+    signals = problem.signals
+    fixed = dict(fixed or {})
+    begin = {**dict(start or {}), **fixed}
+    x0 = np.concatenate(
+        [np.asarray(begin.get(e.name, e.nonlinear_init(signals)), dtype=float) for e in problem.effects] or [np.zeros(0)]
+    )
+    if x0.size == 0:
+        return problem.split_nonlinear(x0)
+    lower = np.concatenate([e.nonlinear_bounds(signals)[0] for e in problem.effects])
+    upper = np.concatenate([e.nonlinear_bounds(signals)[1] for e in problem.effects])
+    held = np.concatenate([np.full(s, e.name in fixed) for e, s in zip(problem.effects, problem.nl_sizes, strict=True)])
+    # A previous value at its bound sits on a plateau (a sigmoid at its steepest is a sign function for every
+    # sample: its slope no longer moves the residual), where the refinement cannot leave it: start that one
+    # from its default instead.
+    default = np.concatenate(
+        [np.asarray(e.nonlinear_init(signals), dtype=float) for e in problem.effects] or [np.zeros(0)]
+    )
+    at_bound = ~held & ((x0 <= lower + 1e-9 * np.abs(lower)) | (x0 >= upper - 1e-9 * np.abs(upper)))
+    x0 = np.where(at_bound & (lower < upper), default, x0)
+    if held.all():
+        return problem.split_nonlinear(x0)
+    # The refinement runs on a subset of whole runs' samples (every k-th: keeps the time grid uniform).
+    n_max = int(settings["refine_max_samples"])
+    step = max(1, int(np.ceil(len(signals.time) / n_max)))
+    rows = np.arange(0, len(signals.time), step)
+    sub_signals = _subset_signals(signals, rows)
+    sub = _Problem(problem.effects, sub_signals, problem.states, problem.weights)
+    sub_tau = tau[rows]
+
+    free = ~held
+
+    def residual_full(x: np.ndarray) -> np.ndarray:
+        return (_linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1)[1] * sub.weights).reshape(-1)
+
+    def with_free(values: np.ndarray) -> np.ndarray:
+        x = x0.copy()
+        x[free] = values
+        return x
+
+    # A delay has local minima at multiples of the signal's periods, and between samples where the
+    # interpolation averages white noise away: start from a grid no coarser than the sampling step.
+    offset = 0
+    for effect, size in zip(problem.effects, problem.nl_sizes, strict=True):
+        if effect.time_shift and effect.name not in begin:
+            dt = float(np.median(np.diff(sub_signals.time))) if len(sub_signals.time) > 1 else MAX_DELAY
+            grid = np.linspace(0.0, MAX_DELAY, max(41, int(round(MAX_DELAY / dt)) + 1))
+            costs = []
+            for d in grid:
+                x = x0.copy()
+                x[offset] = d
+                costs.append(float(np.sum(residual_full(x) ** 2)))
+            x0[offset] = grid[int(np.argmin(costs))]
+        offset += size
+    # Smoothing velocities span decades: optimise their logarithm.
+    log_mask = np.concatenate(
+        [np.asarray(e.nonlinear_log_scale(signals), dtype=bool) for e in problem.effects]
+    )
+
+    def to_z(x: np.ndarray) -> np.ndarray:
+        z = x.copy()
+        z[log_mask] = np.log(x[log_mask])
+        return z
+
+    z_lower, z_upper = to_z(lower)[free], to_z(upper)[free]
+    z0 = np.clip(to_z(x0)[free], z_lower, z_upper)
+    log_free = log_mask[free]
+
+    def to_x_free(z: np.ndarray) -> np.ndarray:
+        values = z.copy()
+        values[log_free] = np.exp(z[log_free])
+        return with_free(values)
+
+    result = optimize.least_squares(
+        lambda z: residual_full(to_x_free(z)), z0, bounds=(z_lower, z_upper), method="trf", x_scale="jac",
+        diff_step=1e-3, max_nfev=60, xtol=1e-4, ftol=1e-6,
+    )
+    return problem.split_nonlinear(to_x_free(result.x))
+
+
+def _subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
+    segments = kept_segments(signals.segments, rows)
+    regressor = signals._regressor[rows] if signals._regressor is not None else None
+    parent = signals
+    return Signals(
+        joint_names=signals.joint_names, time=signals.time[rows], q=signals.q[rows], qd=signals.qd[rows],
+        qdd=signals.qdd[rows], tau_nominal=signals.tau_nominal[rows], segments=segments,
+        tau=None if signals.tau is None else signals.tau[rows],
+        regressor_fn=lambda: parent.regressor[rows], nominal=signals.nominal, forward=signals.forward,
+        unshifted=None if signals.unshifted is None else signals.unshifted[rows], _regressor=regressor,
+    )
+
+
+def _values(effects: list[Effect], theta, nonlinear, signals: Signals, states) -> dict[str, Any]:
+    """Structured values; with a gain (judged / applied torque), joint-local effects are rescaled to
+    applied torque, except a sensor's own bias, which is added after its gain."""
+    theta = dict(theta)
+    scaling = next((e for e in effects if e.scales_judged and len(theta.get(e.name, []))), None)
+    if scaling is not None and not signals.forward:  # forward, every term is already applied torque
+        gain = 1.0 + theta[scaling.name]
+        for effect in effects:
+            if effect.joint_local and not effect.scales_judged and effect.name != "torque_bias" and len(theta[effect.name]):
+                theta[effect.name] = theta[effect.name] / np.where(np.abs(gain) > 1e-6, gain, 1.0)
+    return {e.name: e.values(theta[e.name], nonlinear[e.name], signals, states[e.name]) for e in effects}
+

@@ -1,0 +1,311 @@
+"""One rung's fit (:func:`fit`): the nonlinear refinement, the linear parameters, the physically
+consistent fit (:mod:`sim2real.inertial`) and the bootstrap; a model fitted on top of the previous one
+(:func:`fit_on_the_previous`)."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from sim2real.effects import Effect, Signals, get_effect
+from sim2real.fitting.bootstrap import _block_bootstrap, _intervals, _prune
+from sim2real.fitting.data import TorqueData, link_side
+from sim2real.fitting.metrics import holdout_metrics, joint_weights
+from sim2real.fitting.nominal import NominalModel, make_signals
+from sim2real.fitting.problem import FitResult, _Problem, _linear_fit, _refine_nonlinear, _values
+from sim2real.forked import map_forked
+from sim2real.metrics import rmse
+
+
+DEFAULT_SETTINGS: dict[str, Any] = {
+    "fit_rate_hz": 200.0,  # fit and judge on a decimated grid: the filtered signals are smooth
+    "refine_max_samples": 2000,  # samples used by the nonlinear refinement
+    "bootstrap_replicates": 200,
+    "bootstrap_block_s": 1.0,
+    "confidence": 0.95,
+    "bootstrap_few_blocks_correction": True,  # small_sample_stretch; off only to measure what it corrects
+    "seed": 0,
+    # Weight of the entropic pull of link inertias towards CAD, x the noise floor's variance (sim2real.inertial):
+    # "held_out" chooses it on held-out blocks of the fit runs (inertial.choose_prior_weight); a number fixes it.
+    "inertia_regularization": "held_out",
+    # Each joint's residual in units of its own noise floor (joint_weights); "none": plain N*m, to measure it.
+    "joint_weighting": "noise_floor",
+}
+
+
+# The prior's weight (x the floor's variance) where no link inertia is fitted or the held-out choice fails.
+INERTIA_PRIOR_FALLBACK = 1e-3
+
+
+def fit(
+    effect_names: Sequence[str],
+    nominal: NominalModel | None,
+    data: TorqueData,
+    settings: Mapping[str, Any] | None = None,
+    signals: Signals | None = None,
+    uncertainty: bool = True,
+    consistency: bool = True,
+    nonlinear_fixed: Mapping[str, np.ndarray] | None = None,
+    nonlinear_start: Mapping[str, np.ndarray] | None = None,
+) -> FitResult:
+    """Fit the model ``nominal + effect_names`` on ``data`` (the fit runs).
+
+    ``consistency``: solve the rung as one convex program (:mod:`sim2real.inertial`: link inertias
+    physically consistent, friction/armature/payload mass >= 0) and keep the unconstrained fit beside
+    it (``result.unconstrained``); ``uncertainty``: bootstrap intervals; ``nonlinear_fixed``: nonlinear
+    parameters held (the diagnosis holds the current model's while it tries a candidate);
+    ``nonlinear_start``: where the refinement starts (the ladder passes the previous rung's and refines
+    every nonlinear parameter again, so a rung delivers at least the fall its candidate promised);
+    ``signals``: what the judged torque is predicted from (default: the nominal model on ``data``;
+    the actuator link passes its own and no nominal model).
+    """
+    settings = {**DEFAULT_SETTINGS, **(settings or {})}
+    if signals is None:
+        assert nominal is not None, "give the nominal model or the signals (the actuator link has no nominal model)"
+        signals = make_signals(nominal, data)
+    effects = [get_effect(name) for name in effect_names]
+    notes = []
+    for effect in effects:
+        if effect.needs_commands and data.torque_source != "tau_cmd" and not signals.forward:
+            notes.append(
+                f"{effect.name}: the judged torque is measured ({data.torque_source}); a delay between command "
+                "and applied torque does not show in it, so the torque-domain fit keeps it at 0"
+            )
+    states = {e.name: e.prepare(signals) for e in effects}
+    weights = joint_weights(data.noise_floor, str(settings.get("joint_weighting", "noise_floor")))
+    problem = _Problem(effects, signals, states, weights)
+    nonlinear = _refine_nonlinear(problem, data.tau, settings, nonlinear_fixed, nonlinear_start)
+    theta, residual, sizes = _linear_fit(problem, data.tau, nonlinear)
+    unconstrained = FitResult(
+        effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=copy.deepcopy(states),
+        values=_values(effects, theta, nonlinear, signals, states), intervals={},
+        fit_rmse=rmse(residual, data.joint_names), notes=list(notes),
+    )
+    record: dict[str, Any] = {}
+    if consistency:
+        theta, residual, record = _consistent_fit(problem, data, nonlinear, theta, settings)
+        notes.extend(record.pop("notes"))
+    values = _values(effects, theta, nonlinear, signals, states)
+    intervals: dict[str, Any] = {}
+    if uncertainty:
+        replicates = _block_bootstrap(problem, data.tau, nonlinear, theta, sizes, settings)
+        if replicates:
+            samples = [_values(effects, rep, rep_nonlinear, signals, states) for rep, rep_nonlinear in replicates]
+            intervals = _prune(_intervals(samples, float(settings["confidence"])))
+    return FitResult(
+        effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=states, values=values,
+        intervals=intervals, fit_rmse=rmse(residual, data.joint_names), notes=notes, consistency=record,
+        unconstrained=unconstrained if consistency else None, after_sensor=link_side(data) and not signals.forward,
+    )
+
+
+def fit_on_the_previous(
+    effect_names: Sequence[str],
+    nominal: NominalModel | None,
+    fit_data: TorqueData,
+    holdout_data: TorqueData,
+    previous: Mapping[str, np.ndarray] | None,
+    settings: Mapping[str, Any] | None = None,
+    *,
+    fit_signals: Signals | None = None,
+    holdout_signals: Signals | None = None,
+    uncertainty: bool = True,
+    workers: int = 1,
+) -> tuple[FitResult, np.ndarray, str]:
+    """A model fitted on top of the previous one: (fit, holdout residual, how its nonlinear parameters were set).
+
+    Two ways to carry the previous model's nonlinear parameters (friction slopes and offsets, a delay):
+    refine them all again from there, so that a smoothing refined before the rotor inertia was in the
+    model can move once it is, or hold them, so that a sharp sigmoid cannot wander off to absorb what
+    the new effect should explain. The fit runs alone cannot tell which generalises (the refinement
+    always lowers the fit residual); the one whose holdout residual is smaller, each joint in units of
+    its own floor, is kept. The diagnosis and the ladder use this same rule, so a rung delivers what
+    its diagnosis promised. ``"refined"`` also when there is nothing to hold. ``workers``: with two, both
+    ways are fitted side by side (:func:`sim2real.forked.map_forked`).
+    """
+    previous = {k: v for k, v in (previous or {}).items() if np.size(v)}
+    if fit_signals is None:
+        assert nominal is not None
+        fit_signals = make_signals(nominal, fit_data)
+    if holdout_signals is None:
+        assert nominal is not None
+        holdout_signals = make_signals(nominal, holdout_data)
+    weights = joint_weights(holdout_data.noise_floor, str({**DEFAULT_SETTINGS, **(settings or {})}["joint_weighting"]))
+
+    def judged(result: FitResult) -> tuple[np.ndarray, float]:
+        _, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
+        return residual, float(np.sum((residual * weights) ** 2))
+
+    ways = [{"uncertainty": uncertainty, "nonlinear_start": previous}]
+    if previous:
+        ways.append({"uncertainty": False, "nonlinear_fixed": previous})
+    fits = map_forked(_fit_way, ways, workers, {"effect_names": effect_names, "nominal": nominal, "data": fit_data,
+                                                "settings": settings, "signals": fit_signals})
+    refined = fits[0]
+    residual, score = judged(refined)
+    if not previous:
+        return refined, residual, "refined"
+    held = fits[1]
+    held_residual, held_score = judged(held)
+    if held_score >= score:
+        return refined, residual, "refined"
+    if uncertainty:
+        held = fit(effect_names, nominal, fit_data, settings, signals=fit_signals, uncertainty=True,
+                   nonlinear_fixed=previous)
+    return held, held_residual, "held"
+
+
+def _fit_way(way: Mapping[str, Any], **inputs: Any) -> FitResult:
+    """:func:`fit` with one way of carrying the previous nonlinear parameters (:func:`fit_on_the_previous`)."""
+    return fit(**inputs, **way)
+
+
+def _consistent_fit(
+    problem: _Problem, data: TorqueData, nonlinear: dict[str, np.ndarray], theta_free: dict[str, np.ndarray],
+    settings: Mapping[str, Any],
+) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, Any]]:
+    """The rung's linear coefficients under the physical constraints; (theta, fit residual, record).
+
+    Link inertias enter as full per-body corrections (the regressor's columns), every other effect
+    with its own columns and lower bounds. Offsets that are not linear (a payload's own inertia) are
+    held at the current estimate and updated by fixed-point iteration, as in the unconstrained fit.
+    """
+    from sim2real.effects.link_inertia import correction_anchors
+    from sim2real.inertial import (
+        InertialBlock,
+        InfeasibleFit,
+        choose_prior_weight,
+        physically_consistent,
+        pseudo_inertia,
+        solve_consistent,
+    )
+
+    signals = problem.signals
+    blocks, lower, inertial = [], [], None
+    start = 0
+    for effect in problem.effects:
+        if effect.time_shift:
+            continue
+        if effect.name == "link_inertia":
+            cols = signals.regressor
+            anchors = correction_anchors(signals.nominal)
+            # A body's mass must lie inside its meshes' ellipsoid where the CAD link itself does.
+            ellipsoids = [
+                q if q is not None and float(np.trace(pseudo_inertia(a) @ q)) >= 0 else None
+                for a, q in zip(anchors, signals.nominal.get("ellipsoids") or [None] * len(anchors), strict=True)
+            ]
+            inertial = InertialBlock(slice(start, start + cols.shape[2]), anchors, ellipsoids)
+            lower.append(np.full(cols.shape[2], -np.inf))
+            problem.states[effect.name]["null_offset"] = np.zeros(cols.shape[2])
+        else:
+            cols = problem.block(effect, nonlinear)
+            lower.append(np.asarray(effect.theta_lower(signals, cols.shape[2]), dtype=float))
+        blocks.append((effect, slice(start, start + cols.shape[2]), cols))
+        start += cols.shape[2]
+    free_residual = data.tau - problem.predict(theta_free, nonlinear)
+    record: dict[str, Any] = {"notes": []}
+    if not blocks:
+        return theta_free, free_residual, record
+    shifted = problem.shift(np.concatenate([b[2] for b in blocks], axis=2), [b[0] for b in blocks],
+                            [b[2].shape[2] for b in blocks], nonlinear)
+    bounds = np.concatenate(lower)
+    floor = float(np.mean(np.asarray(data.noise_floor, dtype=float) ** 2))
+    relative = settings["inertia_regularization"]
+    if relative == "held_out":
+        relative = INERTIA_PRIOR_FALLBACK
+        if inertial is not None:
+            try:
+                choice = choose_prior_weight(shifted * problem.weights[None, :, None],
+                                             (data.tau - problem.base({}, nonlinear)) * problem.weights,
+                                             bounds, inertial, max(floor, 1e-12))
+                relative = choice.weight
+                record["inertia_prior"] = {
+                    "weight": choice.weight, "grid": choice.grid, "scores": choice.scores,
+                    "chosen_by": f"cross-validation on {choice.blocks} held-out blocks of the fit runs (the strongest "
+                    "pull towards CAD within 1% of the best held-out error; weights are fractions of the noise "
+                    "floor's variance, scores held-out RMS in N*m, each joint weighted by its floor)"}
+            except InfeasibleFit:
+                pass  # the rung's own solve below says what failed
+    elif inertial is not None:
+        record["inertia_prior"] = {"weight": float(relative), "chosen_by": "the model.yaml setting "
+                                   "fit.inertia_regularization (a fraction of the noise floor's variance)"}
+    weight = float(relative) * max(floor, 1e-12)
+    has_offset = any(type(e).offset is not Effect.offset and e.name != "link_inertia" for e in problem.effects)
+    theta: dict[str, np.ndarray] = {}
+    solve_time = 0.0
+    try:
+        for _ in range(3 if has_offset else 1):
+            solution = solve_consistent(shifted * problem.weights[None, :, None],
+                                        (data.tau - problem.base(theta, nonlinear)) * problem.weights,
+                                        bounds, inertial, weight)
+            solve_time += solution.solve_time_s
+            for effect, cols, _ in blocks:
+                coefficients = solution.coefficients[cols]
+                if effect.name == "link_inertia":
+                    coefficients = effect.set_correction(problem.states[effect.name], coefficients)
+                theta[effect.name] = coefficients
+        for effect in problem.effects:
+            theta.setdefault(effect.name, np.zeros(0))  # a time shift has no linear coefficients
+    except InfeasibleFit as exc:
+        record["status"] = "infeasible"
+        record["notes"].append(
+            f"physical consistency: {exc}; the rung keeps the UNCONSTRAINED fit, which may be non-physical. "
+            "Check the torque signs and units of the runs and the URDF's inertials"
+        )
+        return theta_free, free_residual, record
+    residual = data.tau - problem.predict(theta, nonlinear)
+    record.update({"status": solution.status, "solve_time_s": solve_time})
+    free_physical = _physical(problem, theta_free, signals)
+    record["unconstrained_physical"] = free_physical
+    # Compared as fitted: in the weighted units of the data term, where white noise at the floors is the arm's floor.
+    fit_now = float(np.sqrt(np.mean((residual * problem.weights) ** 2)))
+    fit_free = float(np.sqrt(np.mean((free_residual * problem.weights) ** 2)))
+    noise = float(np.sqrt(floor))
+    if not free_physical and fit_now > 1.1 * fit_free and fit_now - fit_free > 0.1 * noise:
+        # The data pull the model out of the physical set: say so, never hide it behind the nominal model.
+        record["contradiction"] = True
+        record["notes"].append(
+            f"physical consistency: the data contradict a physical model with these effects: the unconstrained fit "
+            f"needs non-physical values ({_violations(problem, theta_free, signals)}) and fits the fit runs to "
+            f"{fit_free:.3g} against {fit_now:.3g} for the best physical fit (RMS in N*m, each joint weighted by its "
+            "noise floor). An effect is missing, or the "
+            "torque columns' sign or units are wrong"
+        )
+    if inertial is not None:
+        delta = problem.states["link_inertia"]["basis"] @ theta["link_inertia"] + problem.states["link_inertia"]["null_offset"]
+        assert physically_consistent(inertial.anchors.reshape(-1) + delta)
+    return theta, residual, record
+
+
+def _physical(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals) -> bool:
+    """Does a solution satisfy every constraint of the consistent fit?"""
+    return not _violations(problem, theta, signals)
+
+
+def _violations(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals) -> str:
+    """What is non-physical in a solution, in words ('' when nothing)."""
+    from sim2real.effects.link_inertia import correction_anchors
+    from sim2real.inertial import min_eigenvalues
+
+    found = []
+    for effect in problem.effects:
+        coefficients = np.asarray(theta.get(effect.name, []), dtype=float)
+        if effect.time_shift or not coefficients.size:
+            continue
+        if effect.name == "link_inertia":
+            state = problem.states[effect.name]
+            anchors = correction_anchors(signals.nominal)
+            eig = min_eigenvalues(anchors.reshape(-1) + state["basis"] @ coefficients + state["null_offset"])
+            bad = [signals.nominal["body_links"][b] for b in np.flatnonzero(eig <= 0)]
+            if bad:
+                found.append(f"link_inertia: non-physical inertia of {', '.join(bad)}")
+            continue
+        low = effect.theta_lower(signals, coefficients.size)
+        below = np.flatnonzero(coefficients < low - 1e-9)
+        if below.size:
+            found.append(f"{effect.name}: {below.size} value(s) below their physical bound")
+    return "; ".join(found)
+
