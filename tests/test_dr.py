@@ -442,3 +442,7 @@ def test_range_beyond_floating_point_or_an_endless_delay_is_an_input_error(panda
     config["physics_randomization"]["action_delay"]["delay_range"] = [0.01, 1.0e6]
     with pytest.raises(InputError, match=r"key 'physics_randomization/action_delay'.*history samples"):
         dr.resolve_config(config, panda_model, config_path="dr.yaml")
+    # Found by Hypothesis: a delay near the float limit over the time step is inf, not a count.
+    config["physics_randomization"]["action_delay"]["delay_range"] = [0.01, 3.6e305]
+    with pytest.raises(InputError, match=r"key 'physics_randomization/action_delay'.*history samples"):
+        dr.resolve_config(config, panda_model, config_path="dr.yaml")

@@ -217,14 +217,15 @@ def resolve_config(
     for channel in physics:
         if channel["channel"] == "delay":
             max_delay = max(t["range"][0][1] for t in channel["targets"])
-            delay_samples = required_history_samples(max_delay, timestep)
-            if delay_samples > MAX_HISTORY_SAMPLES:
+            # Compare in floating point first: a huge delay over the time step overflows to inf.
+            if max_delay / timestep > MAX_HISTORY_SAMPLES - 1:  # ceil(ratio) + 1 samples
                 raise InputError(
                     config_path, f"key 'physics_randomization/{channel['term']}'",
-                    f"a delay of {fmt(max_delay)} s needs {delay_samples} actuator history samples at the "
-                    f"{fmt(timestep)} s time step (at most {MAX_HISTORY_SAMPLES})",
+                    f"a delay of {fmt(max_delay)} s needs more than {MAX_HISTORY_SAMPLES} actuator history "
+                    f"samples at the {fmt(timestep)} s time step",
                     "randomize delays of milliseconds to a fraction of a second",
                 )
+            delay_samples = required_history_samples(max_delay, timestep)
     return {
         "format_version": FORMAT_VERSION,
         "robot": robot,
