@@ -310,7 +310,10 @@ def _refine_nonlinear(
     sub_tau = tau[rows]
 
     free = ~held
-    cache = None
+    # While the delay stays put, so do the columns of the effects without nonlinear parameters (the link
+    # inertias, a rotor inertia): their part of the Gram matrix is computed once.
+    delay_moves = any(e.time_shift and e.name not in fixed for e in problem.effects)
+    cache = None if delay_moves else _GramCache()
 
     def residual_full(x: np.ndarray) -> np.ndarray:
         fitted = _linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1, cache=cache)
