@@ -51,7 +51,7 @@ from sim2real.fitting.nominal import (  # noqa: F401  (re-exported: the package'
     resolve_armature, _urdf_link_parameters,
 )
 from sim2real.fitting.problem import (  # noqa: F401  (re-exported: the package's names)
-    FitResult, _Problem, _flatten_theta, _linear_fit, _refine_nonlinear, _solve_linear, _split_theta,
+    FitResult, _Problem, _flatten_theta, _linear_fit, _refine_nonlinear, _solve_blocks, _split_theta,
     _subset_signals, _values,
 )
 from sim2real.fitting.rung import (  # noqa: F401  (re-exported: the package's names)

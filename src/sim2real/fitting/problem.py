@@ -136,32 +136,134 @@ def _split_theta(effects: list[Effect], flat: np.ndarray, sizes: list[int]) -> d
     return out
 
 
-def _solve_linear(design: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-    """Minimum-norm least squares on unit-norm columns (collinear columns share, never blow up), each
-    joint's rows multiplied by its weight (:func:`joint_weights`).
+def _column_blocks(design: np.ndarray, sizes: Sequence[int] | None) -> list[np.ndarray]:
+    """``design`` (N, n, p) split into its effects' column blocks (views), empty ones left out."""
+    if sizes is None:
+        return [design] if design.shape[2] else []
+    bounds = np.cumsum([0, *sizes])
+    return [design[:, :, a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True) if b > a]
 
-    Solved through the p x p Gram matrix (pseudo-inverse by SVD): the designs are tall
-    (samples x joints rows, tens of columns), so this is many times faster than a QR of the design.
-    """
-    if design.shape[2] == 0:
-        return np.zeros(0)
+
+@dataclass
+class _ScaledBlock:
+    """One block of columns, weighted per joint, on unit-norm columns: per joint the columns that act on
+    it and their rows there (a friction column acts on its own joint only), and the columns' norms."""
+
+    joints: list[tuple[np.ndarray, np.ndarray]]
+    scale: np.ndarray
+
+
+def _scaled_block(block: np.ndarray, weights: np.ndarray | None) -> _ScaledBlock:
     if weights is not None:
-        design, target = design * weights[None, :, None], target * weights[None, :]
-    a = design.reshape(-1, design.shape[2])
-    scale = np.linalg.norm(a, axis=0)
+        block = block * weights[None, :, None]
+    scale = np.linalg.norm(block.reshape(-1, block.shape[2]), axis=0)
     scale[scale == 0] = 1.0
-    a = a / scale
-    coef = np.linalg.lstsq(a.T @ a, a.T @ target.reshape(-1), rcond=1e-12)[0]
-    return coef / scale
+    acting = np.any(block != 0.0, axis=0)  # (n, k)
+    joints = []
+    for j in range(block.shape[1]):
+        cols = np.flatnonzero(acting[j])
+        joints.append((cols, block[:, j, cols] / scale[cols]))
+    return _ScaledBlock(joints, scale)
 
 
-def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndarray], iterations: int = 3):
-    """Linear parameters at fixed nonlinear ones; offsets (payload inertia) by fixed-point iteration."""
+def _block_product(left: _ScaledBlock, right: _ScaledBlock) -> np.ndarray:
+    """``left``^T ``right`` summed joint by joint in joint order, over the columns acting on each joint."""
+    out = np.zeros((left.scale.size, right.scale.size))
+    for (left_cols, left_rows), (right_cols, right_rows) in zip(left.joints, right.joints, strict=True):
+        if left_cols.size and right_cols.size:
+            out[np.ix_(left_cols, right_cols)] += left_rows.T @ right_rows
+    return out
+
+
+def _block_rhs(left: _ScaledBlock, target: np.ndarray) -> np.ndarray:
+    """``left``^T ``target`` (N, n) summed joint by joint, as :func:`_block_product`."""
+    out = np.zeros(left.scale.size)
+    for j, (cols, rows) in enumerate(left.joints):
+        if cols.size:
+            out[cols] += rows.T @ target[:, j]
+    return out
+
+
+class _GramCache:
+    """The scaled blocks, their products and right-hand sides for the blocks that stay put while the
+    refinement moves the nonlinear parameters (``static``: per non-empty block). Computed once, they are
+    the same bits :func:`_solve_blocks` computes each time."""
+
+    def __init__(self) -> None:
+        self.static: list[bool] = []
+        self._scaled: dict[int, _ScaledBlock] = {}
+        self._products: dict[tuple[int, int], np.ndarray] = {}
+        self._rhs: dict[int, np.ndarray] = {}
+        self._target: np.ndarray | None = None
+
+    def scaled(self, i: int, block: np.ndarray, weights: np.ndarray | None) -> _ScaledBlock:
+        if not self.static[i]:
+            return _scaled_block(block, weights)
+        if i not in self._scaled:
+            self._scaled[i] = _scaled_block(block, weights)
+        return self._scaled[i]
+
+    def product(self, i: int, j: int, left: _ScaledBlock, right: _ScaledBlock) -> np.ndarray:
+        if not (self.static[i] and self.static[j]):
+            return _block_product(left, right)
+        if (i, j) not in self._products:
+            self._products[i, j] = _block_product(left, right)
+        return self._products[i, j]
+
+    def rhs(self, i: int, left: _ScaledBlock, target: np.ndarray) -> np.ndarray:
+        if not self.static[i]:
+            return _block_rhs(left, target)
+        if self._target is None or not np.array_equal(self._target, target):
+            self._rhs.clear()
+            self._target = target.copy()
+        if i not in self._rhs:
+            self._rhs[i] = _block_rhs(left, target)
+        return self._rhs[i]
+
+
+def _solve_blocks(blocks: Sequence[np.ndarray], target: np.ndarray, weights: np.ndarray | None,
+                  cache: _GramCache | None) -> np.ndarray:
+    """Minimum-norm least squares on unit-norm columns (collinear columns share, never blow up), each
+    joint's rows multiplied by its weight (:func:`joint_weights`); ``blocks``: each effect's columns.
+
+    Solved through the p x p Gram matrix (pseudo-inverse by SVD): the designs are tall (samples x joints
+    rows, tens of columns), so this is many times faster than a QR of the design. The Gram matrix is summed
+    block by block and joint by joint, over the columns that act on each joint, so a block's products come
+    out the same to the last bit whichever blocks sit beside it. ``cache``: the scaled blocks and products
+    of the blocks that stay put (the refinement's, :class:`_GramCache`); None computes every block.
+    """
+    if not blocks:
+        return np.zeros(0)
+    weighted_target = target if weights is None else target * weights[None, :]
+    scaled = [cache.scaled(i, block, weights) if cache is not None else _scaled_block(block, weights)
+              for i, block in enumerate(blocks)]
+    bounds = np.cumsum([0] + [b.scale.size for b in scaled])
+    gram = np.empty((bounds[-1], bounds[-1]))
+    rhs = np.empty(bounds[-1])
+    for i, left in enumerate(scaled):
+        rows = slice(bounds[i], bounds[i + 1])
+        rhs[rows] = cache.rhs(i, left, weighted_target) if cache is not None else _block_rhs(left, weighted_target)
+        for j in range(i, len(scaled)):
+            cols = slice(bounds[j], bounds[j + 1])
+            product = cache.product(i, j, left, scaled[j]) if cache is not None else _block_product(left, scaled[j])
+            gram[rows, cols] = product
+            gram[cols, rows] = product.T
+    coef = np.linalg.lstsq(gram, rhs, rcond=1e-12)[0]
+    return coef / np.concatenate([b.scale for b in scaled])
+
+
+def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndarray], iterations: int = 3,
+                cache: _GramCache | None = None):
+    """Linear parameters at fixed nonlinear ones; offsets (payload inertia) by fixed-point iteration.
+    ``cache``: the blocks that stay put between calls (:func:`_refine_nonlinear`)."""
     shifted, sizes = problem.shifted_design(nonlinear)
     has_offset = any(type(e).offset is not Effect.offset for e in problem.effects)
     theta: dict[str, np.ndarray] = {}
     for _ in range(iterations if has_offset else 1):
-        flat = _solve_linear(shifted, tau - problem.base(theta, nonlinear), problem.weights)
+        blocks = _column_blocks(shifted, sizes)
+        if cache is not None:
+            cache.static = [e.name in problem.static_columns for e, size in zip(problem.effects, sizes, strict=True) if size]
+        flat = _solve_blocks(blocks, tau - problem.base(theta, nonlinear), problem.weights, cache)
         theta = _split_theta(problem.effects, flat, sizes)
     residual = tau - problem.predict(theta, nonlinear, (shifted, sizes))
     return theta, residual, sizes
@@ -208,9 +310,14 @@ def _refine_nonlinear(
     sub_tau = tau[rows]
 
     free = ~held
+    # While the delay stays put, so do the columns of the effects without nonlinear parameters (the link
+    # inertias, a rotor inertia): their part of the Gram matrix is computed once.
+    delay_moves = any(e.time_shift and e.name not in fixed for e in problem.effects)
+    cache = None if delay_moves else _GramCache()
 
     def residual_full(x: np.ndarray) -> np.ndarray:
-        return (_linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1)[1] * sub.weights).reshape(-1)
+        fitted = _linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1, cache=cache)
+        return (fitted[1] * sub.weights).reshape(-1)
 
     def with_free(values: np.ndarray) -> np.ndarray:
         x = x0.copy()
