@@ -27,6 +27,9 @@ rule sysid:
         # forked workers share the parent's pages, but the benchmark sums every process's resident set
         mem_mb=1536,
         runtime=5,
+    params:
+        # the rungs and diagnoses of the last round, read back when their inputs did not change
+        fits=lambda w: f"results/{w.robot}/{w.campaign}sysid/fits",
     script:
         "../scripts/sysid.py"
 

@@ -16,5 +16,6 @@ with rule_entry(snakemake):
         snakemake.output.params,
         snakemake.output.calibration,
         threads=snakemake.threads,
+        cache_dir=snakemake.params.fits,
     )
     logging.info("diagnosis: %s", document.get("diagnosis", {}).get("verdict"))

@@ -31,6 +31,7 @@ from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of 
     joint_weights,
     kept_segments, load_nominal, make_signals, predict, resolve_armature, run_from_prepared, stack_runs,
 )
+from sim2real.fitting.cache import FitCache, digest
 from sim2real.measurements import PreparedRun, estimate_noise_floor
 
 P = ParamSpec("P")
@@ -82,6 +83,7 @@ def fit_ladder(
     link: str = "body",
     candidates: Sequence[str] | None = None,
     workers: int = 1,
+    cache: FitCache | None = None,
 ) -> tuple[dict[str, Any], FitResult]:
     """Every rung (nominal, then each effect added in turn) fitted and judged; diagnosis of the last.
 
@@ -90,21 +92,26 @@ def fit_ladder(
     ``link`` names it in the diagnosis, ``candidates`` are the effects the diagnosis tries, and the
     signals (default: the nominal model's on the data) say what the judged torque is predicted from;
     ``workers``: processes the rungs' two ways (:func:`sim2real.fitting.fit_on_the_previous`) and the
-    diagnosis's candidates are fitted on.
+    diagnosis's candidates are fitted on; ``cache``: rungs and diagnoses of earlier rounds with the same
+    inputs are read back from it (:class:`sim2real.fitting.cache.FitCache`), the same to the last bit.
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
     fit_signals = fit_signals or make_signals(nominal, fit_data)
     holdout_signals = holdout_signals or make_signals(nominal, holdout_data)
+    cache = cache or FitCache(None)
+    # Everything a rung depends on but its effects: a rung of an earlier round with the same is the same fit.
+    inputs = digest(link, nominal, fit_data, holdout_data, fit_signals, holdout_signals) if cache.directory else ""
     rungs = []
     result = None
     residual = None
     for k in range(len(effect_names) + 1):
         effects = list(effect_names[:k])
         previous = result.nonlinear if result is not None else None
-        result, _, carried = fit_on_the_previous(effects, nominal, fit_data, holdout_data, previous, fit_settings,
-                                                 fit_signals=fit_signals, holdout_signals=holdout_signals,
-                                                 workers=workers)
+        result, _, carried = cache.get_or_compute(
+            "rung", digest(inputs, effects, previous, fit_settings) if cache.directory else "",
+            functools.partial(fit_on_the_previous, effects, nominal, fit_data, holdout_data, previous, fit_settings,
+                              fit_signals=fit_signals, holdout_signals=holdout_signals, workers=workers))
         metrics, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
         x_floor = floor_units(residual, holdout_data.noise_floor)
         rung: dict[str, Any] = {
@@ -154,12 +161,14 @@ def fit_ladder(
         # inertias move more would otherwise be credited with their fall, on joints where it does nothing. Its
         # rung chooses again on held-out blocks, which can only help the holdout it was promised.
         diagnosis_fit = {**fit_settings, "inertia_regularization": prior["weight"]} if prior else fit_settings
-        document["diagnosis"] = run_diagnosis(
-            effect_names, nominal, fit_data, holdout_data, residual,
-            {"fit": diagnosis_fit, "diagnosis": settings.get("diagnosis", {})},
+        diagnosis_settings = {"fit": diagnosis_fit, "diagnosis": settings.get("diagnosis", {})}
+        key = (digest(inputs, list(effect_names), residual, result.nonlinear, diagnosis_settings, robot, candidates)
+               if cache.directory else "")
+        document["diagnosis"] = cache.get_or_compute("diagnosis", key, functools.partial(
+            run_diagnosis, effect_names, nominal, fit_data, holdout_data, residual, diagnosis_settings,
             fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot, nonlinear_fixed=result.nonlinear,
             candidates=candidates, link=link, workers=workers,
-        )
+        ))
     return round_floats(document), result
 
 
@@ -170,6 +179,7 @@ def fit_model(
     settings: Mapping[str, Any] | None = None,
     robot: str = "{robot}",
     workers: int = 1,
+    cache: FitCache | None = None,
 ) -> tuple[dict[str, Any], list[FitResult]]:
     """Both links of the model (:mod:`sim2real.actuator`) on prepared runs by role (``fit``, ``holdout``).
 
@@ -177,7 +187,7 @@ def fit_model(
     without a torque sensor: both links together, judged on the command); with a sensor and commands the
     actuator link's are under ``actuator``; ``links`` says what these runs can tell apart. Returns the
     ``ladder.json`` content and the last rung's fit of each link fitted. ``workers``: processes the
-    diagnoses fit their candidates on.
+    diagnoses fit their candidates on; ``cache``: fits of earlier rounds (:func:`fit_ladder`).
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
@@ -193,12 +203,12 @@ def fit_model(
         for role in ("fit", "holdout")
     }
     # The actuator link does not depend on the body link: on two or more threads it is fitted beside it.
-    beside = (Forked(_actuator_link, effect_names, nominal, runs, settings, robot, sensor, 1, fork=workers > 1)
+    beside = (Forked(_actuator_link, effect_names, nominal, runs, settings, robot, sensor, 1, cache, fork=workers > 1)
               if mode == "separate" else None)
     document, result = fit_ladder(
         body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
         candidates=actuator.candidates_of_link("body", sensor) if mode == "separate" or sensor == "link" else None,
-        workers=workers,
+        workers=workers, cache=cache,
     )
     results = [result]
     if body_link == "body":
@@ -221,7 +231,7 @@ def fit_model(
 
 def _actuator_link(
     effect_names: Sequence[str], nominal: NominalModel, runs: Mapping[str, Sequence[PreparedRun]],
-    settings: Mapping[str, Any], robot: str, sensor: str, workers: int,
+    settings: Mapping[str, Any], robot: str, sensor: str, workers: int, cache: FitCache | None = None,
 ) -> tuple[dict[str, Any], FitResult]:
     """The actuator link's ladder and diagnosis (:func:`fit_ladder` on the command and the measured torque)."""
     joints = nominal.joint_names
@@ -233,7 +243,7 @@ def _actuator_link(
         actuator.effects_of_link(effect_names, "actuator", sensor), nominal, link_data["fit"][0],
         link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
         holdout_signals=signals["holdout"], link="actuator",
-        candidates=actuator.candidates_of_link("actuator", sensor), workers=workers,
+        candidates=actuator.candidates_of_link("actuator", sensor), workers=workers, cache=cache,
     )
 
 
@@ -342,10 +352,12 @@ def run_sysid(
     calibration_yaml: str | Path,
     root: str | Path = ".",
     threads: int = 1,
+    cache_dir: str | Path | None = None,
 ) -> dict[str, Any]:
     """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration.
 
-    ``threads``: the diagnosis fits its candidates on that many processes (BLAS on one thread each).
+    ``threads``: the diagnosis fits its candidates on that many processes (BLAS on one thread each);
+    ``cache_dir``: where the rungs and diagnoses are kept for the next round (:class:`FitCache`; None: not kept).
     """
     from sim2real.effects import calibration_from_params
     from sim2real.io import read_yaml, write_json, write_yaml
@@ -373,9 +385,12 @@ def run_sysid(
         if not by_role[role]:
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
-    document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot, workers=threads)
+    cache = FitCache(cache_dir)
+    document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot, workers=threads,
+                                  cache=cache)
     params = params_document(results, nominal, document["torque_source"], robot)
     write_json(ladder_json, document)
     write_yaml(params_yaml, params)
     write_yaml(calibration_yaml, round_floats(calibration_from_params(params)))
+    cache.prune()
     return document

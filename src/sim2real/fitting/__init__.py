@@ -31,7 +31,9 @@ package; it imports neither. Its modules, each importing only those above it:
   the fit, its consistent variant and the bootstrap; the linear solve and the nonlinear refinement;
 * :mod:`~sim2real.fitting.bootstrap`: the block bootstrap and its intervals;
 * :mod:`~sim2real.fitting.metrics`: noise-floor units, the prediction and the holdout metrics;
-* :mod:`~sim2real.fitting.rung`: one rung's fit (:func:`fit`, :func:`fit_on_the_previous`).
+* :mod:`~sim2real.fitting.rung`: one rung's fit (:func:`fit`, :func:`fit_on_the_previous`);
+* :mod:`~sim2real.fitting.cache`: fits kept between rounds of the loop, by the digest of their inputs
+  (imports none of the above).
 
 Every name is importable from ``sim2real.fitting`` as before the split (private ones too: the tests and
 the effects' documentation reach ``_intervals`` and ``_values``).
