@@ -1,5 +1,7 @@
 # Gap report: measurements (configs/{robot}/measurements.yaml) vs the model -> gap.json, gap.md, figures.
-# ROS 2 bags under data/{robot}/bags/ are converted to measurement runs first.
+# ROS 2 bags under data/{robot}/bags/ are converted to measurement runs first; the runs are prepared once
+# (filtered, on a uniform grid, checked against the URDF) for the gap report and the sysid rule, so that a
+# round of the loop (a change of model.yaml) reads them back instead of preparing them again.
 # One report per campaign: {campaign} is "" for measurements.yaml (results/{robot}/gap.json) and
 # "<name>/" for configs/{robot}/campaigns/<name>.yaml (results/{robot}/<name>/gap.json).
 
@@ -27,12 +29,30 @@ rule bag_to_run:
         "../scripts/bag_to_run.py"
 
 
+rule prepare_runs:
+    input:
+        urdf="results/{robot}/{robot}.urdf",
+        measurements=campaign_measurements,
+        runs=measurement_files,
+    output:
+        prepared="results/{robot}/{campaign}prepared_runs.npz",
+    log:
+        "results/{robot}/logs/{campaign}prepare_runs.log",
+    benchmark:
+        "results/{robot}/benchmarks/{campaign}prepare_runs.tsv"
+    threads: 1
+    resources:
+        mem_mb=1024,
+        runtime=5,
+    script:
+        "../scripts/prepare_runs.py"
+
+
 rule gap_report:
     input:
         urdf="results/{robot}/{robot}.urdf",
         mjcf="results/{robot}/mjcf/{robot}.xml",
-        measurements=campaign_measurements,
-        runs=measurement_files,
+        prepared="results/{robot}/{campaign}prepared_runs.npz",
         ladder=sysid_ladder,
     output:
         json="results/{robot}/{campaign}gap.json",

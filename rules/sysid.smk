@@ -11,8 +11,7 @@ rule sysid:
         urdf="results/{robot}/{robot}.urdf",
         robot_config=lambda w: robot_config(w.robot),
         model="configs/{robot}/model.yaml",
-        measurements=campaign_measurements,
-        runs=measurement_files,
+        prepared="results/{robot}/{campaign}prepared_runs.npz",
     output:
         ladder="results/{robot}/{campaign}sysid/ladder.json",
         params="results/{robot}/{campaign}sysid/params.yaml",

@@ -8,7 +8,7 @@ with rule_entry(snakemake):
         snakemake.wildcards.robot,
         snakemake.input.urdf,
         snakemake.input.mjcf,
-        snakemake.input.measurements,
+        snakemake.input.prepared,
         snakemake.output.json,
         snakemake.output.md,
         {"torque": snakemake.output.torque, "residual_velocity": snakemake.output.residual_velocity,

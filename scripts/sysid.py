@@ -11,7 +11,7 @@ with rule_entry(snakemake):
         snakemake.input.urdf,
         snakemake.input.robot_config,
         snakemake.input.model,
-        snakemake.input.measurements,
+        snakemake.input.prepared,
         snakemake.output.ladder,
         snakemake.output.params,
         snakemake.output.calibration,

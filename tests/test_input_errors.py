@@ -123,7 +123,7 @@ def test_each_bad_input_ends_in_its_one_line_message(tmp_path: Path) -> None:
     (tree / "results/panda/mjcf/panda.xml").write_text(STUB_MJCF)
     edit_yaml(tree / "configs/panda/dr.yaml",
               lambda d: d["physics_randomization"]["body_mass"].update(range=[1.1, 0.9]))
-    # panda: measurement CSVs with a NaN, an unknown joint, degrees, backwards time (one sysid job each)
+    # panda: measurement CSVs with a NaN, an unknown joint, degrees, backwards time (one prepare_runs job each)
     nan = good_table()
     nan[f"q.{PANDA_JOINTS[2]}"][57] = np.nan
     unknown = good_table()
@@ -142,7 +142,8 @@ def test_each_bad_input_ends_in_its_one_line_message(tmp_path: Path) -> None:
         (campaigns / f"{name}.yaml").write_text(campaign(write_run(tree, name, table), date))
     targets = ["results/ur5/ur5.urdf", "results/panda/dr.json", "results/panda/sysid/ladder.json"] + [
         f"results/panda/{name}/sysid/ladder.json" for name in ("unknown", "degrees", "backwards")]
-    lines = snakemake_fails(tree, "--keep-going", "--allowed-rules", "urdf", "sysid", "dr_resolve", "--", *targets)
+    lines = snakemake_fails(tree, "--keep-going", "--allowed-rules", "urdf", "prepare_runs", "sysid", "dr_resolve", "--",
+                            *targets)
     assert_last_lines(lines, [
         ("robots/ur5/ur5.urdf.xacro", "limit"),
         ("configs/panda/dr.yaml", "physics_randomization/body_mass/range", "reversed", "Fix: write it as [0.9, 1.1]"),
@@ -151,7 +152,7 @@ def test_each_bad_input_ends_in_its_one_line_message(tmp_path: Path) -> None:
         ("data/panda/degrees.csv", "q.panda_joint4", "degrees", "Fix:"),
         ("data/panda/backwards.csv", "column 'time', row 200", "1.99 s then 1 s", "Fix:"),
     ])
-    log = (tree / "results/panda/logs/sysid.log").read_text()
+    log = (tree / "results/panda/logs/prepare_runs.log").read_text()  # the runs are prepared before the sysid job
     assert "Traceback (most recent call last)" in log and "raise InputError(" in log  # the traceback went here
 
     # the same copy, two more inputs broken: an unknown effect in model.yaml, a negative friction range
@@ -161,8 +162,8 @@ def test_each_bad_input_ends_in_its_one_line_message(tmp_path: Path) -> None:
     edit_yaml(tree / "configs/panda/model.yaml", lambda m: m.update(effects=["link_inertia", "magic_friction"]))
     edit_yaml(tree / "configs/panda/dr.yaml",
               lambda d: d["physics_randomization"]["body_mass"].update(range=[-0.5, 1.1]))
-    lines = snakemake_fails(tree, "--keep-going", "--allowed-rules", "urdf", "sysid", "dr_resolve", "--",
-                            "results/panda/dr.json", "results/panda/sysid/ladder.json")
+    lines = snakemake_fails(tree, "--keep-going", "--allowed-rules", "urdf", "prepare_runs", "sysid", "dr_resolve",
+                            "--", "results/panda/dr.json", "results/panda/sysid/ladder.json")
     assert_last_lines(lines, [
         ("configs/panda/model.yaml", "magic_friction"),
         ("configs/panda/dr.yaml", "physics_randomization/body_mass/range", "scale of -0.5 is not physical", "Fix:"),

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 from collections import Counter
 from pathlib import Path
 
@@ -182,12 +184,9 @@ def test_prepared_runs_follow_the_list_and_its_filter_and_share_joints(tmp_path)
         load_prepared_runs(listing, [*JOINTS, "panda_joint3"], root=tmp_path)
 
 
-def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
-    """sysid and the gap report read every run's table and metadata, and the list, exactly once."""
+def _two_logged_runs(tmp_path):
+    """A dev Panda (URDF, MJCF), a CSV fit run and a Parquet holdout run, their list, model.yaml, robot.yaml."""
     from gap_fixtures import build_dev_panda
-    from sim2real import measurements
-    from sim2real.gap import compute_gap
-    from sim2real.sysid import run_sysid
     from sysid_synthetic import PANDA_JOINTS, make_run
 
     urdf, mjcf = build_dev_panda(tmp_path / "panda")
@@ -199,6 +198,12 @@ def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
                                                 {"name": "b", "path": "b.parquet", "role": "holdout"}]}))
     (tmp_path / "model.yaml").write_text("effects: []\nfit: {bootstrap_replicates: 5, fit_rate_hz: 100}\n")
     (tmp_path / "robot.yaml").write_text(yaml.safe_dump({"armature": {"panda_joint*": 0.1}, "flange": "panda_link8"}))
+    return urdf, mjcf, listing
+
+
+def _counting_reads(monkeypatch):
+    from sim2real import measurements
+
     reads: Counter[str] = Counter()
 
     def counting(reader):
@@ -209,6 +214,16 @@ def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
 
     monkeypatch.setattr(measurements, "_read_table", counting(measurements._read_table))
     monkeypatch.setattr(measurements, "read_validated_yaml", counting(measurements.read_validated_yaml))
+    return reads
+
+
+def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
+    """sysid and the gap report, given the list, read every run's table and metadata, and the list, exactly once."""
+    from sim2real.gap import compute_gap
+    from sim2real.sysid import run_sysid
+
+    urdf, mjcf, listing = _two_logged_runs(tmp_path)
+    reads = _counting_reads(monkeypatch)
     once = {"measurements.yaml": 1, "a.csv": 1, "a.yaml": 1, "b.parquet": 1, "b.yaml": 1}
     out = tmp_path / "out"
     run_sysid("panda", urdf, tmp_path / "robot.yaml", tmp_path / "model.yaml", listing,
@@ -217,6 +232,41 @@ def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
     reads.clear()
     compute_gap("panda", urdf, mjcf, listing, root=tmp_path)
     assert reads == once
+
+
+def test_prepared_runs_are_read_back_exactly_and_the_rules_read_no_run_file(tmp_path, monkeypatch):
+    """The prepare_runs rule's file: the same bytes from the same runs, read back to the same numbers, so that
+    sysid and the gap report give what they give from the list, without reading or filtering a run again."""
+    from sim2real.gap import compute_gap
+    from sim2real.measurements import prepare_for_model, read_prepared_runs, write_prepared_runs
+    from sim2real.sysid import run_sysid
+
+    urdf, mjcf, listing = _two_logged_runs(tmp_path)
+    entries, prepared, settings = prepare_for_model(listing, urdf, root=tmp_path)
+    write_prepared_runs(tmp_path / "runs.npz", entries, prepared, settings)
+    write_prepared_runs(tmp_path / "again.npz", entries, prepared, settings)
+    assert (tmp_path / "runs.npz").read_bytes() == (tmp_path / "again.npz").read_bytes()
+    back_entries, back, back_settings = read_prepared_runs(tmp_path / "runs.npz")
+    assert back_entries == entries and back_settings == settings
+    for run, read in zip(prepared, back, strict=True):
+        for item in dataclasses.fields(run):
+            a, b = getattr(run, item.name), getattr(read, item.name)
+            assert (a is None and b is None) or (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), item.name
+
+    def sysid(source, out):
+        run_sysid("panda", urdf, tmp_path / "robot.yaml", tmp_path / "model.yaml", source, out / "ladder.json",
+                  out / "params.yaml", out / "calibration.yaml", root=tmp_path)
+        return (out / "ladder.json").read_bytes()
+
+    from_list = sysid(listing, tmp_path / "list")
+    gap_from_list, _ = compute_gap("panda", urdf, mjcf, listing, root=tmp_path)
+    reads = _counting_reads(monkeypatch)
+    assert sysid(tmp_path / "runs.npz", tmp_path / "prepared") == from_list
+    assert compute_gap("panda", urdf, mjcf, tmp_path / "runs.npz", root=tmp_path)[0] == gap_from_list
+    assert set(reads) <= {"model.yaml", "robot.yaml"}  # no run, no list
+    (tmp_path / "broken.npz").write_bytes(b"half a file")
+    with pytest.raises(InputError, match=r"broken\.npz.*not a file of prepared runs.*forcerun prepare_runs"):
+        read_prepared_runs(tmp_path / "broken.npz")
 
 
 def test_mcap_bag_converts_to_run(tmp_path):

@@ -16,8 +16,9 @@
   with their stamps.
 * The noise floor: the torque RMS that no model can explain (``estimate_noise_floor``).
 
-Each run file is read once (``sim2real.measurements.read_runs``) and prepared against the model
-(``prepare_runs``).
+The runs come prepared by the rule ``prepare_runs`` (``sim2real.measurements.write_prepared_runs``),
+shared with the sysid rule; given a measurement list instead, they are read and prepared here
+(``sim2real.measurements.runs_for_model``).
 
 ``compute_gap`` returns the gap.json content; ``build_gap_report`` writes gap.json, gap.md and the
 figures. An optional precomputed section (``ladder``, ``diagnosis``, ``actuator``, ``links``, from the
@@ -38,7 +39,7 @@ from mujoco import rollout
 
 from sim2real.dynamics import RigidBodyModel
 from sim2real.io import validate, write_json
-from sim2real.measurements import PreparedRun, estimate_noise_floor, prepare_runs, read_runs
+from sim2real.measurements import PreparedRun, estimate_noise_floor, runs_for_model
 from sim2real.metrics import rmse
 from sim2real.regimes import REGIME_DEFINITIONS, REGIME_LABELS, REGIMES, regime_masks
 
@@ -444,14 +445,14 @@ def compute_gap(
     robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
     root: str | Path = ".", precomputed: Mapping[str, Any] | None = None,
 ) -> tuple[dict[str, Any], list[TorqueComparison]]:
-    """The gap.json content (validated) and the per-run comparisons (for figures)."""
-    # each run file is read once; joints come from the first run, the model locks everything else
-    entries, runs, settings = read_runs(measurement_list, root)
+    """The gap.json content (validated) and the per-run comparisons (for figures).
+
+    ``measurement_list``: the measurement list, or the runs prepared from it (``.npz``)."""
+    # joints come from the first run, the model locks everything else
+    entries, prepared, settings = runs_for_model(measurement_list, urdf_path, root)
     models = ReplayModels(mjcf_path) if mjcf_path is not None else None
-    armature = model_armature(mjcf_path, runs[0].joint_names, models) if mjcf_path is not None else None
-    model = RigidBodyModel(urdf_path, runs[0].joint_names, armature=armature)
-    limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(model.joint_names, model.lower, model.upper)}
-    prepared = prepare_runs(runs, settings, model.joint_names, limits)
+    armature = model_armature(mjcf_path, prepared[0].joint_names, models) if mjcf_path is not None else None
+    model = RigidBodyModel(urdf_path, prepared[0].joint_names, armature=armature)
     joints = model.joint_names
 
     comparisons = []

@@ -11,7 +11,10 @@ Format (a contract shared with real robot logs and the virtual lab):
 
 A rule reads each run file once: ``read_runs`` reads every run of a measurement list, the caller
 builds its model from the runs' joints, and ``prepare_runs`` checks the runs against the model's
-joints and limits and prepares them (``load_prepared_runs`` does both when the joints are known).
+joints and limits and prepares them (``load_prepared_runs`` does both when the joints are known;
+``prepare_for_model`` takes the joints and limits from a URDF). The rule ``prepare_runs`` writes them once
+(``write_prepared_runs``) for the sysid and gap report rules, which read them back (``read_prepared_runs``;
+``runs_for_model`` takes either a list or that file): a change of model.yaml prepares nothing again.
 
 Preparation (``prepare_run``, per run) for the comparisons:
 
@@ -468,6 +471,96 @@ def load_prepared_runs(
     """
     entries, runs, settings = read_runs(measurement_list, root)
     return entries, prepare_runs(runs, settings, known_joints, limits), settings
+
+
+def prepare_for_model(
+    measurement_list: str | Path, urdf_path: str | Path, root: str | Path = ".",
+) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
+    """Every run of a measurement list read, checked against the URDF's joints and limits, and prepared.
+
+    A run column naming a joint the URDF lacks is refused in the run's own terms (the file to edit is the
+    run). Returns (entries, prepared runs in the same order, settings of :func:`measurement_settings`).
+    """
+    from sim2real.dynamics import RigidBodyModel
+
+    entries, runs, settings = read_runs(measurement_list, root)
+    probe = RigidBodyModel(urdf_path)
+    for run in runs:
+        unknown = [j for j in run.joint_names if j not in probe.joint_names]
+        if unknown:
+            raise InputError(run.path, f"column q.{unknown[0]}", f"joint '{unknown[0]}' is not in {urdf_path}",
+                             f"name the columns after the URDF's joints ({', '.join(probe.joint_names)})")
+    probe = RigidBodyModel(urdf_path, runs[0].joint_names)
+    limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(probe.joint_names, probe.lower, probe.upper, strict=True)}
+    return entries, prepare_runs(runs, settings, probe.joint_names, limits), settings
+
+
+# Prepared runs on disk (the rule ``prepare_runs``): one zip of .npy arrays and a JSON header, written with
+# fixed member times so that the same runs give the same bytes.
+PREPARED_SUFFIX = ".npz"
+_PREPARED_ARRAYS = ("time", "q", "qd", "qdd", "tau", "tau_cmd", "q_cmd", "qd_measured", "contact", "raw_torque_sigma")
+
+
+def write_prepared_runs(
+    path: str | Path, entries: Sequence[MeasurementEntry], prepared: Sequence[PreparedRun], settings: Mapping[str, Any],
+) -> None:
+    """Prepared runs (:func:`prepare_for_model`) in one file that :func:`read_prepared_runs` reads back exactly."""
+    import io as _io
+    import json
+    import zipfile
+
+    from sim2real.io import atomic_path
+
+    header = {"settings": dict(settings), "runs": []}
+    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as archive:
+        for i, (entry, run) in enumerate(zip(entries, prepared, strict=True)):
+            header["runs"].append({
+                "entry": {"name": entry.name, "path": Path(entry.path).as_posix(), "role": entry.role},
+                "name": run.name, "joint_names": list(run.joint_names), "dt": float(run.dt),
+                "torque_source": run.torque_source, "torque_sensor": run.torque_sensor, "filter": run.filter,
+                "arrays": [a for a in _PREPARED_ARRAYS if getattr(run, a) is not None],
+            })
+            for name in header["runs"][-1]["arrays"]:
+                buffer = _io.BytesIO()
+                np.lib.format.write_array(buffer, np.asarray(getattr(run, name)), allow_pickle=False)
+                archive.writestr(zipfile.ZipInfo(f"{i}/{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)), buffer.getvalue())
+        archive.writestr(zipfile.ZipInfo("header.json", date_time=(1980, 1, 1, 0, 0, 0)),
+                         json.dumps(header, sort_keys=True, indent=1))
+
+
+def read_prepared_runs(path: str | Path) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
+    """The file of :func:`write_prepared_runs`: (entries, prepared runs, settings), as they were written."""
+    import json
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            header = json.loads(archive.read("header.json"))
+            entries, runs = [], []
+            for i, item in enumerate(header["runs"]):
+                arrays = {name: np.lib.format.read_array(archive.open(f"{i}/{name}.npy"), allow_pickle=False)
+                          for name in item["arrays"]}
+                entries.append(MeasurementEntry(item["entry"]["name"], Path(item["entry"]["path"]), item["entry"]["role"]))
+                runs.append(PreparedRun(
+                    name=item["name"], joint_names=list(item["joint_names"]), dt=float(item["dt"]),
+                    torque_source=item["torque_source"], torque_sensor=item["torque_sensor"], filter=item["filter"],
+                    **{name: arrays.get(name) for name in _PREPARED_ARRAYS if name != "raw_torque_sigma"},
+                    raw_torque_sigma=arrays.get("raw_torque_sigma", np.zeros(0)),
+                ))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
+        raise InputError(path, None, f"not a file of prepared runs ({exc})",
+                         "rebuild it: snakemake --forcerun prepare_runs") from exc
+    return entries, runs, dict(header["settings"])
+
+
+def runs_for_model(
+    source: str | Path, urdf_path: str | Path, root: str | Path = ".",
+) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
+    """Prepared runs from ``source``: a file of :func:`write_prepared_runs` (``.npz``), read back, or a
+    measurement list, read and prepared against the URDF (:func:`prepare_for_model`)."""
+    if Path(source).suffix == PREPARED_SUFFIX:
+        return read_prepared_runs(source)
+    return prepare_for_model(source, urdf_path, root)
 
 
 def write_run(

@@ -22,7 +22,6 @@ import numpy as np
 
 from sim2real import actuator
 from sim2real.diagnosis import diagnose as run_diagnosis
-from sim2real.dynamics import RigidBodyModel
 from sim2real.effects import Signals, get_effect
 from sim2real.errors import InputError
 from sim2real.forked import Forked
@@ -356,26 +355,17 @@ def run_sysid(
 ) -> dict[str, Any]:
     """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration.
 
+    ``measurement_list``: the measurement list, or the runs prepared from it (``prepare_runs``, ``.npz``);
     ``threads``: the diagnosis fits its candidates on that many processes (BLAS on one thread each);
     ``cache_dir``: where the rungs and diagnoses are kept for the next round (:class:`FitCache`; None: not kept).
     """
     from sim2real.effects import calibration_from_params
     from sim2real.io import read_yaml, write_json, write_yaml
-    from sim2real.measurements import prepare_runs, read_runs
+    from sim2real.measurements import runs_for_model
 
     model_config = load_model_config(model_config_path)
     robot_config = read_yaml(robot_config_path) or {}
-    # each run file is read once; the joints and limits to check the runs against come from the first run
-    entries, runs, settings = read_runs(measurement_list, root)
-    probe = RigidBodyModel(urdf_path)
-    for run in runs:
-        unknown = [j for j in run.joint_names if j not in probe.joint_names]
-        if unknown:  # the run's column names the joint: the file to edit is the run, not the URDF
-            raise InputError(run.path, f"column q.{unknown[0]}", f"joint '{unknown[0]}' is not in {urdf_path}",
-                             f"name the columns after the URDF's joints ({', '.join(probe.joint_names)})")
-    probe = RigidBodyModel(urdf_path, runs[0].joint_names)
-    limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(probe.joint_names, probe.lower, probe.upper, strict=True)}
-    prepared = prepare_runs(runs, settings, probe.joint_names, limits)
+    entries, prepared, _ = runs_for_model(measurement_list, urdf_path, root)
     joints = prepared[0].joint_names
     nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"))
     by_role: dict[str, list[PreparedRun]] = {"fit": [], "holdout": []}

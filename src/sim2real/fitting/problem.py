@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+# Imported with the module, not when first needed: it loads scipy's own BLAS, which run_sysid's one-thread
+# limit (threadpoolctl) holds only if it is loaded by then, and the fit's last bits depend on it.
 from scipy import optimize
 
 from sim2real.effects import Effect, Signals
