@@ -1,8 +1,10 @@
 """One round of the gap loop, timed (issue 20): a change of model.yaml through to a new gap.json.
 
-Part 1, the Panda demo through Snakemake: after a cold build of ``results/panda/gap.json``, ``model.yaml``
-is changed (a comment, so the numbers stay the same) and the target rebuilt; the rule times of ``sysid``
-and ``gap_report`` come from their ``benchmark:`` files. Median of ``--repeats``.
+Part 1, the Panda demo through Snakemake: after a cold build of ``results/panda/gap.json``, two kinds of
+round (:func:`demo_rounds`): ``model.yaml`` edited without a change of its effects, and one line added, as
+a user following the verdicts does; the rule times of ``sysid`` and ``gap_report`` come from their
+``benchmark:`` files (the runs are prepared once, by ``prepare_runs``, which a round does not rerun).
+Median of ``--repeats``.
 
 Part 2, where a round spends its time and how that grows with the log: the lab's ``real_arm_like`` arm is
 logged for each ``--lengths`` (seconds; default 20 s, 2 min, 10 min), and one round (``sysid.run_sysid`` +
@@ -33,12 +35,12 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from buildtree import copy_repo, edit_yaml, make_fast, run_snakemake  # noqa: E402
+from buildtree import copy_repo, edit_yaml, make_fast, rules_run, run_snakemake  # noqa: E402
 
 # Stage -> (module file suffix, function name): cumulative time of that function in one round.
 STAGES = {
-    "read + prepare runs": [("measurements.py", "read_runs"), ("measurements.py", "prepare_runs"),
-                            ("measurements.py", "load_prepared_runs")],
+    "prepare runs (rule prepare_runs, not in a round)": [("measurements.py", "prepare_for_model")],
+    "read the prepared runs": [("measurements.py", "read_prepared_runs")],
     "regressors": [("dynamics.py", "regressor")],
     "nominal inverse dynamics": [("dynamics.py", "inverse_dynamics")],
     "ladder (all rungs)": [("sysid.py", "fit_ladder")],
@@ -69,23 +71,30 @@ def one_round(tree: str, measurements: str, out: str, queue: multiprocessing.Que
     from sim2real.gap import build_gap_report
     from sim2real.sysid import run_sysid
 
+    from sim2real.measurements import prepare_for_model, write_prepared_runs
+
     t = Path(tree)
     o = Path(out)
+    prepared = o / "prepared_runs.npz"
     profiler = cProfile.Profile()
     started = time.perf_counter()
     profiler.enable()
+    # as the DAG does: the runs prepared once (rule prepare_runs), then the two rules of a round read them
+    write_prepared_runs(prepared, *prepare_for_model(measurements, t / "results/panda/panda.urdf", t))
+    prepare_s = time.perf_counter() - started
     run_sysid("panda", t / "results/panda/panda.urdf", t / "configs/panda/robot.yaml", t / "configs/panda/model.yaml",
-              measurements, o / "ladder.json", o / "params.yaml", o / "calibration.yaml", root=t)
-    sysid_s = time.perf_counter() - started
-    build_gap_report("panda", t / "results/panda/panda.urdf", t / "results/panda/mjcf/panda.xml", measurements,
+              prepared, o / "ladder.json", o / "params.yaml", o / "calibration.yaml", root=t)
+    sysid_s = time.perf_counter() - started - prepare_s
+    build_gap_report("panda", t / "results/panda/panda.urdf", t / "results/panda/mjcf/panda.xml", prepared,
                      o / "gap.json", o / "gap.md", {k: o / f"{k}.png" for k in ("torque", "residual_velocity",
                                                                                "regimes", "ladder")},
                      precomputed_path=o / "ladder.json", root=t)
     profiler.disable()
     total = time.perf_counter() - started
     stages = stage_times(pstats.Stats(profiler))
-    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    queue.put({"sysid_s": sysid_s, "gap_s": total - sysid_s, "total_s": total, "stages": stages, "peak_mib": peak_mib})
+    peak_mib = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)) / 1024.0
+    queue.put({"prepare_s": prepare_s, "sysid_s": sysid_s, "gap_s": total - prepare_s - sysid_s, "total_s": total,
+               "stages": stages, "peak_mib": peak_mib})
 
 
 def profiled_round(tree: Path, measurements: Path, out: Path) -> dict:
@@ -100,25 +109,38 @@ def profiled_round(tree: Path, measurements: Path, out: Path) -> dict:
 
 
 def demo_rounds(tree: Path, repeats: int) -> None:
+    """Two kinds of round, each timed ``repeats`` times: ``model.yaml`` edited without touching its effects (a
+    comment: every rung and diagnosis is read back from results/panda/sysid/fits/), and the loop's own round:
+    the line the verdict named added (the demo's last effect, after a round without it)."""
     run_snakemake(tree, "results/panda/gap.json", timeout=3600)
     model = tree / "configs/panda/model.yaml"
     original = model.read_text()
-    rows = []
-    for k in range(repeats):
-        model.write_text(original + f"# bench_loop round {k}\n")  # a change of model.yaml, same numbers
-        run_snakemake(tree, "results/panda/gap.json", timeout=3600)
-        times = {}
+    last = yaml.safe_load(original)["effects"][-1]
+    without_last = original.replace(f"  - {last}\n", "")
+    assert without_last != original, f"no line '  - {last}' in {model}"
+
+    def round_(text: str) -> dict[str, float]:
+        model.write_text(text)
+        jobs = sorted(rules_run(run_snakemake(tree, "results/panda/gap.json", timeout=3600)))
+        times = {"jobs": ", ".join(jobs)}
         for rule in ("sysid", "gap_report"):
             with open(tree / f"results/panda/benchmarks/{rule}.tsv") as handle:
                 times[rule] = float(next(csv.DictReader(handle, delimiter="\t"))["s"])
-        rows.append(times)
-        print(f"  demo round {k + 1}: sysid {times['sysid']:.1f} s + gap_report {times['gap_report']:.1f} s = "
-              f"{times['sysid'] + times['gap_report']:.1f} s")
+        return times
+
+    rows: dict[str, list[dict]] = {"model.yaml edited, same effects": [], f"one line added ({last})": []}
+    for k in range(repeats):
+        rows["model.yaml edited, same effects"].append(round_(original + f"# bench_loop round {k}\n"))
+        round_(without_last)  # the round before: its verdict names the line
+        rows[f"one line added ({last})"].append(round_(original))
     model.write_text(original)
-    for rule in ("sysid", "gap_report"):
-        print(f"  median {rule}: {statistics.median(r[rule] for r in rows):.1f} s")
-    print(f"  median round (sysid + gap_report): {statistics.median(r['sysid'] + r['gap_report'] for r in rows):.1f} s"
-          " (target: under 5 s)")
+    for kind, times in rows.items():
+        print(f"  {kind}: jobs run: {times[-1]['jobs']}")
+        for k, t in enumerate(times):
+            print(f"    round {k + 1}: sysid {t['sysid']:.1f} s + gap_report {t['gap_report']:.1f} s = "
+                  f"{t['sysid'] + t['gap_report']:.1f} s")
+        print(f"    median round (sysid + gap_report): "
+              f"{statistics.median(t['sysid'] + t['gap_report'] for t in times):.1f} s (target: under 5 s)")
 
 
 def lab_runs(tree: Path, length_s: float) -> Path:
@@ -157,8 +179,9 @@ def main() -> None:
             listing = lab_runs(tree, length)
             results[length] = profiled_round(tree, listing, Path(tmp) / f"round_{int(length)}")
             r = results[length]
-            print(f"\nreal_arm_like, {length:g} s fit + {length:g} s holdout at 1 kHz: sysid {r['sysid_s']:.1f} s, "
-                  f"gap report {r['gap_s']:.1f} s, peak memory {r['peak_mib']:.0f} MiB (the process, cProfile on)")
+            print(f"\nreal_arm_like, {length:g} s fit + {length:g} s holdout at 1 kHz: prepare runs {r['prepare_s']:.1f} s, "
+                  f"sysid {r['sysid_s']:.1f} s, gap report {r['gap_s']:.1f} s, peak memory {r['peak_mib']:.0f} MiB "
+                  "(the largest process, cProfile on)")
         lengths = list(results)
         print("\nstage [s]" + "".join(f"{f'{L:g} s log':>14s}" for L in lengths)
               + (f"{'x ' + f'{lengths[-1]:g}/{lengths[-2]:g}':>12s}" if len(lengths) > 1 else ""))
@@ -166,7 +189,7 @@ def main() -> None:
             values = [results[L]["stages"][stage] for L in lengths]
             ratio = (f"{values[-1] / values[-2]:12.1f}" if len(values) > 1 and values[-2] > 0 else "")
             print(f"{stage:42s}" + "".join(f"{v:14.2f}" for v in values) + ratio)
-        totals = [results[L]["total_s"] for L in lengths]
+        totals = [results[L]["sysid_s"] + results[L]["gap_s"] for L in lengths]
         print(f"{'round (sysid + gap report)':42s}" + "".join(f"{v:14.2f}" for v in totals)
               + (f"{totals[-1] / totals[-2]:12.1f}" if len(totals) > 1 else "") + "   (target: 10 min < 5x 2 min)")
         print(json.dumps({f"{L:g}": {k: round(v, 3) for k, v in results[L]["stages"].items()} for L in lengths}),

@@ -99,3 +99,33 @@ def test_a_round_after_one_added_line_refits_only_the_new_rung_and_writes_the_sa
     run.write_text("\n".join([*lines[:10], ",".join(cells), *lines[11:]]) + "\n")
     round_(["coulomb_friction", "viscous_friction"], tmp_path / "r3", fits)
     assert fitted == [[], ["coulomb_friction"], ["coulomb_friction", "viscous_friction"]]
+
+
+def test_a_canonicalised_program_is_read_back_by_the_next_process_and_solves_to_the_same_bits(tmp_path, monkeypatch):
+    from sim2real import inertial
+
+    rng = np.random.default_rng(3)
+    design = rng.normal(size=(400, 3, 6))
+    target = design @ np.array([0.5, -0.2, 0.1, 0.0, 0.3, -0.4]) + rng.normal(scale=0.1, size=(400, 3))
+    lower = np.array([-np.inf, 0.0, 0.0, -np.inf, 0.0, 0.0])  # two bounds bite: the solver has work to do
+    monkeypatch.setattr(inertial, "_PROGRAMS", {})
+    with inertial.program_store(tmp_path):
+        first = inertial.solve_consistent(design, target, lower, None, 0.0)
+    assert [p.name.split("-")[0] for p in tmp_path.iterdir()] == ["program"]
+    assert first.coefficients[1] == pytest.approx(0.0, abs=1e-6) and first.coefficients[4] > 0.2  # -0.2 held at 0
+
+    built = []
+    original = inertial._ConsistentProgram.__init__
+
+    def counted(self, *args, **kwargs):
+        built.append(args)
+        original(self, *args, **kwargs)
+
+    monkeypatch.setattr(inertial._ConsistentProgram, "__init__", counted)
+    monkeypatch.setattr(inertial, "_PROGRAMS", {})  # what a new process starts with
+    with inertial.program_store(tmp_path):
+        again = inertial.solve_consistent(design, target, lower, None, 0.0)
+    assert built == [] and again.coefficients.tobytes() == first.coefficients.tobytes()
+    monkeypatch.setattr(inertial, "_PROGRAMS", {})
+    inertial.solve_consistent(design, target, lower, None, 0.0)  # outside a store: built here, nothing kept
+    assert len(built) == 1 and len(list(tmp_path.iterdir())) == 1

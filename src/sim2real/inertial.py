@@ -33,8 +33,10 @@ non-convex in the data term, needs a start inside the set and handles bounds onl
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -186,6 +188,7 @@ class _ConsistentProgram:
                 penalty = penalty + cp.trace(body) - cp.log_det(body) - 4.0
             objective = objective + self.weight * penalty
         self.problem = cp.Problem(cp.Minimize(objective), constraints)
+        self.store_path: Path | None = None  # where to keep it once canonicalised (program_store)
 
     def solve(self, design: np.ndarray, target: np.ndarray, regularization: float,
               scale: np.ndarray | None = None) -> ConsistentSolution:
@@ -228,10 +231,28 @@ class _ConsistentProgram:
         except cp.error.SolverError:
             self.problem.solve(solver=cp.SCS, eps=1e-7, max_iters=20000)
         elapsed = time.perf_counter() - started
+        if self.store_path is not None:
+            self._store()
         if self.problem.status not in ("optimal", "optimal_inaccurate") or self.z.value is None:
             raise InfeasibleFit(f"the consistent fit found no solution (solver status: {self.problem.status})")
         return ConsistentSolution(np.asarray(self.z.value) / self.scale, str(self.problem.status), elapsed,
                                   float(self.problem.value))
+
+    def _store(self) -> None:
+        """Keep the canonicalised program for the next process (the first solve canonicalised it)."""
+        import os
+        import pickle
+
+        path, self.store_path = self.store_path, None
+        assert path is not None
+        getattr(self.problem, "_solver_cache", {}).clear()  # a solver is not kept (and cannot be pickled)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            aside = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+            aside.write_bytes(pickle.dumps(self, protocol=pickle.HIGHEST_PROTOCOL))
+            os.replace(aside, path)
+        except OSError:
+            pass  # a full disk costs the next round the canonicalisation, nothing else
 
 
 @dataclass
@@ -267,14 +288,30 @@ def solve_consistent(
 
 
 _PROGRAMS: dict[bytes, _ConsistentProgram] = {}
+_STORE: list[Path | None] = []  # where programs are kept between processes, the innermost program_store last
+
+
+@contextlib.contextmanager
+def program_store(directory: str | Path | None) -> Iterator[None]:
+    """Keep the canonicalised programs in ``directory`` (None: in this process only) while in the block.
+
+    Canonicalising a program costs cvxpy about half a second, solving it tens of milliseconds, and each
+    round of the loop is a new process: a program kept on disk is read back in milliseconds instead, and
+    a program read back solves to the same bits (its canonical form is the one cvxpy built)."""
+    _STORE.append(Path(directory) if directory is not None else None)
+    try:
+        yield
+    finally:
+        _STORE.pop()
 
 
 def _program(size: int, lower: np.ndarray, inertial: InertialBlock | None) -> _ConsistentProgram:
-    """The program of this structure (coefficients, bounds, bodies, ellipsoids), built once per process.
-
-    Canonicalising it takes cvxpy ~0.2 s, solving it tens of milliseconds: the rungs, the diagnosis's
-    candidates and the held-out blocks of one round share a handful of structures."""
+    """The program of this structure (coefficients, bounds, bodies, ellipsoids), built once per process, or
+    read back from the :func:`program_store` (canonicalising it takes cvxpy ~0.5 s, solving it tens of
+    milliseconds: the rungs, the diagnosis's candidates and the held-out blocks of one round share a handful
+    of structures)."""
     import hashlib
+    import pickle
 
     key = hashlib.sha1(np.asarray([size], dtype=np.int64).tobytes() + np.asarray(lower, dtype=float).tobytes())
     if inertial is not None:
@@ -286,7 +323,24 @@ def _program(size: int, lower: np.ndarray, inertial: InertialBlock | None) -> _C
     if digest not in _PROGRAMS:
         if len(_PROGRAMS) >= 32:
             _PROGRAMS.pop(next(iter(_PROGRAMS)))
-        _PROGRAMS[digest] = _ConsistentProgram(size, lower, inertial)
+        store = _STORE[-1] if _STORE else None
+        path = None
+        if store is not None:
+            from sim2real.fitting.cache import code_digest
+
+            # other code or another cvxpy canonicalises differently: the file's name says which made it
+            path = store / f"program-{hashlib.sha1(digest + code_digest().encode()).hexdigest()}.pkl"
+        program = None
+        if path is not None and path.exists():
+            try:
+                program = pickle.loads(path.read_bytes())
+                path.touch()  # used by this round (sim2real.fitting.cache.FitCache.prune keeps it)
+            except Exception:  # noqa: BLE001 - an unreadable file is built again
+                program = None
+        if program is None:
+            program = _ConsistentProgram(size, lower, inertial)
+            program.store_path = path
+        _PROGRAMS[digest] = program
     return _PROGRAMS[digest]
 
 

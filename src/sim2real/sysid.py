@@ -25,6 +25,7 @@ from sim2real.diagnosis import diagnose as run_diagnosis
 from sim2real.effects import Signals, get_effect
 from sim2real.errors import InputError
 from sim2real.forked import Forked
+from sim2real.inertial import program_store
 from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
     DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
     joint_weights,
@@ -376,8 +377,9 @@ def run_sysid(
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
     cache = FitCache(cache_dir)
-    document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot, workers=threads,
-                                  cache=cache)
+    with program_store(cache_dir):  # the consistent fit's canonicalised programs, kept beside the fits
+        document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot,
+                                      workers=threads, cache=cache)
     params = params_document(results, nominal, document["torque_source"], robot)
     write_json(ladder_json, document)
     write_yaml(params_yaml, params)
