@@ -196,19 +196,20 @@ class _ConsistentProgram:
         ``scale``: the columns' scale (default: their norms on these rows)."""
         return self.solve_prepared(self.prepare(design, target, scale), regularization)
 
-    def prepare(self, design: np.ndarray, target: np.ndarray, scale: np.ndarray | None = None) -> _DataTerm:
+    def prepare(self, design: np.ndarray, target: np.ndarray, scale: np.ndarray | None = None,
+                rows: Sequence[slice] | None = None) -> _DataTerm:
         """The data term of rows ``design`` ~ ``target`` as the program takes it (the costly part of a solve:
-        the cross-validation solves each training set at every prior weight, so it is computed once)."""
-        scale = _column_scale(design) if scale is None else scale
-        an = design / scale
-        gram = an.T @ an
-        rhs = an.T @ target
+        the cross-validation solves each training set at every prior weight, so it is computed once);
+        ``rows``: only these rows of ``design`` and ``target`` (default: all)."""
+        rows = [slice(0, design.shape[0])] if rows is None else list(rows)
+        scale = _column_scale(design, rows) if scale is None else scale
+        gram, rhs, count = _normal_equations(design, target, scale, rows)
         eigval, eigvec = np.linalg.eigh(gram)
         keep = eigval > 1e-12 * max(eigval.max(), 1e-300)
         root = np.sqrt(np.where(keep, eigval, 0.0))
-        rows = max(target.size, 1)
-        return _DataTerm(scale, (root[:, None] * eigvec.T) / np.sqrt(rows),
-                         np.where(keep, (eigvec.T @ rhs) / np.where(keep, root, 1.0), 0.0) / np.sqrt(rows))
+        count = max(count, 1)
+        return _DataTerm(scale, (root[:, None] * eigvec.T) / np.sqrt(count),
+                         np.where(keep, (eigvec.T @ rhs) / np.where(keep, root, 1.0), 0.0) / np.sqrt(count))
 
     def solve_prepared(self, term: _DataTerm, regularization: float) -> ConsistentSolution:
         """Solve a prepared data term (:meth:`prepare`) with the prior's weight ``regularization``."""
@@ -264,10 +265,59 @@ class _DataTerm:
     target_root: np.ndarray
 
 
-def _column_scale(a: np.ndarray) -> np.ndarray:
+# Rows of a (samples x joints, coefficients) design summed at a time: a long log's data term costs a chunk's
+# memory, not the log's. A design of up to this many rows (the demo's, any log of a minute or two at the fit's
+# 200 Hz) is summed in one product, as it always was.
+CHUNK_ROWS = 1 << 18
+
+
+def _chunks(rows: Sequence[slice]) -> list[list[slice]]:
+    """``rows`` (slices) cut into groups of at most CHUNK_ROWS rows; one group when they fit in one."""
+    groups: list[list[slice]] = [[]]
+    size = 0
+    for part in rows:
+        start = part.start
+        while start < part.stop:
+            stop = min(part.stop, start + CHUNK_ROWS - size)
+            groups[-1].append(slice(start, stop))
+            size += stop - start
+            start = stop
+            if size == CHUNK_ROWS:
+                groups.append([])
+                size = 0
+    return [g for g in groups if g]
+
+
+def _rows_of(a: np.ndarray, group: Sequence[slice]) -> np.ndarray:
+    """The rows of ``group`` (a view when it is one slice)."""
+    return a[group[0]] if len(group) == 1 else np.concatenate([a[part] for part in group])
+
+
+def _column_scale(a: np.ndarray, rows: Sequence[slice] | None = None) -> np.ndarray:
     # Scaled coefficients z = x * norm (unit-norm columns): a well-conditioned data term.
-    norms = np.linalg.norm(a, axis=0)
+    groups = _chunks([slice(0, a.shape[0])] if rows is None else rows)
+    squares = sum(np.sum(_rows_of(a, group) ** 2, axis=0) for group in groups[1:])
+    norms = np.linalg.norm(_rows_of(a, groups[0]), axis=0) if len(groups) == 1 else np.sqrt(
+        np.sum(_rows_of(a, groups[0]) ** 2, axis=0) + squares)
     return np.where(norms > 1e-12 * max(norms.max(), 1e-300), norms, 1.0)
+
+
+def _normal_equations(design: np.ndarray, target: np.ndarray, scale: np.ndarray,
+                      rows: Sequence[slice]) -> tuple[np.ndarray, np.ndarray, int]:
+    """Gram matrix and right-hand side of the column-scaled rows, summed chunk by chunk; the row count."""
+    gram = np.zeros((design.shape[1], design.shape[1]))
+    rhs = np.zeros(design.shape[1])
+    count = 0
+    for k, group in enumerate(_chunks(rows)):
+        an = _rows_of(design, group) / scale
+        y = _rows_of(target, group)
+        if k == 0:
+            gram, rhs = an.T @ an, an.T @ y
+        else:
+            gram += an.T @ an
+            rhs += an.T @ y
+        count += y.size
+    return gram, rhs, count
 
 
 def solve_consistent(
@@ -382,19 +432,21 @@ def choose_prior_weight(
     rows: neighbouring samples share their noise and motion, so a random split would reward fitting it.
     """
     p = design.shape[2]
-    a = design.reshape(design.shape[0], -1, p)
-    rows = np.array_split(np.arange(a.shape[0]), blocks)
-    scale = _column_scale(a.reshape(-1, p))
+    joints = design.shape[1]
+    flat, flat_target = design.reshape(-1, p), target.reshape(-1)  # views: samples x joints rows
+    bounds = [(int(b[0]), int(b[-1]) + 1) for b in np.array_split(np.arange(design.shape[0]), blocks)]
+    scale = _column_scale(flat)
     program = _program(p, lower, inertial)
     squared = np.zeros(len(grid))
-    for held in rows:
-        train = np.setdiff1d(np.arange(a.shape[0]), held)
-        train_design, train_target = a[train].reshape(-1, p), target[train].reshape(-1)
-        test_design, test_target = a[held].reshape(-1, p), target[held].reshape(-1)
-        term = program.prepare(train_design, train_target, scale)
+    for start, stop in bounds:
+        # the training rows are the blocks before and after the held one, in time order
+        train = [part for part in (slice(0, start * joints), slice(stop * joints, flat.shape[0])) if part.stop > part.start]
+        held = slice(start * joints, stop * joints)
+        term = program.prepare(flat, flat_target, scale, train)
         for g, relative in enumerate(grid):
             solution = program.solve_prepared(term, relative * floor_variance)
-            squared[g] += float(np.sum((test_design @ solution.coefficients - test_target) ** 2))
+            squared[g] += float(np.sum((flat[held] @ solution.coefficients - flat_target[held]) ** 2))
+    rows = bounds
     scores = np.sqrt(squared / max(target.size, 1))
     best = float(scores.min())
     chosen = max(g for g, s in zip(grid, scores, strict=True) if s <= best * (1.0 + PRIOR_TOLERANCE))

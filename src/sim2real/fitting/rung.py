@@ -211,6 +211,9 @@ def _consistent_fit(
         return theta_free, free_residual, record
     shifted = problem.shift(np.concatenate([b[2] for b in blocks], axis=2), [b[0] for b in blocks],
                             [b[2].shape[2] for b in blocks], nonlinear)
+    # In the data term's units (each joint by its floor), made once: on a long log it is the largest array here.
+    weighted = shifted * problem.weights[None, :, None]
+    del shifted
     bounds = np.concatenate(lower)
     floor = float(np.mean(np.asarray(data.noise_floor, dtype=float) ** 2))
     relative = settings["inertia_regularization"]
@@ -218,8 +221,7 @@ def _consistent_fit(
         relative = INERTIA_PRIOR_FALLBACK
         if inertial is not None:
             try:
-                choice = choose_prior_weight(shifted * problem.weights[None, :, None],
-                                             (data.tau - problem.base({}, nonlinear)) * problem.weights,
+                choice = choose_prior_weight(weighted, (data.tau - problem.base({}, nonlinear)) * problem.weights,
                                              bounds, inertial, max(floor, 1e-12))
                 relative = choice.weight
                 record["inertia_prior"] = {
@@ -238,8 +240,7 @@ def _consistent_fit(
     solve_time = 0.0
     try:
         for _ in range(3 if has_offset else 1):
-            solution = solve_consistent(shifted * problem.weights[None, :, None],
-                                        (data.tau - problem.base(theta, nonlinear)) * problem.weights,
+            solution = solve_consistent(weighted, (data.tau - problem.base(theta, nonlinear)) * problem.weights,
                                         bounds, inertial, weight)
             solve_time += solution.solve_time_s
             for effect, cols, _ in blocks:
