@@ -85,7 +85,8 @@ rule gap_report:
         "results/{robot}/logs/{campaign}gap_report.log",
     benchmark:
         "results/{robot}/benchmarks/{campaign}gap_report.tsv"
-    threads: 1
+    # the figures are drawn side by side (sim2real.report.write_gap_figures)
+    threads: 2
     resources:
         mem_mb=1024,
         runtime=5,

@@ -14,4 +14,5 @@ with rule_entry(snakemake):
         {"torque": snakemake.output.torque, "residual_velocity": snakemake.output.residual_velocity,
          "regimes": snakemake.output.regimes, "ladder": snakemake.output.ladder},
         precomputed_path=snakemake.input.ladder[0] if snakemake.input.ladder else None,
+        threads=snakemake.threads,
     )

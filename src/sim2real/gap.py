@@ -531,16 +531,17 @@ def compute_gap(
 def build_gap_report(
     robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
     gap_json: str | Path, gap_md: str | Path, figures: Mapping[str, str | Path],
-    precomputed_path: str | Path | None = None, root: str | Path = ".",
+    precomputed_path: str | Path | None = None, root: str | Path = ".", threads: int = 1,
 ) -> dict[str, Any]:
-    """Write gap.json, gap.md and the figures (keys: torque, residual_velocity, regimes, ladder)."""
+    """Write gap.json, gap.md and the figures (keys: torque, residual_velocity, regimes, ladder); the figures
+    are drawn on up to ``threads`` processes."""
     from sim2real.report import render_gap_markdown, write_gap_figures
 
     precomputed = None
     if precomputed_path is not None and Path(precomputed_path).exists():
         precomputed = json.loads(Path(precomputed_path).read_text(encoding="utf-8"))
     gap, comparisons = compute_gap(robot, urdf_path, mjcf_path, measurement_list, root, precomputed)
-    write_gap_figures(gap, comparisons, figures)
+    write_gap_figures(gap, comparisons, figures, workers=threads)
     md_dir = Path(gap_md).parent
     rel = {k: Path(os_relpath(v, md_dir)).as_posix() for k, v in figures.items()}
     from sim2real.io import write_text

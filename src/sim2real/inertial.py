@@ -293,12 +293,18 @@ def _rows_of(a: np.ndarray, group: Sequence[slice]) -> np.ndarray:
     return a[group[0]] if len(group) == 1 else np.concatenate([a[part] for part in group])
 
 
+def column_norms(a: np.ndarray, rows: Sequence[slice] | None = None) -> np.ndarray:
+    """The Euclidean norm of each column of ``a`` (rows x columns) over ``rows`` (default: all), summed chunk
+    by chunk (CHUNK_ROWS); numpy's own norm when the rows fit in one chunk."""
+    groups = _chunks([slice(0, a.shape[0])] if rows is None else rows)
+    if len(groups) == 1:
+        return np.linalg.norm(_rows_of(a, groups[0]), axis=0)
+    return np.sqrt(sum(np.sum(_rows_of(a, group) ** 2, axis=0) for group in groups))
+
+
 def _column_scale(a: np.ndarray, rows: Sequence[slice] | None = None) -> np.ndarray:
     # Scaled coefficients z = x * norm (unit-norm columns): a well-conditioned data term.
-    groups = _chunks([slice(0, a.shape[0])] if rows is None else rows)
-    squares = sum(np.sum(_rows_of(a, group) ** 2, axis=0) for group in groups[1:])
-    norms = np.linalg.norm(_rows_of(a, groups[0]), axis=0) if len(groups) == 1 else np.sqrt(
-        np.sum(_rows_of(a, groups[0]) ** 2, axis=0) + squares)
+    norms = column_norms(a, rows)
     return np.where(norms > 1e-12 * max(norms.max(), 1e-300), norms, 1.0)
 
 

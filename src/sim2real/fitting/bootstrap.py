@@ -11,6 +11,7 @@ import numpy as np
 
 from sim2real.effects.actuation_delay import MAX_DELAY
 from sim2real.fitting.problem import _Problem, _flatten_theta, _split_theta
+from sim2real.inertial import column_norms
 
 
 DELAY_STEP_S = 2e-4  # half-step of the central difference of the prediction in the delay (bootstrap)
@@ -34,12 +35,12 @@ def _block_bootstrap(
         return []
     signals = problem.signals
     weights = problem.weights
-    shifted, _ = problem.shifted_design(nonlinear)
-    shifted = shifted * weights[None, :, None]  # the replicates solve the same weighted problem as the fit
+    shifted, _ = problem.shifted_design(nonlinear)  # a new array (the effects' columns put together)
+    shifted *= weights[None, :, None]  # the replicates solve the same weighted problem as the fit
     # Offsets (payload inertia) are held at the estimate: the replicates are linear solves.
     target = (tau - problem.base(theta, nonlinear)) * weights
     rows, p = shifted.shape[0] * shifted.shape[1], shifted.shape[2]
-    scale = np.linalg.norm(shifted.reshape(rows, p), axis=0)
+    scale = column_norms(shifted.reshape(rows, p))
     scale[scale == 0] = 1.0
     if shift is not None:
         delay = float(nonlinear[shift.name][0])

@@ -212,8 +212,8 @@ def _consistent_fit(
     shifted = problem.shift(np.concatenate([b[2] for b in blocks], axis=2), [b[0] for b in blocks],
                             [b[2].shape[2] for b in blocks], nonlinear)
     # In the data term's units (each joint by its floor), made once: on a long log it is the largest array here.
-    weighted = shifted * problem.weights[None, :, None]
-    del shifted
+    weighted = shifted  # a new array (the blocks put together): weighted in place
+    weighted *= problem.weights[None, :, None]
     bounds = np.concatenate(lower)
     floor = float(np.mean(np.asarray(data.noise_floor, dtype=float) ** 2))
     relative = settings["inertia_regularization"]
