@@ -257,6 +257,7 @@ def _consistent_fit(
             "Check the torque signs and units of the runs and the URDF's inertials"
         )
         return theta_free, free_residual, record
+    del weighted  # before the prediction puts the design together again (a long log's largest array)
     residual = data.tau - problem.predict(theta, nonlinear)
     record.update({"status": solution.status, "solve_time_s": solve_time})
     free_physical = _physical(problem, theta_free, signals)
