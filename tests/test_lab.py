@@ -124,11 +124,11 @@ def test_no_comparing_rule_takes_truth_yaml(tmp_path):
             continue
         seen_rules.add(head.group(1))
         inputs = re.search(r"input: (.*)", job)
-        if head.group(1) == "gap_report":
+        if head.group(1) == "prepare_runs":  # the runs reach the gap report and sysid through it
             assert inputs and re.search(r"lab/\w+/holdout\.parquet", inputs.group(1))  # the check sees real inputs
         if head.group(1) != "lab_truth" and inputs:
             assert "truth.yaml" not in inputs.group(1), f"rule {head.group(1)} reads truth.yaml"
-    assert {"gap_report", "lab_run", "lab_truth"} <= seen_rules
+    assert {"prepare_runs", "gap_report", "lab_run", "lab_truth"} <= seen_rules
 
 
 # ---- sensors.torque_sensor: a link-side joint torque sensor (the Panda's tau_J) beside the motor-side one
