@@ -44,6 +44,15 @@ def rules_run(log: str) -> set[str]:
     return set(re.findall(r"^\s*(?:local)?(?:rule|checkpoint) (\w+):", log, flags=re.MULTILINE))
 
 
+def comparable_outputs(results: Path) -> list[Path]:
+    """The files under ``results`` that must be the same bytes in two builds, relative to it: not the logs and
+    benchmarks (wall times), nor ``fits/``, the loop's cache of fits (sim2real.fitting.cache: pickles holding
+    solve wall times; what is read back from it, ladder.json and the rest, is compared)."""
+    skip = {"logs", "benchmarks", "fits"}
+    return sorted(p.relative_to(results) for p in results.rglob("*")
+                  if p.is_file() and not skip.intersection(p.relative_to(results).parts))
+
+
 def edit_yaml(path: Path, edit: Callable[[dict], None]) -> None:
     data = yaml.safe_load(path.read_text())
     edit(data)

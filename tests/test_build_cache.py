@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from buildtree import FAST_BUILD_TARGET, copy_repo, make_fast, rules_run
+from buildtree import FAST_BUILD_TARGET, comparable_outputs, copy_repo, make_fast, rules_run
 
 LAB_DURATION_S = 6.0  # the cache and reproducibility do not depend on what the fits find: short lab runs
 from buildtree import run_snakemake as _snakemake
@@ -37,23 +37,12 @@ def first_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tree
 
 
-def _comparable_files(results: Path) -> list[Path]:
-    # logs and benchmarks hold wall times; fits/ is the loop's cache of fits (sim2real.fitting.cache), which
-    # records its solves' wall times too: not an output, what is read back from it is (ladder.json ...)
-    skip = {"logs", "benchmarks", "fits"}
-    return sorted(
-        p.relative_to(results)
-        for p in results.rglob("*")
-        if p.is_file() and not skip.intersection(p.relative_to(results).parts)
-    )
-
-
 def test_two_clean_builds_are_byte_identical(first_build: Path, tmp_path: Path) -> None:
     second = copy_repo(ROOT, tmp_path / "repo")
     make_fast(second, LAB_DURATION_S)
     _snakemake(second, FAST_BUILD_TARGET)
-    files_a = _comparable_files(first_build / "results")
-    files_b = _comparable_files(second / "results")
+    files_a = comparable_outputs(first_build / "results")
+    files_b = comparable_outputs(second / "results")
     assert files_a == files_b
     assert any(str(f).endswith(".xml") for f in files_a)
     differing = [str(f) for f in files_a if not filecmp.cmp(first_build / "results" / f, second / "results" / f, shallow=False)]

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from buildtree import copy_repo, edit_yaml, make_fast, rules_run, run_snakemake
+from buildtree import comparable_outputs, copy_repo, edit_yaml, make_fast, rules_run, run_snakemake
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = ["results/panda/mjcf/panda.xml", "results/panda/gap.json"]
@@ -69,12 +69,6 @@ def _completed_jobs(jobcomp_log: Path) -> dict[str, dict[str, str]]:
     return jobs
 
 
-def _outputs(results: Path) -> list[Path]:
-    skip = {"logs", "benchmarks"}
-    return sorted(p.relative_to(results) for p in results.rglob("*")
-                  if p.is_file() and not skip.intersection(p.relative_to(results).parts))
-
-
 def test_panda_mjcf_and_gap_report_through_the_slurm_profile(tmp_path: Path) -> None:
     config = _slurm_config()
     tree = _fast(copy_repo(ROOT, tmp_path / "slurm"))
@@ -116,8 +110,8 @@ def test_panda_mjcf_and_gap_report_through_the_slurm_profile(tmp_path: Path) -> 
         assert comments.count(rule) == started.count(rule) >= 1, (rule, comments, started)
 
     assert rules_run(local_log) == run_names | local_names, "both builds ran the same rules"
-    files = _outputs(tree / "results")
-    assert files == _outputs(local / "results")
+    files = comparable_outputs(tree / "results")
+    assert files == comparable_outputs(local / "results")
     assert {Path(t).relative_to("results") for t in TARGETS} <= set(files)
     differing = [str(f) for f in files if not filecmp.cmp(tree / "results" / f, local / "results" / f, shallow=False)]
     assert differing == []
