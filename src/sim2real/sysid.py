@@ -25,13 +25,13 @@ from sim2real.diagnosis import diagnose as run_diagnosis
 from sim2real.effects import Signals, get_effect
 from sim2real.errors import InputError
 from sim2real.forked import Forked
-from sim2real.inertial import program_store
 from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
     DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
     joint_weights,
     kept_segments, load_nominal, make_signals, predict, resolve_armature, run_from_prepared, stack_runs,
 )
-from sim2real.fitting.cache import FitCache, digest
+from sim2real.fitting.cache import FitCache
+from sim2real.inertial import program_store
 from sim2real.measurements import PreparedRun, estimate_noise_floor
 
 P = ParamSpec("P")
@@ -101,7 +101,7 @@ def fit_ladder(
     holdout_signals = holdout_signals or make_signals(nominal, holdout_data)
     cache = cache or FitCache(None)
     # Everything a rung depends on but its effects: a rung of an earlier round with the same is the same fit.
-    inputs = digest(link, nominal, fit_data, holdout_data, fit_signals, holdout_signals) if cache.directory else ""
+    inputs = cache.key(link, nominal, fit_data, holdout_data, fit_signals, holdout_signals)
     rungs = []
     result = None
     residual = None
@@ -109,7 +109,7 @@ def fit_ladder(
         effects = list(effect_names[:k])
         previous = result.nonlinear if result is not None else None
         result, _, carried = cache.get_or_compute(
-            "rung", digest(inputs, effects, previous, fit_settings) if cache.directory else "",
+            "rung", cache.key(inputs, effects, previous, fit_settings),
             functools.partial(fit_on_the_previous, effects, nominal, fit_data, holdout_data, previous, fit_settings,
                               fit_signals=fit_signals, holdout_signals=holdout_signals, workers=workers))
         metrics, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
@@ -162,8 +162,7 @@ def fit_ladder(
         # rung chooses again on held-out blocks, which can only help the holdout it was promised.
         diagnosis_fit = {**fit_settings, "inertia_regularization": prior["weight"]} if prior else fit_settings
         diagnosis_settings = {"fit": diagnosis_fit, "diagnosis": settings.get("diagnosis", {})}
-        key = (digest(inputs, list(effect_names), residual, result.nonlinear, diagnosis_settings, robot, candidates)
-               if cache.directory else "")
+        key = cache.key(inputs, list(effect_names), residual, result.nonlinear, diagnosis_settings, robot, candidates)
         document["diagnosis"] = cache.get_or_compute("diagnosis", key, functools.partial(
             run_diagnosis, effect_names, nominal, fit_data, holdout_data, residual, diagnosis_settings,
             fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot, nonlinear_fixed=result.nonlinear,

@@ -110,6 +110,10 @@ class FitCache:
         self.directory = Path(directory) if directory is not None else None
         self.started = time.time()
 
+    def key(self, *parts: Any) -> str:
+        """:func:`digest` of ``parts``; nothing to digest when nothing is kept."""
+        return digest(*parts) if self.directory is not None else ""
+
     def get_or_compute(self, kind: str, key: str, compute: Callable[[], T]) -> T:
         """``compute()``, or its result of an earlier round with the same ``key`` (``kind`` names the file)."""
         if self.directory is None:
