@@ -15,4 +15,5 @@ with rule_entry(snakemake):
          "regimes": snakemake.output.regimes, "ladder": snakemake.output.ladder},
         precomputed_path=snakemake.input.ladder[0] if snakemake.input.ladder else None,
         threads=snakemake.threads,
+        cache_dir=snakemake.params.kept,
     )

@@ -46,9 +46,10 @@ def rules_run(log: str) -> set[str]:
 
 def comparable_outputs(results: Path) -> list[Path]:
     """The files under ``results`` that must be the same bytes in two builds, relative to it: not the logs and
-    benchmarks (wall times), nor ``fits/``, the loop's cache of fits (sim2real.fitting.cache: pickles holding
-    solve wall times; what is read back from it, ladder.json and the rest, is compared)."""
-    skip = {"logs", "benchmarks", "fits"}
+    benchmarks (wall times), nor ``fits/`` and ``kept/``, the loop's caches of fits, replays and figures
+    (sim2real.fitting.cache: pickles holding solve wall times; what is read back from them, ladder.json, gap.json,
+    the figures, is compared)."""
+    skip = {"logs", "benchmarks", "fits", "kept"}
     return sorted(p.relative_to(results) for p in results.rglob("*")
                   if p.is_file() and not skip.intersection(p.relative_to(results).parts))
 

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -129,3 +132,36 @@ def test_a_canonicalised_program_is_read_back_by_the_next_process_and_solves_to_
     monkeypatch.setattr(inertial, "_PROGRAMS", {})
     inertial.solve_consistent(design, target, lower, None, 0.0)  # outside a store: built here, nothing kept
     assert len(built) == 1 and len(list(tmp_path.iterdir())) == 1
+
+
+def test_the_bodies_mesh_bounds_are_kept_and_follow_the_meshes(tmp_path, monkeypatch):
+    """load_nominal reads the collision meshes (and imports trimesh) only when the URDF or a mesh changed."""
+    from sim2real.fitting import nominal as nominal_module
+    from sim2real.urdf import resolve_package_uri
+
+    urdf = tmp_path / "panda.urdf"
+    shutil.copy(PANDA_URDF, urdf)
+    text = urdf.read_text()
+    meshes = sorted(set(re.findall(r'filename="([^"]+\.(?:stl|obj|dae))"', text)))
+    assert meshes, "the test URDF names collision meshes"
+    calls = []
+    real = nominal_module._mesh_bounds
+    monkeypatch.setattr(nominal_module, "_mesh_bounds", lambda *a: calls.append(1) or real(*a))
+    plain = sysid.load_nominal(urdf, PANDA_JOINTS)
+    cache = FitCache(tmp_path / "fits")
+    kept = [sysid.load_nominal(urdf, PANDA_JOINTS, cache=FitCache(tmp_path / "fits")) for _ in range(2)]
+    assert len(calls) == 2  # once without the cache, once to fill it
+    assert digest(kept[1].info) == digest(plain.info) and any(q is not None for q in kept[1].info["ellipsoids"])
+    # a mesh whose bytes change (same name) is read again
+    collision = next(m for m in meshes if m.endswith("collision/link1.stl"))  # the first moving body's
+    source = resolve_package_uri(collision, source=PANDA_URDF)
+    local = tmp_path / Path(source).name
+    shutil.copy(source, local)
+    urdf.write_text(text.replace(f'filename="{collision}"', f'filename="{local.name}"'))
+    sysid.load_nominal(urdf, PANDA_JOINTS, cache=cache)
+    assert len(calls) == 3
+    sysid.load_nominal(urdf, PANDA_JOINTS, cache=cache)
+    assert len(calls) == 3
+    local.write_bytes(local.read_bytes() + b"\n")
+    sysid.load_nominal(urdf, PANDA_JOINTS, cache=cache)
+    assert len(calls) == 4

@@ -151,3 +151,40 @@ def test_replay_models_drop_only_meshes_that_change_nothing(lab):
             rows.append(np.concatenate([data.qpos, data.qvel]))
         trajectories.append(np.array(rows))
     assert np.array_equal(trajectories[0], trajectories[1])
+
+
+def test_a_report_kept_replays_and_figures_are_read_back_and_a_changed_rung_replayed_alone(lab, tmp_path, monkeypatch):
+    """The next round of the loop changes one rung: the gap report replays that rung alone and draws only the
+    figure that shows the ladder; everything it writes is the same bytes as a report without the cache."""
+    from sim2real import gap as gap_module
+    from sim2real import report
+
+    listing = lab["scenario"]("demo")
+    ladder = {"torque_source": "tau", "ladder": [
+        {"effects": [], "params": {}, "metrics": {"torque_rmse": {"overall": 0.3, "per_joint": {j: 0.3 for j in PANDA_JOINTS}}}},
+        {"effects": ["viscous_friction"], "params": {"viscous_friction": {"damping": {j: 0.5 for j in PANDA_JOINTS}}},
+         "metrics": {"torque_rmse": {"overall": 0.2, "per_joint": {j: 0.2 for j in PANDA_JOINTS}}}}]}
+    replays, drawn = [], []
+    real_shooting, real_draw = gap_module._multiple_shooting, report._draw
+    monkeypatch.setattr(gap_module, "_multiple_shooting", lambda *a: replays.append(a[3].name) or real_shooting(*a))
+    monkeypatch.setattr(report, "_draw", lambda name, **kw: drawn.append(name) or real_draw(name, **kw))
+
+    def build(ladder_document, out, kept):
+        (out / "ladder.json").parent.mkdir(parents=True, exist_ok=True)
+        (out / "ladder.json").write_text(json.dumps(ladder_document))
+        figures = {k: out / "gap" / f"{k}.png" for k in ("torque", "residual_velocity", "regimes", "ladder")}
+        build_gap_report("panda", lab["urdf"], lab["mjcf"], listing, out / "gap.json", out / "gap.md", figures,
+                         precomputed_path=out / "ladder.json", cache_dir=kept)
+        return {p.name: p.read_bytes() for p in [out / "gap.json", out / "gap.md", *figures.values()]}
+
+    kept = tmp_path / "kept"
+    first = build(ladder, tmp_path / "first", kept)
+    # the nominal model on both runs (its rung's replay is that one), the second rung on the holdout run
+    assert replays == ["demo_fit", "demo_holdout", "demo_holdout"] and len(drawn) == 4
+    replays.clear(), drawn.clear()
+    assert build(ladder, tmp_path / "again", kept) == first and replays == [] and drawn == []
+    changed = json.loads(json.dumps(ladder))
+    changed["ladder"][1]["params"]["viscous_friction"]["damping"]["panda_joint1"] = 0.7
+    with_cache = build(changed, tmp_path / "changed", kept)
+    assert replays == ["demo_holdout"] and drawn == ["ladder"]
+    assert with_cache == build(changed, tmp_path / "fresh", None)  # a kept replay is the replay, to the bit

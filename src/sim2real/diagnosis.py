@@ -135,21 +135,36 @@ def _joint_text(joints: Sequence[str], before: Mapping[str, float], after: Mappi
     return ", ".join(f"{j} {before[j]:.2g}x -> {after[j]:.2g}x" for j in joints)
 
 
-def _trial(name: str, model_effects: Sequence[str], nominal: Any, fit_data: Any, holdout_data: Any,
-           nonlinear_fixed: Mapping[str, np.ndarray] | None, settings: Mapping[str, Any] | None,
-           fit_signals: Signals, holdout_signals: Signals) -> tuple[fitting.FitResult, np.ndarray]:
-    """One candidate fitted as its rung will be: the current nonlinear parameters refined again or held,
-    whichever predicts better (:func:`sim2real.fitting.fit_on_the_previous`); (fit, holdout residual)."""
-    result, residual, _ = fitting.fit_on_the_previous(
-        [*model_effects, name], nominal, fit_data, holdout_data, nonlinear_fixed, settings,
-        fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=False)
-    return result, residual
+def _trial_way(item: tuple[str, Mapping[str, Any]], model_effects: Sequence[str], **inputs: Any) -> fitting.FitResult:
+    """One way (:func:`sim2real.fitting.previous_ways`) of fitting the candidate ``item[0]`` on the current model."""
+    name, way = item
+    return fitting.fit([*model_effects, name], **inputs, **way)
 
 
-def trial_fits(names: Sequence[str], workers: int, **inputs: Any) -> dict[str, tuple[fitting.FitResult, np.ndarray]]:
-    """Each candidate of ``names`` fitted by :func:`_trial`, on up to ``workers`` processes side by side
-    (:func:`sim2real.forked.map_forked`: the same numbers as one after the other)."""
-    return dict(zip(names, map_forked(_trial, names, workers, inputs), strict=True))
+def trial_fits(names: Sequence[str], workers: int, *, model_effects: Sequence[str], nominal: Any, fit_data: Any,
+               holdout_data: Any, nonlinear_fixed: Mapping[str, np.ndarray] | None, settings: Mapping[str, Any] | None,
+               fit_signals: Signals, holdout_signals: Signals) -> dict[str, tuple[fitting.FitResult, np.ndarray]]:
+    """Each candidate of ``names`` fitted as its rung will be: the current nonlinear parameters refined again or
+    held, whichever predicts better (:func:`sim2real.fitting.fit_on_the_previous`); (fit, holdout residual).
+
+    Every way of every candidate is one piece of work, on up to ``workers`` processes side by side
+    (:func:`sim2real.forked.map_forked`: the same numbers as one after the other). The candidates' first ways
+    go first: each builds its candidate's convex program, which the second way then reads back
+    (:func:`sim2real.inertial.program_store`) instead of building it again.
+    """
+    previous = fitting.previous_nonlinear(nonlinear_fixed)
+    ways = fitting.previous_ways(previous, uncertainty=False)
+    items = [(name, way) for way in ways for name in names]
+    fits = map_forked(_trial_way, items, workers, {"model_effects": list(model_effects), "nominal": nominal,
+                                                    "data": fit_data, "settings": settings, "signals": fit_signals})
+    out = {}
+    for name in names:
+        candidate = [fit for (item_name, _), fit in zip(items, fits, strict=True) if item_name == name]
+        result, residual, _ = fitting.better_way(
+            candidate, [*model_effects, name], nominal, fit_data, holdout_data, previous, settings,
+            fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=False)
+        out[name] = (result, residual)
+    return out
 
 
 def diagnose(

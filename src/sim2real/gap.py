@@ -27,6 +27,7 @@ sysid rule) is merged in; each rung of either link is replayed with its fitted e
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -38,6 +39,7 @@ import numpy as np
 from mujoco import rollout
 
 from sim2real.dynamics import RigidBodyModel
+from sim2real.fitting.cache import FitCache
 from sim2real.io import validate, write_json
 from sim2real.measurements import PreparedRun, estimate_noise_floor, runs_for_model
 from sim2real.metrics import rmse
@@ -117,10 +119,13 @@ class ReplayModels:
     The state domain, the armature and every rung's replay (the actuator link's first rung is the body
     link's last) would otherwise each parse and compile the same MJCF again. The MJCF is parsed and
     stripped of its inert meshes once; each model is a copy of that spec with its effects written in.
+    ``cache``: replays of an earlier report with the same compiled model and run are read back from it
+    (:func:`replay`; a round of the loop that adds one rung replays that rung, not the ladder).
     """
 
-    def __init__(self, mjcf_path: str | Path) -> None:
+    def __init__(self, mjcf_path: str | Path, cache: FitCache | None = None) -> None:
         self.mjcf_path = mjcf_path
+        self.cache = cache or FitCache(None)
         self._bases: dict[tuple[str, ...], mujoco.MjSpec] = {}
         self._models: dict[tuple[tuple[str, ...], str], tuple[mujoco.MjModel, np.ndarray, np.ndarray]] = {}
 
@@ -170,9 +175,23 @@ def replay(
     model, qadr, dadr = models.get(joints, identified)
     model.opt.timestep = prepared.dt  # set on every call: a shared model may have replayed a run of another rate
     seg = max(2, int(round(horizon_s / prepared.dt)))
-    n_seg = (prepared.time.size - 1) // seg
-    if n_seg < 1:
+    if (prepared.time.size - 1) // seg < 1:
         raise ValueError("run shorter than one replay horizon")
+    # The replay depends on the compiled model (its bytes hold every fitted effect) and the run's motion and
+    # commands, nothing else: a replay of an earlier report with the same is the same to the last bit.
+    saved = np.zeros(mujoco.mj_sizeModel(model), dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, saved)
+    key = models.cache.key(saved, list(joints), prepared.time, prepared.q, prepared.qd, prepared.tau_cmd, seg)
+    return models.cache.get_or_compute("replay", key, functools.partial(
+        _multiple_shooting, model, qadr, dadr, prepared, seg))
+
+
+def _multiple_shooting(model: mujoco.MjModel, qadr: np.ndarray, dadr: np.ndarray, prepared: PreparedRun, seg: int,
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`replay`'s rollout: every ``seg`` samples the simulation restarts from the measured state."""
+    assert prepared.tau_cmd is not None
+    joints = prepared.joint_names
+    n_seg = (prepared.time.size - 1) // seg
     data = mujoco.MjData(model)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     nstate = mujoco.mj_stateSize(model, spec)
@@ -443,14 +462,15 @@ def model_armature(mjcf_path: str | Path, joints: Sequence[str], models: ReplayM
 
 def compute_gap(
     robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
-    root: str | Path = ".", precomputed: Mapping[str, Any] | None = None,
+    root: str | Path = ".", precomputed: Mapping[str, Any] | None = None, cache: FitCache | None = None,
 ) -> tuple[dict[str, Any], list[TorqueComparison]]:
     """The gap.json content (validated) and the per-run comparisons (for figures).
 
-    ``measurement_list``: the measurement list, or the runs prepared from it (``.npz``)."""
+    ``measurement_list``: the measurement list, or the runs prepared from it (``.npz``); ``cache``: replays of
+    an earlier report kept there (:class:`ReplayModels`)."""
     # joints come from the first run, the model locks everything else
     entries, prepared, settings = runs_for_model(measurement_list, urdf_path, root)
-    models = ReplayModels(mjcf_path) if mjcf_path is not None else None
+    models = ReplayModels(mjcf_path, cache) if mjcf_path is not None else None
     armature = model_armature(mjcf_path, prepared[0].joint_names, models) if mjcf_path is not None else None
     model = RigidBodyModel(urdf_path, prepared[0].joint_names, armature=armature)
     joints = model.joint_names
@@ -532,22 +552,27 @@ def build_gap_report(
     robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
     gap_json: str | Path, gap_md: str | Path, figures: Mapping[str, str | Path],
     precomputed_path: str | Path | None = None, root: str | Path = ".", threads: int = 1,
+    cache_dir: str | Path | None = None,
 ) -> dict[str, Any]:
     """Write gap.json, gap.md and the figures (keys: torque, residual_velocity, regimes, ladder); the figures
-    are drawn on up to ``threads`` processes."""
+    are drawn on up to ``threads`` processes. ``cache_dir``: where the replays and figures are kept for the
+    next report (:class:`sim2real.fitting.cache.FitCache`; None: not kept): a round of the loop that adds a
+    rung replays that rung and redraws what shows the ladder, and reads the rest back, the same bytes."""
     from sim2real.report import render_gap_markdown, write_gap_figures
 
     precomputed = None
     if precomputed_path is not None and Path(precomputed_path).exists():
         precomputed = json.loads(Path(precomputed_path).read_text(encoding="utf-8"))
-    gap, comparisons = compute_gap(robot, urdf_path, mjcf_path, measurement_list, root, precomputed)
-    write_gap_figures(gap, comparisons, figures, workers=threads)
+    cache = FitCache(cache_dir)
+    gap, comparisons = compute_gap(robot, urdf_path, mjcf_path, measurement_list, root, precomputed, cache)
+    write_gap_figures(gap, comparisons, figures, workers=threads, cache=cache)
     md_dir = Path(gap_md).parent
     rel = {k: Path(os_relpath(v, md_dir)).as_posix() for k, v in figures.items()}
     from sim2real.io import write_text
 
     write_text(gap_md, render_gap_markdown(gap, rel))
     write_json(gap_json, gap)
+    cache.prune()
     return gap
 
 

@@ -141,8 +141,8 @@ def figure_ladder(gap: Mapping[str, Any], target: str | Path) -> None:
     _save(fig, target)
 
 
-def _draw(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any], figures: Mapping[str, str | Path]) -> None:
-    """One figure of :func:`write_gap_figures` by its key."""
+def _draw(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any], figures: Mapping[str, str | Path]) -> bytes:
+    """One figure of :func:`write_gap_figures` by its key; its PNG's bytes."""
     if name == "torque":
         figure_torque(comparisons, figures[name])
     elif name == "residual_velocity":
@@ -151,17 +151,42 @@ def _draw(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any], figures
         figure_regimes(gap, figures[name])
     else:
         figure_ladder(gap, figures[name])
+    return Path(figures[name]).read_bytes()
+
+
+def _figure_inputs(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any]) -> Any:
+    """What the figure ``name`` is drawn from (:func:`_draw`): the same inputs draw the same bytes."""
+    if name == "torque":
+        return _pick_run(comparisons)
+    if name == "residual_velocity":
+        return [(c.run.qd, c.residual, c.run.joint_names) for c in comparisons]
+    if name == "regimes":
+        return gap["joints"], gap["where"]["per_joint"]
+    return gap["joints"], gap.get("ladder"), gap["metrics"]["torque_rmse"], gap["noise_floor"]["torque_rmse"]
 
 
 def write_gap_figures(gap: Mapping[str, Any], comparisons: Sequence[Any], figures: Mapping[str, str | Path],
-                      workers: int = 1) -> None:
+                      workers: int = 1, cache: Any = None) -> None:
     """The four figures (keys: torque, residual_velocity, regimes, ladder), on up to ``workers`` processes (each
-    figure is drawn by one process as it would be alone: the same bytes)."""
+    figure is drawn by one process as it would be alone: the same bytes). ``cache``: a
+    :class:`sim2real.fitting.cache.FitCache` holding the figures of an earlier report; a figure drawn from the
+    same inputs (:func:`_figure_inputs`) is written from it instead of drawn."""
+    from sim2real.fitting.cache import FitCache
     from sim2real.forked import map_forked
+    from sim2real.io import write_bytes
 
+    cache = cache or FitCache(None)
     # the two time-series grids first: they take the longest, so two workers split the work about evenly
-    map_forked(_draw, ["torque", "residual_velocity", "regimes", "ladder"], workers,
-               {"gap": gap, "comparisons": comparisons, "figures": figures})
+    names = ["torque", "residual_velocity", "regimes", "ladder"]
+    keys = {name: cache.key(name, _figure_inputs(name, gap, comparisons), matplotlib.__version__) for name in names}
+    kept = {name: cache.get("figure", keys[name]) for name in names}
+    missing = [name for name in names if kept[name] is None]
+    drawn = map_forked(_draw, missing, workers, {"gap": gap, "comparisons": comparisons, "figures": figures})
+    for name, png in zip(missing, drawn, strict=True):
+        cache.put("figure", keys[name], png)
+    for name, found in kept.items():
+        if found is not None:
+            write_bytes(figures[name], found[0])
 
 
 def _fmt(x: float | None, digits: int = 3) -> str:

@@ -367,7 +367,8 @@ def run_sysid(
     robot_config = read_yaml(robot_config_path) or {}
     entries, prepared, _ = runs_for_model(measurement_list, urdf_path, root)
     joints = prepared[0].joint_names
-    nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"))
+    cache = FitCache(cache_dir)
+    nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"), cache=cache)
     by_role: dict[str, list[PreparedRun]] = {"fit": [], "holdout": []}
     for entry, run in zip(entries, prepared, strict=True):
         by_role[entry.role].append(run)
@@ -375,7 +376,6 @@ def run_sysid(
         if not by_role[role]:
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
-    cache = FitCache(cache_dir)
     with program_store(cache_dir):  # the consistent fit's canonicalised programs, kept beside the fits
         document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot,
                                       workers=threads, cache=cache)

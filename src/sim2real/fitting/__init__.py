@@ -57,6 +57,7 @@ from sim2real.fitting.problem import (  # noqa: F401  (re-exported: the package'
     _subset_signals, _values,
 )
 from sim2real.fitting.rung import (  # noqa: F401  (re-exported: the package's names)
-    DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, _consistent_fit, fit, fit_on_the_previous, _fit_way, _physical,
+    DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, _consistent_fit, better_way, fit, fit_on_the_previous, _fit_way, _physical,
+    previous_nonlinear, previous_ways,
     _violations,
 )

@@ -116,25 +116,43 @@ class FitCache:
 
     def get_or_compute(self, kind: str, key: str, compute: Callable[[], T]) -> T:
         """``compute()``, or its result of an earlier round with the same ``key`` (``kind`` names the file)."""
+        found = self.get(kind, key)
+        if found is not None:
+            return found[0]
+        value = compute()
+        self.put(kind, key, value)
+        return value
+
+    def get(self, kind: str, key: str) -> tuple[Any] | None:
+        """``(value,)`` kept under ``key`` by an earlier round, or None (nothing kept, or unreadable)."""
         if self.directory is None:
-            return compute()
-        path = self.directory / f"{kind}-{key[:40]}.pkl"
+            return None
+        path = self._path(kind, key)
         if path.exists():
             try:
                 with open(path, "rb") as handle:
                     stored_key, value = pickle.load(handle)
                 if stored_key == key:
                     os.utime(path)  # used by this round: not pruned
-                    return value
+                    return (value,)
             except Exception:  # noqa: BLE001 - an unreadable entry is computed again
                 pass
-        value = compute()
+        return None
+
+    def put(self, kind: str, key: str, value: Any) -> None:
+        """Keep ``value`` under ``key`` (nothing when the cache keeps nothing)."""
+        if self.directory is None:
+            return
+        path = self._path(kind, key)
         self.directory.mkdir(parents=True, exist_ok=True)
         aside = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         with open(aside, "wb") as handle:
             pickle.dump((key, value), handle, protocol=pickle.HIGHEST_PROTOCOL)
         os.replace(aside, path)
-        return value
+
+    def _path(self, kind: str, key: str) -> Path:
+        assert self.directory is not None
+        return self.directory / f"{kind}-{key[:40]}.pkl"
 
     def prune(self, keep_programs: int = 32) -> None:
         """Remove the fits this round did not use (the cache holds one round's fits, no more), and all but the

@@ -5,6 +5,7 @@ link's signals (:func:`make_signals`)."""
 from __future__ import annotations
 
 import fnmatch
+import functools
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -17,6 +18,7 @@ import pinocchio as pin
 from sim2real.dynamics import RigidBodyModel
 from sim2real.effects import Signals
 from sim2real.errors import InputError
+from sim2real.fitting.cache import FitCache
 from sim2real.fitting.data import TorqueData, link_side
 
 
@@ -53,38 +55,88 @@ def _urdf_link_parameters(urdf_path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def _collision_points(urdf_path: Path, link: ET.Element) -> np.ndarray | None:
-    """Vertices of a link's collision meshes in the link frame (None when a mesh cannot be read)."""
-    import trimesh
+@dataclass(frozen=True)
+class _MeshPart:
+    """One collision mesh of a link: its file, and the scale and placement the URDF gives it."""
 
+    path: Path
+    scale: tuple[float, float, float]
+    xyz: tuple[float, float, float]
+    rpy: tuple[float, float, float]
+
+
+def _collision_meshes(urdf_path: Path, link: ET.Element) -> list[_MeshPart] | None:
+    """A link's collision meshes as the URDF names them (None when a collision is not a mesh)."""
     from sim2real.urdf import resolve_package_uri
 
-    points = []
+    def triple(element: ET.Element | None, key: str, default: str) -> tuple[float, float, float]:
+        x, y, z = (float(v) for v in (element.get(key, default) if element is not None else default).split())
+        return (x, y, z)
+
+    parts = []
     for collision in link.findall("collision"):
         mesh = collision.find("geometry/mesh")
         if mesh is None:
             return None  # primitives are rare on arms; without a mesh the body keeps the plain LMI
         try:
-            loaded = trimesh.load(resolve_package_uri(mesh.get("filename", ""), source=urdf_path), force="mesh")
+            path = Path(resolve_package_uri(mesh.get("filename", ""), source=urdf_path))
+        except Exception:  # noqa: BLE001 - an unresolvable mesh only drops the optional, stronger constraint
+            return None
+        origin = collision.find("origin")
+        parts.append(_MeshPart(path, triple(mesh, "scale", "1 1 1"), triple(origin, "xyz", "0 0 0"),
+                               triple(origin, "rpy", "0 0 0")))
+    return parts
+
+
+def _collision_points(parts: Sequence[_MeshPart] | None) -> np.ndarray | None:
+    """Vertices of a link's collision meshes in the link frame (None when a mesh cannot be read)."""
+    import trimesh
+
+    if parts is None:
+        return None
+    points = []
+    for part in parts:
+        try:
+            loaded = trimesh.load(part.path, force="mesh")
         except Exception:  # noqa: BLE001 - an unreadable mesh only drops the optional, stronger constraint
             return None
-        scale = np.array([float(v) for v in mesh.get("scale", "1 1 1").split()])
-        origin = collision.find("origin")
-        xyz = np.array([float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
-        rpy = np.array([float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()])
-        points.append(np.asarray(loaded.vertices) * scale @ pin.rpy.rpyToMatrix(rpy).T + xyz)
+        points.append(np.asarray(loaded.vertices) * np.asarray(part.scale) @ pin.rpy.rpyToMatrix(np.asarray(part.rpy)).T
+                      + np.asarray(part.xyz))
     return np.vstack(points) if points else None
 
 
-def _body_points(urdf_path: Path, body_links: Sequence[str]) -> list[np.ndarray | None]:
-    """Collision-mesh vertices of each body's own link (link frame); None for the last body (it carries
-    tools and payloads, so its mass may lie outside its meshes) and where no mesh can be read."""
+def _body_meshes(urdf_path: Path, body_links: Sequence[str]) -> list[list[_MeshPart] | None]:
+    """Collision meshes of each body's own link; None for the last body (it carries tools and payloads, so
+    its mass may lie outside its meshes) and where a link has no mesh."""
     root = ET.parse(urdf_path).getroot()
     links = {link.get("name"): link for link in root.findall("link")}
     return [
-        _collision_points(urdf_path, links[name]) if name in links and index < len(body_links) - 1 else None
+        _collision_meshes(urdf_path, links[name]) if name in links and index < len(body_links) - 1 else None
         for index, name in enumerate(body_links)
     ]
+
+
+def _body_points(urdf_path: Path, body_links: Sequence[str]) -> list[np.ndarray | None]:
+    """Collision-mesh vertices of each body's own link (link frame), as :func:`_body_meshes` names them."""
+    return [_collision_points(parts) for parts in _body_meshes(urdf_path, body_links)]
+
+
+def _mesh_bounds(urdf_path: Path, body_links: Sequence[str]) -> tuple[list[np.ndarray | None], list[np.ndarray | None]]:
+    """Each body's bounding ellipsoid and convex hull (:func:`body_ellipsoids`, :func:`body_hulls`); the meshes
+    are read once for both."""
+    points = _body_points(urdf_path, body_links)
+    return body_ellipsoids(urdf_path, body_links, points), body_hulls(urdf_path, body_links, points)
+
+
+def _mesh_contents(urdf_path: Path, body_links: Sequence[str]) -> list[Any]:
+    """What the bodies' bounds depend on: the meshes' bytes and placements (a missing file as its name)."""
+    out: list[Any] = []
+    for parts in _body_meshes(urdf_path, body_links):
+        for part in parts or []:
+            out.append((part.scale, part.xyz, part.rpy,
+                        part.path.read_bytes() if part.path.is_file() else f"missing:{part.path.name}"))
+        out.append(parts is None)
+    return out
 
 
 def body_ellipsoids(
@@ -137,8 +189,11 @@ def load_nominal(
     joint_names: Sequence[str],
     armature: Mapping[str, float] | None = None,
     flange: str | None = None,
+    cache: FitCache | None = None,
 ) -> NominalModel:
-    """Nominal model of the measured joints. ``armature``: robot.yaml patterns (the MJCF's armature)."""
+    """Nominal model of the measured joints. ``armature``: robot.yaml patterns (the MJCF's armature);
+    ``cache``: the bodies' mesh bounds of an earlier round with the same URDF and meshes are read back from it
+    (reading the meshes costs trimesh's import and a few tenths of a second each round)."""
     urdf_path = Path(urdf_path)
     dynamics = RigidBodyModel(urdf_path, joint_names, armature=resolve_armature(armature, joint_names))
     model = dynamics.model
@@ -155,7 +210,10 @@ def load_nominal(
             urdf_path, f"flange '{flange_name}'", "is not carried by the last measured joint",
             "set robot.yaml flange to a link fixed to the last arm link",
         )
-    points = _body_points(urdf_path, body_links)  # the meshes are read once for the ellipsoids and hulls
+    cache = cache or FitCache(None)
+    ellipsoids, hulls = cache.get_or_compute(
+        "mesh_bounds", cache.key(urdf_path.read_bytes(), body_links, _mesh_contents(urdf_path, body_links)),
+        functools.partial(_mesh_bounds, urdf_path, body_links))
     info = {
         "damping": dynamics.damping.copy(),
         "friction": dynamics.friction.copy(),
@@ -168,8 +226,8 @@ def load_nominal(
         "flange_rotation": np.asarray(placement.rotation).copy(),
         "flange_translation": np.asarray(placement.translation).copy(),
         "link_own_inertial": _urdf_link_parameters(urdf_path),
-        "ellipsoids": body_ellipsoids(urdf_path, body_links, points),
-        "hulls": body_hulls(urdf_path, body_links, points),  # where a COM may plausibly lie (link_inertia)
+        "ellipsoids": ellipsoids,
+        "hulls": hulls,  # where a COM may plausibly lie (link_inertia)
     }
     return NominalModel(dynamics, info)
 

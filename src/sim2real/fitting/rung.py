@@ -126,24 +126,54 @@ def fit_on_the_previous(
     its diagnosis promised. ``"refined"`` also when there is nothing to hold. ``workers``: with two, both
     ways are fitted side by side (:func:`sim2real.forked.map_forked`).
     """
-    previous = {k: v for k, v in (previous or {}).items() if np.size(v)}
+    previous = previous_nonlinear(previous)
     if fit_signals is None:
         assert nominal is not None
         fit_signals = make_signals(nominal, fit_data)
     if holdout_signals is None:
         assert nominal is not None
         holdout_signals = make_signals(nominal, holdout_data)
+    fits = map_forked(_fit_way, previous_ways(previous, uncertainty), workers, {
+        "effect_names": effect_names, "nominal": nominal, "data": fit_data, "settings": settings, "signals": fit_signals})
+    return better_way(fits, effect_names, nominal, fit_data, holdout_data, previous, settings,
+                      fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=uncertainty)
+
+
+def previous_nonlinear(previous: Mapping[str, np.ndarray] | None) -> dict[str, np.ndarray]:
+    """The previous model's nonlinear parameters that exist (an effect without any has an empty array)."""
+    return {k: v for k, v in (previous or {}).items() if np.size(v)}
+
+
+def previous_ways(previous: Mapping[str, np.ndarray], uncertainty: bool) -> list[dict[str, Any]]:
+    """The ways of :func:`fit_on_the_previous` as keyword arguments of :func:`fit`: refined from ``previous``
+    (:func:`previous_nonlinear`), and held at it when there is anything to hold."""
+    ways: list[dict[str, Any]] = [{"uncertainty": uncertainty, "nonlinear_start": previous}]
+    if previous:
+        ways.append({"uncertainty": False, "nonlinear_fixed": previous})
+    return ways
+
+
+def better_way(
+    fits: Sequence[FitResult],
+    effect_names: Sequence[str],
+    nominal: NominalModel | None,
+    fit_data: TorqueData,
+    holdout_data: TorqueData,
+    previous: Mapping[str, np.ndarray],
+    settings: Mapping[str, Any] | None,
+    *,
+    fit_signals: Signals,
+    holdout_signals: Signals,
+    uncertainty: bool,
+) -> tuple[FitResult, np.ndarray, str]:
+    """Of the fits of :func:`previous_ways`, the one whose holdout residual is smaller, each joint in units of its
+    own floor (:func:`fit_on_the_previous`); held and asked for ``uncertainty``, it is fitted again with it."""
     weights = joint_weights(holdout_data.noise_floor, str({**DEFAULT_SETTINGS, **(settings or {})}["joint_weighting"]))
 
     def judged(result: FitResult) -> tuple[np.ndarray, float]:
         _, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
         return residual, float(np.sum((residual * weights) ** 2))
 
-    ways = [{"uncertainty": uncertainty, "nonlinear_start": previous}]
-    if previous:
-        ways.append({"uncertainty": False, "nonlinear_fixed": previous})
-    fits = map_forked(_fit_way, ways, workers, {"effect_names": effect_names, "nominal": nominal, "data": fit_data,
-                                                "settings": settings, "signals": fit_signals})
     refined = fits[0]
     residual, score = judged(refined)
     if not previous:
