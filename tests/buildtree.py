@@ -47,7 +47,7 @@ def rules_run(log: str) -> set[str]:
 def comparable_outputs(results: Path) -> list[Path]:
     """The files under ``results`` that must be the same bytes in two builds, relative to it: not the logs and
     benchmarks (wall times), nor ``fits/`` and ``kept/``, the loop's caches of fits, replays and figures
-    (sim2real.fitting.cache: pickles holding solve wall times; what is read back from them, ladder.json, gap.json,
+    (sim2real.cache: pickles holding solve wall times; what is read back from them, ladder.json, gap.json,
     the figures, is compared)."""
     skip = {"logs", "benchmarks", "fits", "kept"}
     return sorted(p.relative_to(results) for p in results.rglob("*")

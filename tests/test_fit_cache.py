@@ -1,4 +1,4 @@
-"""The fits kept between rounds of the loop (sim2real.fitting.cache): a rung read back is the rung refitted,
+"""The fits kept between rounds of the loop (sim2real.cache): a rung read back is the rung refitted,
 to the last bit; a change of any input refits it."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from sim2real import sysid
-from sim2real.fitting.cache import FitCache, digest
+from sim2real.cache import FitCache, digest
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
 from test_sysid import _write_real_log
 
@@ -132,6 +132,19 @@ def test_a_canonicalised_program_is_read_back_by_the_next_process_and_solves_to_
     monkeypatch.setattr(inertial, "_PROGRAMS", {})
     inertial.solve_consistent(design, target, lower, None, 0.0)  # outside a store: built here, nothing kept
     assert len(built) == 1 and len(list(tmp_path.iterdir())) == 1
+
+    # built ahead of its first solve (sim2real.fitting.build_program: the diagnosis's candidates while the rung is
+    # fitted), in another store: read back, it solves to the same bits as the program its first solve built
+    ahead = tmp_path / "ahead"
+    monkeypatch.setattr(inertial, "_PROGRAMS", {})
+    with inertial.program_store(ahead):
+        inertial.build_program(6, lower, None)
+    assert len(list(ahead.iterdir())) == 1
+    built.clear()
+    monkeypatch.setattr(inertial, "_PROGRAMS", {})
+    with inertial.program_store(ahead):
+        read_back = inertial.solve_consistent(design, target, lower, None, 0.0)
+    assert built == [] and read_back.coefficients.tobytes() == first.coefficients.tobytes()
 
 
 def test_the_bodies_mesh_bounds_are_kept_and_follow_the_meshes(tmp_path, monkeypatch):

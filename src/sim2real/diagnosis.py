@@ -135,6 +135,39 @@ def _joint_text(joints: Sequence[str], before: Mapping[str, float], after: Mappi
     return ", ".join(f"{j} {before[j]:.2g}x -> {after[j]:.2g}x" for j in joints)
 
 
+def candidates_to_try(model_effects: Sequence[str], torque_source: str, forward: bool,
+                      candidates: Sequence[str] | None = None) -> tuple[list[str], list[dict[str, str]]]:
+    """The effects of ``candidates`` (default: the library) :func:`diagnose` fits on top of ``model_effects``, and
+    those it does not, each with why; ``torque_source`` is the judged torque's, ``forward`` the signals' (the
+    actuator link predicts the measured torque from the command)."""
+    tried: list[str] = []
+    skipped: list[dict[str, str]] = []
+    for name in candidates if candidates is not None else EFFECTS:
+        effect = EFFECTS[name]
+        if name in model_effects:
+            continue
+        holder = next((held for held in model_effects if name in NESTED_IN.get(held, ())), None)
+        if holder is not None:
+            skipped.append({"effect": name, "reason": f"{holder} in the model already holds it (a special case of it)"})
+            continue
+        if effect.needs_commands and torque_source != "tau_cmd" and not forward:
+            skipped.append({
+                "effect": name,
+                "reason": "an effect of the actuator link (command -> applied torque), and the torque judged here "
+                "is measured by a sensor (tau) after it; runs that also log tau_cmd judge it on the actuator link",
+            })
+            continue
+        if effect.sensor_side and (torque_source == "tau_cmd" or forward):
+            skipped.append({
+                "effect": name,
+                "reason": "an error of the torque sensor, and these runs judge the commanded torque (tau_cmd): "
+                "on commands the same column is the actuator's (actuator_gain, command_bias)",
+            })
+            continue
+        tried.append(name)
+    return tried, skipped
+
+
 def _trial_way(item: tuple[str, Mapping[str, Any]], model_effects: Sequence[str], **inputs: Any) -> fitting.FitResult:
     """One way (:func:`sim2real.fitting.previous_ways`) of fitting the candidate ``item[0]`` on the current model."""
     name, way = item
@@ -210,31 +243,9 @@ def diagnose(
     ratio = float(np.sqrt(np.mean(x_now**2)))
     excess_now = np.clip(sse_now - rows, 0.0, None)  # per joint, above white noise at the floor
     above = [j for j, x in zip(joints, x_now, strict=True) if x > limits["noise_floor_factor"]]
-    ranked_candidates, skipped, tried = [], [], []
+    ranked_candidates = []
     residuals_after: dict[str, np.ndarray] = {}
-    for name in candidates if candidates is not None else EFFECTS:
-        effect = EFFECTS[name]
-        if name in model_effects:
-            continue
-        holder = next((held for held in model_effects if name in NESTED_IN.get(held, ())), None)
-        if holder is not None:
-            skipped.append({"effect": name, "reason": f"{holder} in the model already holds it (a special case of it)"})
-            continue
-        if effect.needs_commands and holdout_data.torque_source != "tau_cmd" and not holdout_signals.forward:
-            skipped.append({
-                "effect": name,
-                "reason": "an effect of the actuator link (command -> applied torque), and the torque judged here "
-                "is measured by a sensor (tau) after it; runs that also log tau_cmd judge it on the actuator link",
-            })
-            continue
-        if effect.sensor_side and (holdout_data.torque_source == "tau_cmd" or holdout_signals.forward):
-            skipped.append({
-                "effect": name,
-                "reason": "an error of the torque sensor, and these runs judge the commanded torque (tau_cmd): "
-                "on commands the same column is the actuator's (actuator_gain, command_bias)",
-            })
-            continue
-        tried.append(name)
+    tried, skipped = candidates_to_try(model_effects, holdout_data.torque_source, holdout_signals.forward, candidates)
     trials = trial_fits(tried, workers, model_effects=list(model_effects), nominal=nominal, fit_data=fit_data,
                         holdout_data=holdout_data, nonlinear_fixed=nonlinear_fixed, settings=settings.get("fit"),
                         fit_signals=fit_signals, holdout_signals=holdout_signals)

@@ -39,7 +39,7 @@ import numpy as np
 from mujoco import rollout
 
 from sim2real.dynamics import RigidBodyModel
-from sim2real.fitting.cache import FitCache
+from sim2real.cache import FitCache
 from sim2real.io import validate, write_json
 from sim2real.measurements import PreparedRun, estimate_noise_floor, runs_for_model
 from sim2real.metrics import rmse
@@ -556,7 +556,7 @@ def build_gap_report(
 ) -> dict[str, Any]:
     """Write gap.json, gap.md and the figures (keys: torque, residual_velocity, regimes, ladder); the figures
     are drawn on up to ``threads`` processes. ``cache_dir``: where the replays and figures are kept for the
-    next report (:class:`sim2real.fitting.cache.FitCache`; None: not kept): a round of the loop that adds a
+    next report (:class:`sim2real.cache.FitCache`; None: not kept): a round of the loop that adds a
     rung replays that rung and redraws what shows the ladder, and reads the rest back, the same bytes."""
     from sim2real.report import render_gap_markdown, write_gap_figures
 

@@ -211,6 +211,21 @@ class _ConsistentProgram:
         return _DataTerm(scale, (root[:, None] * eigvec.T) / np.sqrt(count),
                          np.where(keep, (eigvec.T @ rhs) / np.where(keep, root, 1.0), 0.0) / np.sqrt(count))
 
+    def canonicalise(self) -> None:
+        """What the first solve does before it solves (cvxpy's canonicalisation), then kept in the program store:
+        a program is the same whatever its parameters' values, so placeholders stand in for the data."""
+        import cvxpy as cp
+
+        if self.store_path is None:
+            return  # read back from the store, or nowhere to keep it
+        p = self.z.shape[0]
+        self.inverse_scale.value = np.ones(p)
+        self.root.value = np.eye(p)
+        self.target_root.value = np.zeros(p)
+        self.weight.value = 1.0
+        self.problem.get_problem_data(cp.CLARABEL)
+        self._store()
+
     def solve_prepared(self, term: _DataTerm, regularization: float) -> ConsistentSolution:
         """Solve a prepared data term (:meth:`prepare`) with the prior's weight ``regularization``."""
         import time
@@ -382,7 +397,7 @@ def _program(size: int, lower: np.ndarray, inertial: InertialBlock | None) -> _C
         store = _STORE[-1] if _STORE else None
         path = None
         if store is not None:
-            from sim2real.fitting.cache import code_digest
+            from sim2real.cache import code_digest
 
             # other code or another cvxpy canonicalises differently: the file's name says which made it
             path = store / f"program-{hashlib.sha1(digest + code_digest().encode()).hexdigest()}.pkl"
@@ -390,7 +405,7 @@ def _program(size: int, lower: np.ndarray, inertial: InertialBlock | None) -> _C
         if path is not None and path.exists():
             try:
                 program = pickle.loads(path.read_bytes())
-                path.touch()  # used by this round (sim2real.fitting.cache.FitCache.prune keeps it)
+                path.touch()  # used by this round (sim2real.cache.FitCache.prune keeps it)
             except Exception:  # noqa: BLE001 - an unreadable file is built again
                 program = None
         if program is None:
@@ -398,6 +413,12 @@ def _program(size: int, lower: np.ndarray, inertial: InertialBlock | None) -> _C
             program.store_path = path
         _PROGRAMS[digest] = program
     return _PROGRAMS[digest]
+
+
+def build_program(size: int, lower: np.ndarray, inertial: InertialBlock | None) -> None:
+    """Canonicalise the program of this structure (:func:`solve_consistent`'s) into the :func:`program_store`
+    unless it is there already: another process that needs it reads it back (nothing without a store)."""
+    _program(size, lower, inertial).canonicalise()
 
 
 # The prior's weights tried on held-out blocks, as fractions of the noise floor's variance: from a pull the

@@ -169,9 +169,9 @@ def write_gap_figures(gap: Mapping[str, Any], comparisons: Sequence[Any], figure
                       workers: int = 1, cache: Any = None) -> None:
     """The four figures (keys: torque, residual_velocity, regimes, ladder), on up to ``workers`` processes (each
     figure is drawn by one process as it would be alone: the same bytes). ``cache``: a
-    :class:`sim2real.fitting.cache.FitCache` holding the figures of an earlier report; a figure drawn from the
+    :class:`sim2real.cache.FitCache` holding the figures of an earlier report; a figure drawn from the
     same inputs (:func:`_figure_inputs`) is written from it instead of drawn."""
-    from sim2real.fitting.cache import FitCache
+    from sim2real.cache import FitCache
     from sim2real.forked import map_forked
     from sim2real.io import write_bytes
 

@@ -21,6 +21,7 @@ from typing import Any, ParamSpec, TypeVar
 import numpy as np
 
 from sim2real import actuator
+from sim2real.diagnosis import candidates_to_try
 from sim2real.diagnosis import diagnose as run_diagnosis
 from sim2real.effects import Signals, get_effect
 from sim2real.errors import InputError
@@ -30,7 +31,7 @@ from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of 
     joint_weights,
     kept_segments, load_nominal, make_signals, predict, resolve_armature, run_from_prepared, stack_runs,
 )
-from sim2real.fitting.cache import FitCache
+from sim2real.cache import FitCache
 from sim2real.inertial import program_store
 from sim2real.measurements import PreparedRun, estimate_noise_floor
 
@@ -93,7 +94,7 @@ def fit_ladder(
     signals (default: the nominal model's on the data) say what the judged torque is predicted from;
     ``workers``: processes the rungs' two ways (:func:`sim2real.fitting.fit_on_the_previous`) and the
     diagnosis's candidates are fitted on; ``cache``: rungs and diagnoses of earlier rounds with the same
-    inputs are read back from it (:class:`sim2real.fitting.cache.FitCache`), the same to the last bit.
+    inputs are read back from it (:class:`sim2real.cache.FitCache`), the same to the last bit.
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
@@ -108,10 +109,15 @@ def fit_ladder(
     for k in range(len(effect_names) + 1):
         effects = list(effect_names[:k])
         previous = result.nonlinear if result is not None else None
+        # While the last rung is fitted, its candidates' programs are built, to be read back by the diagnosis.
+        programs = ([[*effects, name] for name in candidates_to_try(
+            effects, holdout_data.torque_source, holdout_signals.forward, candidates)[0]]
+            if diagnose and cache.directory is not None and k == len(effect_names) else [])
         result, _, carried = cache.get_or_compute(
             "rung", cache.key(inputs, effects, previous, fit_settings),
             functools.partial(fit_on_the_previous, effects, nominal, fit_data, holdout_data, previous, fit_settings,
-                              fit_signals=fit_signals, holdout_signals=holdout_signals, workers=workers))
+                              fit_signals=fit_signals, holdout_signals=holdout_signals, workers=workers,
+                              programs=programs))
         metrics, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
         x_floor = floor_units(residual, holdout_data.noise_floor)
         rung: dict[str, Any] = {

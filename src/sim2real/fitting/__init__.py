@@ -32,8 +32,8 @@ package; it imports neither. Its modules, each importing only those above it:
 * :mod:`~sim2real.fitting.bootstrap`: the block bootstrap and its intervals;
 * :mod:`~sim2real.fitting.metrics`: noise-floor units, the prediction and the holdout metrics;
 * :mod:`~sim2real.fitting.rung`: one rung's fit (:func:`fit`, :func:`fit_on_the_previous`);
-* :mod:`~sim2real.fitting.cache`: fits kept between rounds of the loop, by the digest of their inputs
-  (imports none of the above).
+* :mod:`sim2real.cache` (beside the package, which the gap report uses without importing the fit): fits kept
+  between rounds of the loop, by the digest of their inputs.
 
 Every name is importable from ``sim2real.fitting`` as before the split (private ones too: the tests and
 the effects' documentation reach ``_intervals`` and ``_values``).
@@ -57,7 +57,8 @@ from sim2real.fitting.problem import (  # noqa: F401  (re-exported: the package'
     _subset_signals, _values,
 )
 from sim2real.fitting.rung import (  # noqa: F401  (re-exported: the package's names)
-    DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, _consistent_fit, better_way, fit, fit_on_the_previous, _fit_way, _physical,
+    DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, _consistent_fit, better_way, build_program, fit, fit_on_the_previous,
+    _fit_way, _physical,
     previous_nonlinear, previous_ways,
     _violations,
 )

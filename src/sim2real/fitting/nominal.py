@@ -18,7 +18,7 @@ import pinocchio as pin
 from sim2real.dynamics import RigidBodyModel
 from sim2real.effects import Signals
 from sim2real.errors import InputError
-from sim2real.fitting.cache import FitCache
+from sim2real.cache import FitCache
 from sim2real.fitting.data import TorqueData, link_side
 
 

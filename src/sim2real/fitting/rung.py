@@ -114,6 +114,7 @@ def fit_on_the_previous(
     holdout_signals: Signals | None = None,
     uncertainty: bool = True,
     workers: int = 1,
+    programs: Sequence[Sequence[str]] = (),
 ) -> tuple[FitResult, np.ndarray, str]:
     """A model fitted on top of the previous one: (fit, holdout residual, how its nonlinear parameters were set).
 
@@ -124,7 +125,9 @@ def fit_on_the_previous(
     always lowers the fit residual); the one whose holdout residual is smaller, each joint in units of
     its own floor, is kept. The diagnosis and the ladder use this same rule, so a rung delivers what
     its diagnosis promised. ``"refined"`` also when there is nothing to hold. ``workers``: with two, both
-    ways are fitted side by side (:func:`sim2real.forked.map_forked`).
+    ways are fitted side by side (:func:`sim2real.forked.map_forked`); ``programs``: models whose convex
+    programs are built on the same processes meanwhile (:func:`build_program`: the diagnosis's candidates,
+    while the way with the bootstrap takes longer than the other).
     """
     previous = previous_nonlinear(previous)
     if fit_signals is None:
@@ -133,9 +136,11 @@ def fit_on_the_previous(
     if holdout_signals is None:
         assert nominal is not None
         holdout_signals = make_signals(nominal, holdout_data)
-    fits = map_forked(_fit_way, previous_ways(previous, uncertainty), workers, {
+    ways = previous_ways(previous, uncertainty)
+    work = [*ways, *({"program_for": list(names)} for names in programs)]
+    fits = map_forked(_fit_way, work, workers, {
         "effect_names": effect_names, "nominal": nominal, "data": fit_data, "settings": settings, "signals": fit_signals})
-    return better_way(fits, effect_names, nominal, fit_data, holdout_data, previous, settings,
+    return better_way(fits[: len(ways)], effect_names, nominal, fit_data, holdout_data, previous, settings,
                       fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=uncertainty)
 
 
@@ -188,8 +193,12 @@ def better_way(
     return held, held_residual, "held"
 
 
-def _fit_way(way: Mapping[str, Any], **inputs: Any) -> FitResult:
-    """:func:`fit` with one way of carrying the previous nonlinear parameters (:func:`fit_on_the_previous`)."""
+def _fit_way(way: Mapping[str, Any], **inputs: Any) -> FitResult | None:
+    """:func:`fit` with one way of carrying the previous nonlinear parameters (:func:`fit_on_the_previous`), or
+    the program of the model ``way["program_for"]`` built (:func:`build_program`)."""
+    if "program_for" in way:
+        build_program(way["program_for"], inputs["nominal"], inputs["data"], inputs["signals"])
+        return None
     return fit(**inputs, **way)
 
 
@@ -203,38 +212,10 @@ def _consistent_fit(
     with its own columns and lower bounds. Offsets that are not linear (a payload's own inertia) are
     held at the current estimate and updated by fixed-point iteration, as in the unconstrained fit.
     """
-    from sim2real.effects.link_inertia import correction_anchors
-    from sim2real.inertial import (
-        InertialBlock,
-        InfeasibleFit,
-        choose_prior_weight,
-        physically_consistent,
-        pseudo_inertia,
-        solve_consistent,
-    )
+    from sim2real.inertial import InfeasibleFit, choose_prior_weight, physically_consistent, solve_consistent
 
     signals = problem.signals
-    blocks, lower, inertial = [], [], None
-    start = 0
-    for effect in problem.effects:
-        if effect.time_shift:
-            continue
-        if effect.name == "link_inertia":
-            cols = signals.regressor
-            anchors = correction_anchors(signals.nominal)
-            # A body's mass must lie inside its meshes' ellipsoid where the CAD link itself does.
-            ellipsoids = [
-                q if q is not None and float(np.trace(pseudo_inertia(a) @ q)) >= 0 else None
-                for a, q in zip(anchors, signals.nominal.get("ellipsoids") or [None] * len(anchors), strict=True)
-            ]
-            inertial = InertialBlock(slice(start, start + cols.shape[2]), anchors, ellipsoids)
-            lower.append(np.full(cols.shape[2], -np.inf))
-            problem.states[effect.name]["null_offset"] = np.zeros(cols.shape[2])
-        else:
-            cols = problem.block(effect, nonlinear)
-            lower.append(np.asarray(effect.theta_lower(signals, cols.shape[2]), dtype=float))
-        blocks.append((effect, slice(start, start + cols.shape[2]), cols))
-        start += cols.shape[2]
+    blocks, lower, inertial = _consistent_blocks(problem, nonlinear)
     free_residual = data.tau - problem.predict(theta_free, nonlinear)
     record: dict[str, Any] = {"notes": []}
     if not blocks:
@@ -310,6 +291,57 @@ def _consistent_fit(
         delta = problem.states["link_inertia"]["basis"] @ theta["link_inertia"] + problem.states["link_inertia"]["null_offset"]
         assert physically_consistent(inertial.anchors.reshape(-1) + delta)
     return theta, residual, record
+
+
+def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -> tuple[
+        list[tuple[Effect, slice, np.ndarray]], list[np.ndarray], Any]:
+    """The consistent fit's columns (effect, its coefficients, its columns), each effect's lower bounds and the
+    link inertias' block (:class:`sim2real.inertial.InertialBlock`, None without link_inertia): what
+    :func:`sim2real.inertial.solve_consistent` builds its program of."""
+    from sim2real.effects.link_inertia import correction_anchors
+    from sim2real.inertial import InertialBlock, pseudo_inertia
+
+    signals = problem.signals
+    blocks, lower, inertial = [], [], None
+    start = 0
+    for effect in problem.effects:
+        if effect.time_shift:
+            continue
+        if effect.name == "link_inertia":
+            cols = signals.regressor
+            anchors = correction_anchors(signals.nominal)
+            # A body's mass must lie inside its meshes' ellipsoid where the CAD link itself does.
+            ellipsoids = [
+                q if q is not None and float(np.trace(pseudo_inertia(a) @ q)) >= 0 else None
+                for a, q in zip(anchors, signals.nominal.get("ellipsoids") or [None] * len(anchors), strict=True)
+            ]
+            inertial = InertialBlock(slice(start, start + cols.shape[2]), anchors, ellipsoids)
+            lower.append(np.full(cols.shape[2], -np.inf))
+            problem.states[effect.name]["null_offset"] = np.zeros(cols.shape[2])
+        else:
+            cols = problem.block(effect, nonlinear)
+            lower.append(np.asarray(effect.theta_lower(signals, cols.shape[2]), dtype=float))
+        blocks.append((effect, slice(start, start + cols.shape[2]), cols))
+        start += cols.shape[2]
+    return blocks, lower, inertial
+
+
+def build_program(effect_names: Sequence[str], nominal: NominalModel | None, data: TorqueData,
+                  signals: Signals | None = None) -> None:
+    """Canonicalise the consistent fit's convex program of the model ``effect_names`` into the program store
+    (:func:`sim2real.inertial.build_program`), as the model's first fit would: the fits that need it then read
+    it back. The diagnosis's candidates' programs are built this way while the rung they sit on is fitted."""
+    from sim2real.inertial import build_program as build
+
+    if signals is None:
+        assert nominal is not None
+        signals = make_signals(nominal, data)
+    effects = [get_effect(name) for name in effect_names]
+    problem = _Problem(effects, signals, {e.name: e.prepare(signals) for e in effects})
+    nonlinear = {e.name: np.asarray(e.nonlinear_init(signals), dtype=float) for e in effects}
+    blocks, lower, inertial = _consistent_blocks(problem, nonlinear)
+    if blocks:
+        build(sum(b[2].shape[2] for b in blocks), np.concatenate(lower), inertial)
 
 
 def _physical(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals) -> bool:

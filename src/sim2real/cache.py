@@ -1,8 +1,9 @@
-"""Fits kept between rounds of the loop: a rung whose inputs did not change is read back, not refitted.
+"""Work kept between rounds of the loop: a rung whose inputs did not change is read back, not refitted.
 
 A round of the loop adds one line to ``model.yaml``; every rung before it has the same effects, data,
 settings and code as in the round before, so its fit is the same to the last bit. :class:`FitCache`
-keeps each expensive piece of work (a rung's fit, a link's diagnosis) in a file named by the digest of
+keeps each expensive piece of work (a rung's fit, a link's diagnosis, the bodies' mesh bounds; the gap
+report's replays and figures) in a file named by the digest of
 everything it depends on (:func:`digest`): the data and the nominal model as arrays, the effects, the
 settings, the package's own source and the versions of the numerical libraries. A hit is exactly what
 the work would compute; a miss (or an unreadable file) computes it. Entries no round used are pruned.
