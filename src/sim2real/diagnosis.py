@@ -40,6 +40,7 @@ from sim2real.effects import EFFECTS
 from sim2real.effects.base import Signals, per_joint_dict
 from sim2real.excitation.separation import separation_name
 from sim2real.forked import map_forked
+from sim2real.inertial import import_solver
 
 DEFAULT_DIAGNOSIS: dict[str, float] = {
     "min_explained": 0.3,  # a candidate must remove this share of the holdout residual beyond the noise floor
@@ -188,6 +189,8 @@ def trial_fits(names: Sequence[str], workers: int, *, model_effects: Sequence[st
     previous = fitting.previous_nonlinear(nonlinear_fixed)
     ways = fitting.previous_ways(previous, uncertainty=False)
     items = [(name, way) for way in ways for name in names]
+    if workers > 1 and len(items) > 1:
+        import_solver()
     fits = map_forked(_trial_way, items, workers, {"model_effects": list(model_effects), "nominal": nominal,
                                                     "data": fit_data, "settings": settings, "signals": fit_signals})
     out = {}

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import functools
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -463,11 +463,14 @@ def model_armature(mjcf_path: str | Path, joints: Sequence[str], models: ReplayM
 def compute_gap(
     robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
     root: str | Path = ".", precomputed: Mapping[str, Any] | None = None, cache: FitCache | None = None,
+    before_replays: Callable[[dict[str, Any], list[TorqueComparison]], Any] | None = None,
 ) -> tuple[dict[str, Any], list[TorqueComparison]]:
     """The gap.json content (validated) and the per-run comparisons (for figures).
 
     ``measurement_list``: the measurement list, or the runs prepared from it (``.npz``); ``cache``: replays of
-    an earlier report kept there (:class:`ReplayModels`)."""
+    an earlier report kept there (:class:`ReplayModels`); ``before_replays``: called with the torque domain's
+    part of the content (the runs, the torque metrics, where it fails, the noise floor, the ladder) and the
+    comparisons before the commands are replayed (the report starts its figures there)."""
     # joints come from the first run, the model locks everything else
     entries, prepared, settings = runs_for_model(measurement_list, urdf_path, root)
     models = ReplayModels(mjcf_path, cache) if mjcf_path is not None else None
@@ -493,15 +496,6 @@ def compute_gap(
                    "method": "white part of the raw torque from second differences (MAD), per joint; "
                              "a model that explains everything else has about this RMSE"}
 
-    if mjcf_path is None:
-        metrics["state_domain"] = {"status": "skipped", "reason": "no MJCF given to replay the commands in"}
-    else:
-        metrics["state_domain"] = state_domain(mjcf_path, comparisons, settings["horizon_s"],
-                                               metrics["torque_rmse"]["overall"], models)
-    if metrics["state_domain"]["status"] == "computed":
-        metrics["position_rmse"] = metrics["state_domain"]["position_rmse"]
-        metrics["velocity_rmse"] = metrics["state_domain"]["velocity_rmse"]
-
     runs_out = []
     for e, c in zip(entries, comparisons):
         p = c.run
@@ -523,26 +517,36 @@ def compute_gap(
         "where": where_it_fails(comparisons, model.lower, model.upper, floor),
         "noise_floor": noise_floor,
     }
-    if precomputed:
-        for key in ("ladder", "diagnosis", "actuator", "links"):
-            if key in precomputed:
-                gap[key] = json.loads(json.dumps(precomputed[key]))
-        if "ladder" in gap and mjcf_path is not None and metrics["state_domain"]["status"] == "computed":
-            # Each rung replayed with its fitted effects written into the MJCF: the state-domain view of the ladder.
-            positions = ladder_position_rmse(mjcf_path, comparisons, settings["horizon_s"], gap["ladder"],
+    for key in ("ladder", "diagnosis", "actuator", "links"):
+        if precomputed and key in precomputed:
+            gap[key] = json.loads(json.dumps(precomputed[key]))
+    if before_replays is not None:
+        before_replays(gap, comparisons)
+
+    if mjcf_path is None:
+        metrics["state_domain"] = {"status": "skipped", "reason": "no MJCF given to replay the commands in"}
+    else:
+        metrics["state_domain"] = state_domain(mjcf_path, comparisons, settings["horizon_s"],
+                                               metrics["torque_rmse"]["overall"], models)
+    if metrics["state_domain"]["status"] == "computed":
+        metrics["position_rmse"] = metrics["state_domain"]["position_rmse"]
+        metrics["velocity_rmse"] = metrics["state_domain"]["velocity_rmse"]
+    if precomputed and "ladder" in gap and mjcf_path is not None and metrics["state_domain"]["status"] == "computed":
+        # Each rung replayed with its fitted effects written into the MJCF: the state-domain view of the ladder.
+        positions = ladder_position_rmse(mjcf_path, comparisons, settings["horizon_s"], gap["ladder"],
+                                         precomputed.get("torque_source"), models)
+        for rung, position in zip(gap["ladder"], positions):
+            if position is not None:
+                rung["metrics"]["position_rmse"] = position
+        if "actuator" in gap:
+            # The actuator's rungs replayed on the body link's last rung: the commands reach that body.
+            body = gap["ladder"][-1].get("params") or {}
+            rungs = [{**rung, "params": {**body, **(rung.get("params") or {})}} for rung in gap["actuator"]["ladder"]]
+            positions = ladder_position_rmse(mjcf_path, comparisons, settings["horizon_s"], rungs,
                                              precomputed.get("torque_source"), models)
-            for rung, position in zip(gap["ladder"], positions):
+            for rung, position in zip(gap["actuator"]["ladder"], positions):
                 if position is not None:
                     rung["metrics"]["position_rmse"] = position
-            if "actuator" in gap:
-                # The actuator's rungs replayed on the body link's last rung: the commands reach that body.
-                body = gap["ladder"][-1].get("params") or {}
-                rungs = [{**rung, "params": {**body, **(rung.get("params") or {})}} for rung in gap["actuator"]["ladder"]]
-                positions = ladder_position_rmse(mjcf_path, comparisons, settings["horizon_s"], rungs,
-                                                 precomputed.get("torque_source"), models)
-                for rung, position in zip(gap["actuator"]["ladder"], positions):
-                    if position is not None:
-                        rung["metrics"]["position_rmse"] = position
     gap = json.loads(json.dumps(gap))  # plain JSON types only
     validate(gap, "gap.schema.json", "gap.json")
     return gap, comparisons
@@ -558,14 +562,16 @@ def build_gap_report(
     are drawn on up to ``threads`` processes. ``cache_dir``: where the replays and figures are kept for the
     next report (:class:`sim2real.cache.FitCache`; None: not kept): a round of the loop that adds a
     rung replays that rung and redraws what shows the ladder, and reads the rest back, the same bytes."""
-    from sim2real.report import render_gap_markdown, write_gap_figures
+    from sim2real.report import GapFigures, render_gap_markdown
 
     precomputed = None
     if precomputed_path is not None and Path(precomputed_path).exists():
         precomputed = json.loads(Path(precomputed_path).read_text(encoding="utf-8"))
     cache = FitCache(cache_dir)
-    gap, comparisons = compute_gap(robot, urdf_path, mjcf_path, measurement_list, root, precomputed, cache)
-    write_gap_figures(gap, comparisons, figures, workers=threads, cache=cache)
+    drawing: list[GapFigures] = []  # started once what they show is known: drawn while the commands are replayed
+    gap, comparisons = compute_gap(robot, urdf_path, mjcf_path, measurement_list, root, precomputed, cache,
+                                   lambda partial, runs: drawing.append(GapFigures(partial, runs, figures, threads, cache)))
+    drawing[0].finish()
     md_dir = Path(gap_md).parent
     rel = {k: Path(os_relpath(v, md_dir)).as_posix() for k, v in figures.items()}
     from sim2real.io import write_text

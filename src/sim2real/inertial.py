@@ -415,6 +415,12 @@ def _program(size: int, lower: np.ndarray, inertial: InertialBlock | None) -> _C
     return _PROGRAMS[digest]
 
 
+def import_solver() -> None:
+    """Import cvxpy now (~0.8 s): a process about to fork workers that solve programs imports it once for all of
+    them, instead of once in each (:func:`sim2real.forked.map_forked`)."""
+    import cvxpy  # noqa: F401
+
+
 def build_program(size: int, lower: np.ndarray, inertial: InertialBlock | None) -> None:
     """Canonicalise the program of this structure (:func:`solve_consistent`'s) into the :func:`program_store`
     unless it is there already: another process that needs it reads it back (nothing without a store)."""

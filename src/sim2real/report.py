@@ -2,18 +2,19 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+from typing import TYPE_CHECKING
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
 
-from sim2real.io import atomic_path  # noqa: E402
-from sim2real.regimes import REGIME_LABELS, REGIMES  # noqa: E402
+from sim2real.io import atomic_path
+from sim2real.regimes import REGIME_LABELS, REGIMES
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 PNG_METADATA = {"Software": None}
 MAX_PLOT_S = 10.0
@@ -30,16 +31,26 @@ SENSOR_TEXT = {
 }
 
 
-def _save(fig: plt.Figure, target: str | Path) -> None:
+def _pyplot() -> Any:
+    """matplotlib's pyplot on the Agg backend, imported when a figure is drawn (~0.3 s; the Markdown needs none)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig: Figure, target: str | Path) -> None:
     with atomic_path(target) as tmp:
         fig.savefig(tmp, format="png", dpi=90, metadata=PNG_METADATA)
-    plt.close(fig)
+    _pyplot().close(fig)
 
 
-def _grid(n: int) -> tuple[plt.Figure, np.ndarray]:
+def _grid(n: int) -> tuple[Figure, np.ndarray]:
     cols = min(n, 4)
     rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.6 * rows), squeeze=False)
+    fig, axes = _pyplot().subplots(rows, cols, figsize=(3.6 * cols, 2.6 * rows), squeeze=False)
     for ax in axes.flat[n:]:
         ax.set_visible(False)
     return fig, axes.flat
@@ -97,7 +108,7 @@ def figure_regimes(gap: Mapping[str, Any], target: str | Path) -> None:
     per_joint = gap["where"]["per_joint"]
     x = np.arange(len(joints))
     width = 0.8 / (len(REGIMES) + 1)
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(joints)), 3.4))
+    fig, ax = _pyplot().subplots(figsize=(max(6.0, 1.1 * len(joints)), 3.4))
     rmse = [per_joint[j]["rmse"] for j in joints]
     ax.bar(x - 0.4 + width / 2, rmse, width, color="0.6", label="overall RMSE")
     for k, regime in enumerate(REGIMES):
@@ -124,7 +135,7 @@ def figure_ladder(gap: Mapping[str, Any], target: str | Path) -> None:
     ]
     floor = gap["noise_floor"]["torque_rmse"]
     x = np.arange(len(ladder))
-    fig, ax = plt.subplots(figsize=(max(4.5, 1.6 * len(ladder) + 2.5), 3.4))
+    fig, ax = _pyplot().subplots(figsize=(max(4.5, 1.6 * len(ladder) + 2.5), 3.4))
     for j, joint in enumerate(gap["joints"]):
         per_joint = [rung["metrics"]["torque_rmse"]["per_joint"][joint] for rung in ladder]
         ax.plot(x, per_joint, marker=".", lw=0.8, alpha=0.6, color=f"C{j % 10}", label=joint)
@@ -162,31 +173,61 @@ def _figure_inputs(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any]
         return [(c.run.qd, c.residual, c.run.joint_names) for c in comparisons]
     if name == "regimes":
         return gap["joints"], gap["where"]["per_joint"]
-    return gap["joints"], gap.get("ladder"), gap["metrics"]["torque_rmse"], gap["noise_floor"]["torque_rmse"]
+    ladder = [(rung["effects"], rung["metrics"]["torque_rmse"]) for rung in gap.get("ladder") or []]
+    return gap["joints"], ladder or gap["metrics"]["torque_rmse"], gap["noise_floor"]["torque_rmse"]
+
+
+def _draw_all(names: Sequence[str], gap: Mapping[str, Any], comparisons: Sequence[Any],
+              figures: Mapping[str, str | Path]) -> list[bytes]:
+    return [_draw(name, gap, comparisons, figures) for name in names]
+
+
+class GapFigures:
+    """The four figures of a gap report (keys: torque, residual_velocity, regimes, ladder), drawn from what they
+    show (:func:`_figure_inputs`): the runs' torques, where the model fails and the ladder's torque errors, all
+    known before the replays. On ``workers`` > 1 they are drawn by forked processes while the caller replays;
+    :meth:`finish` waits for them. ``cache``: a :class:`sim2real.cache.FitCache` holding the figures of an
+    earlier report: a figure drawn from the same inputs is written from it instead of drawn (same bytes)."""
+
+    def __init__(self, gap: Mapping[str, Any], comparisons: Sequence[Any], figures: Mapping[str, str | Path],
+                 workers: int = 1, cache: Any = None) -> None:
+        from importlib.metadata import version
+
+        from sim2real.cache import FitCache
+        from sim2real.forked import Forked
+
+        self.cache = cache or FitCache(None)
+        self.figures = figures
+        names = ["torque", "residual_velocity", "regimes", "ladder"]
+        self.keys = {name: self.cache.key(name, _figure_inputs(name, gap, comparisons), version("matplotlib"))
+                     for name in names}
+        self.kept = {name: self.cache.get("figure", self.keys[name]) for name in names}
+        missing = [name for name in names if self.kept[name] is None]
+        self.drawing: list[tuple[list[str], Callable[[], list[bytes]]]] = []
+        if workers > 1:
+            # the two time-series grids in different processes: they take the longest
+            for group in (missing[k::workers] for k in range(min(workers, len(missing)))):
+                self.drawing.append((group, Forked(_draw_all, group, gap, comparisons, figures).result))
+        elif missing:
+            pngs = _draw_all(missing, gap, comparisons, figures)
+            self.drawing.append((missing, lambda: pngs))
+
+    def finish(self) -> None:
+        """Wait for the figures being drawn, keep them, and write those read back from the cache."""
+        from sim2real.io import write_bytes
+
+        for group, drawn in self.drawing:
+            for name, png in zip(group, drawn(), strict=True):
+                self.cache.put("figure", self.keys[name], png)
+        for name, found in self.kept.items():
+            if found is not None:
+                write_bytes(self.figures[name], found[0])
 
 
 def write_gap_figures(gap: Mapping[str, Any], comparisons: Sequence[Any], figures: Mapping[str, str | Path],
                       workers: int = 1, cache: Any = None) -> None:
-    """The four figures (keys: torque, residual_velocity, regimes, ladder), on up to ``workers`` processes (each
-    figure is drawn by one process as it would be alone: the same bytes). ``cache``: a
-    :class:`sim2real.cache.FitCache` holding the figures of an earlier report; a figure drawn from the
-    same inputs (:func:`_figure_inputs`) is written from it instead of drawn."""
-    from sim2real.cache import FitCache
-    from sim2real.forked import map_forked
-    from sim2real.io import write_bytes
-
-    cache = cache or FitCache(None)
-    # the two time-series grids first: they take the longest, so two workers split the work about evenly
-    names = ["torque", "residual_velocity", "regimes", "ladder"]
-    keys = {name: cache.key(name, _figure_inputs(name, gap, comparisons), matplotlib.__version__) for name in names}
-    kept = {name: cache.get("figure", keys[name]) for name in names}
-    missing = [name for name in names if kept[name] is None]
-    drawn = map_forked(_draw, missing, workers, {"gap": gap, "comparisons": comparisons, "figures": figures})
-    for name, png in zip(missing, drawn, strict=True):
-        cache.put("figure", keys[name], png)
-    for name, found in kept.items():
-        if found is not None:
-            write_bytes(figures[name], found[0])
+    """The four figures of :class:`GapFigures`, drawn and written."""
+    GapFigures(gap, comparisons, figures, workers, cache).finish()
 
 
 def _fmt(x: float | None, digits: int = 3) -> str:

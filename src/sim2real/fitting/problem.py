@@ -37,7 +37,7 @@ class _Problem:
     """Columns and targets of one model on one data set, for a given nonlinear parameter vector."""
 
     def __init__(self, effects: list[Effect], signals: Signals, states: dict[str, dict[str, Any]],
-                 weights: np.ndarray | None = None) -> None:
+                 weights: np.ndarray | None = None, reuse_design: bool = False) -> None:
         self.effects = effects
         self.signals = signals
         self.states = states
@@ -48,6 +48,10 @@ class _Problem:
             if not effect.time_shift and not effect.nonlinear:
                 self.static_columns[effect.name] = effect.columns(signals, states[effect.name], np.array([]))[0]
         self.nl_sizes = [len(e.nonlinear_init(signals)) for e in effects]
+        # reuse_design: each design() writes the moving columns into the last one's array, the static ones stay
+        # (the refinement asks for hundreds; a caller must be done with one design before it asks for the next)
+        self._reused: tuple[np.ndarray, list[int], list[tuple[Effect, slice]]] | None = None
+        self.reuse_design = reuse_design
 
     def split_nonlinear(self, x: np.ndarray) -> dict[str, np.ndarray]:
         out, start = {}, 0
@@ -97,6 +101,11 @@ class _Problem:
 
     def design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:
         """Columns (N, n, p) at the given nonlinear parameters (before the time shift) and sizes."""
+        if self._reused is not None:
+            design, sizes, moving = self._reused
+            for effect, columns in moving:
+                design[:, :, columns] = self.block(effect, nonlinear)
+            return design, list(sizes)
         blocks, sizes = [], []
         for effect in self.effects:
             if effect.time_shift:
@@ -107,6 +116,11 @@ class _Problem:
             sizes.append(cols.shape[2])
         n_samples, n = self.signals.q.shape
         design = np.concatenate(blocks, axis=2) if blocks else np.zeros((n_samples, n, 0))
+        if self.reuse_design:
+            bounds = np.cumsum([0, *sizes])
+            moving = [(effect, slice(int(bounds[k]), int(bounds[k + 1]))) for k, effect in enumerate(self.effects)
+                      if sizes[k] and effect.name not in self.static_columns]
+            self._reused = (design, list(sizes), moving)
         return design, sizes
 
     def offsets(self, theta: dict[str, np.ndarray]) -> np.ndarray:
@@ -308,7 +322,7 @@ def _refine_nonlinear(
     step = max(1, int(np.ceil(len(signals.time) / n_max)))
     rows = np.arange(0, len(signals.time), step)
     sub_signals = _subset_signals(signals, rows)
-    sub = _Problem(problem.effects, sub_signals, problem.states, problem.weights)
+    sub = _Problem(problem.effects, sub_signals, problem.states, problem.weights, reuse_design=True)
     sub_tau = tau[rows]
 
     free = ~held

@@ -17,6 +17,7 @@ from sim2real.fitting.metrics import holdout_metrics, joint_weights
 from sim2real.fitting.nominal import NominalModel, make_signals
 from sim2real.fitting.problem import FitResult, _Problem, _linear_fit, _refine_nonlinear, _values
 from sim2real.forked import map_forked
+from sim2real.inertial import import_solver
 from sim2real.metrics import rmse
 
 
@@ -138,6 +139,8 @@ def fit_on_the_previous(
         holdout_signals = make_signals(nominal, holdout_data)
     ways = previous_ways(previous, uncertainty)
     work = [*ways, *({"program_for": list(names)} for names in programs)]
+    if workers > 1 and len(work) > 1:
+        import_solver()
     fits = map_forked(_fit_way, work, workers, {
         "effect_names": effect_names, "nominal": nominal, "data": fit_data, "settings": settings, "signals": fit_signals})
     return better_way(fits[: len(ways)], effect_names, nominal, fit_data, holdout_data, previous, settings,
