@@ -10,7 +10,8 @@ Part 2, where a round spends its time and how that grows with the log: the lab's
 logged for each ``--lengths`` (seconds; default 20 s, 2 min, 10 min), and one round (``sysid.run_sysid`` +
 ``gap.build_gap_report``, the two rules' functions) runs in a fresh process under cProfile. Stages are the
 cumulative time of the functions that do them (nested stages overlap: the diagnosis holds its candidates'
-fits). Peak memory is the process's maximum resident set.
+fits; on the one thread of this round the gap report draws its figures inside compute_gap, before the
+replays). Peak memory is the process's maximum resident set.
 
     python benchmarks/bench_loop.py [--repeats 3] [--lengths 20 120 600] [--skip-demo]
 """
@@ -50,9 +51,9 @@ STAGES = {
     "  prior weight (held-out CV)": [("inertial.py", "choose_prior_weight")],
     "  bootstrap": [("fitting/bootstrap.py", "_block_bootstrap")],
     "  diagnosis (candidate trials)": [("diagnosis.py", "diagnose")],
-    "gap: compute (replay, metrics)": [("gap.py", "compute_gap")],
+    "gap: compute (replay, metrics, figures)": [("gap.py", "compute_gap")],
     "  replay in MuJoCo": [("gap.py", "replay")],
-    "gap: figures": [("report.py", "write_gap_figures")],
+    "  figures (drawn from the torque domain's part)": [("report.py", "_draw_all")],
     "writing": [("io.py", "write_json"), ("io.py", "write_yaml"), ("io.py", "write_text")],
 }
 

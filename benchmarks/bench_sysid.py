@@ -97,6 +97,7 @@ sys.path.insert(0, str(REPO / "tests"))
 from gap_fixtures import PANDA_JOINTS, build_dev_panda  # noqa: E402
 
 from sim2real import sysid  # noqa: E402
+from sim2real.fitting import subset_signals  # noqa: E402
 from sim2real.lab import (  # noqa: E402
     arm_spec, load_lab_config, run_lab_scenario_run, scenario_runs, simulate_run, write_truth,
 )
@@ -248,9 +249,11 @@ def _friction_ours(nominal, data, speed: float = SLIDING_SPEED, settings: dict[s
     held = {"coulomb_friction": np.full(len(JOINTS), HELD_SMOOTHING_RAD_S)}
     values, bounds = np.full(len(JOINTS), np.nan), np.full((len(JOINTS), 2), np.nan)
     result = None
+    signals = sysid.make_signals(nominal, data)  # the nominal model on the run once, each joint's rows taken of it
     for index, joint in enumerate(JOINTS):
-        result = sysid.fit(["coulomb_friction"], nominal, data.subset(sliding_rows(data, index, speed)), settings,
-                           nonlinear_fixed=held)
+        rows = sliding_rows(data, index, speed)
+        result = sysid.fit(["coulomb_friction"], nominal, data.subset(rows), settings,
+                           signals=subset_signals(signals, rows), nonlinear_fixed=held)
         values[index] = result.values["coulomb_friction"]["friction"][joint]
         bounds[index] = result.intervals.get("coulomb_friction", {}).get("friction", {}).get(joint, [np.nan] * 2)
     return _friction_with(result, nominal, values), values, bounds

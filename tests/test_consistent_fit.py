@@ -84,7 +84,7 @@ def test_identified_link_inertias_are_consistent_and_say_what_moved(lab):
     assert physically_consistent(anchors.reshape(-1) + delta)
     assert physically_consistent(np.asarray(lab.nominal.info["inertial"]) + delta), "whole bodies too"
     # Where the CAD link lies inside its collision meshes' ellipsoid, the identified link does too.
-    ellipsoids = lab.nominal.info["ellipsoids"]
+    ellipsoids = lab.nominal.info["mesh_bounds"].ellipsoids
     assert ellipsoids[-1] is None, "the last body carries tools: no mesh bound"
     bounded = [q if q is not None and np.trace(pseudo_inertia(a) @ q) >= 0 else None for a, q in zip(anchors, ellipsoids)]
     assert sum(q is not None for q in bounded) >= 2

@@ -161,10 +161,15 @@ def test_the_bodies_mesh_bounds_are_kept_and_follow_the_meshes(tmp_path, monkeyp
     real = nominal_module._mesh_bounds
     monkeypatch.setattr(nominal_module, "_mesh_bounds", lambda *a: calls.append(1) or real(*a))
     plain = sysid.load_nominal(urdf, PANDA_JOINTS)
+    assert calls == []  # without a cache they are read when first asked for: a friction fit never reads them
+    plain_ellipsoids = plain.info["mesh_bounds"].ellipsoids
     cache = FitCache(tmp_path / "fits")
     kept = [sysid.load_nominal(urdf, PANDA_JOINTS, cache=FitCache(tmp_path / "fits")) for _ in range(2)]
     assert len(calls) == 2  # once without the cache, once to fill it
-    assert digest(kept[1].info) == digest(plain.info) and any(q is not None for q in kept[1].info["ellipsoids"])
+    assert digest(kept[1].info) == digest(plain.info)
+    assert all((a is None and b is None) or np.array_equal(a, b)
+               for a, b in zip(kept[1].info["mesh_bounds"].ellipsoids, plain_ellipsoids, strict=True))
+    assert any(q is not None for q in plain_ellipsoids) and len(calls) == 2
     # a mesh whose bytes change (same name) is read again
     collision = next(m for m in meshes if m.endswith("collision/link1.stl"))  # the first moving body's
     source = resolve_package_uri(collision, source=PANDA_URDF)

@@ -49,7 +49,7 @@ def link_values(info: dict, delta: np.ndarray) -> dict:
 
 
 def test_nominal_keeps_each_links_convex_hull_but_the_last(info):
-    hulls = info["hulls"]
+    hulls = info["mesh_bounds"].hulls
     assert len(hulls) == len(info["body_links"]) == 7
     assert hulls[-1] is None, "tools and payloads mount on the last body: no hull"
     anchors = correction_anchors(info)

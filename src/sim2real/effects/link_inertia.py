@@ -116,7 +116,8 @@ def body_changes(delta: np.ndarray, nominal: dict[str, Any]) -> dict[str, dict[s
     anchors = correction_anchors(nominal)
     corrected = anchors + np.reshape(delta, anchors.shape)
     divergence = entropic_divergence(corrected, anchors)
-    hulls = nominal.get("hulls") or [None] * len(anchors)
+    bounds = nominal.get("mesh_bounds")
+    hulls = (bounds.hulls if bounds else None) or [None] * len(anchors)
     out = {}
     for b, link in enumerate(nominal["body_links"]):
         before, after = to_mass_com_inertia(anchors[b]), to_mass_com_inertia(corrected[b])

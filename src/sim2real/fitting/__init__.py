@@ -54,7 +54,7 @@ from sim2real.fitting.nominal import (  # noqa: F401  (re-exported: the package'
 )
 from sim2real.fitting.problem import (  # noqa: F401  (re-exported: the package's names)
     FitResult, _Problem, _flatten_theta, _linear_fit, _refine_nonlinear, _solve_blocks, _split_theta,
-    _subset_signals, _values,
+    subset_signals, _values,
 )
 from sim2real.fitting.rung import (  # noqa: F401  (re-exported: the package's names)
     DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, _consistent_fit, better_way, build_program, fit, fit_on_the_previous,

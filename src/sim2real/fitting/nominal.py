@@ -5,7 +5,6 @@ link's signals (:func:`make_signals`)."""
 from __future__ import annotations
 
 import fnmatch
-import functools
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -18,7 +17,7 @@ import pinocchio as pin
 from sim2real.dynamics import RigidBodyModel
 from sim2real.effects import Signals
 from sim2real.errors import InputError
-from sim2real.cache import FitCache
+from sim2real.cache import FitCache, digest
 from sim2real.fitting.data import TorqueData, link_side
 
 
@@ -173,6 +172,32 @@ def body_hulls(
 
 
 @dataclass
+class MeshBounds:
+    """Each body's bounding ellipsoid and convex hull from its collision meshes (:func:`body_ellipsoids`,
+    :func:`body_hulls`), read when first asked for: only the link inertias' fit and plausibility use them, and
+    reading the meshes costs trimesh's import and about 0.1 s. ``content``: the digest of the URDF and the
+    meshes, what the bounds follow from (and all a digest of the model sees of them)."""
+
+    content: str
+    body_links: list[str]
+    _urdf_path: Path
+    _bounds: tuple[list[np.ndarray | None], list[np.ndarray | None]] | None = None
+
+    @property
+    def ellipsoids(self) -> list[np.ndarray | None]:
+        return self._read()[0]
+
+    @property
+    def hulls(self) -> list[np.ndarray | None]:
+        return self._read()[1]
+
+    def _read(self) -> tuple[list[np.ndarray | None], list[np.ndarray | None]]:
+        if self._bounds is None:
+            self._bounds = _mesh_bounds(self._urdf_path, self.body_links)
+        return self._bounds
+
+
+@dataclass
 class NominalModel:
     """The URDF model the fit starts from and everything effects need to know about it."""
 
@@ -192,8 +217,8 @@ def load_nominal(
     cache: FitCache | None = None,
 ) -> NominalModel:
     """Nominal model of the measured joints. ``armature``: robot.yaml patterns (the MJCF's armature);
-    ``cache``: the bodies' mesh bounds of an earlier round with the same URDF and meshes are read back from it
-    (reading the meshes costs trimesh's import and a few tenths of a second each round)."""
+    ``cache``: the bodies' mesh bounds (:class:`MeshBounds`) are read back from it, or read from the meshes and
+    kept there, now (before the fit forks its workers); without one they are read when first asked for."""
     urdf_path = Path(urdf_path)
     dynamics = RigidBodyModel(urdf_path, joint_names, armature=resolve_armature(armature, joint_names))
     model = dynamics.model
@@ -210,10 +235,10 @@ def load_nominal(
             urdf_path, f"flange '{flange_name}'", "is not carried by the last measured joint",
             "set robot.yaml flange to a link fixed to the last arm link",
         )
-    cache = cache or FitCache(None)
-    ellipsoids, hulls = cache.get_or_compute(
-        "mesh_bounds", cache.key(urdf_path.read_bytes(), body_links, _mesh_contents(urdf_path, body_links)),
-        functools.partial(_mesh_bounds, urdf_path, body_links))
+    bounds = MeshBounds(digest(urdf_path.read_bytes(), body_links, _mesh_contents(urdf_path, body_links)),
+                        body_links, urdf_path)
+    if cache is not None and cache.directory is not None:
+        bounds._bounds = cache.get_or_compute("mesh_bounds", cache.key(bounds), bounds._read)
     info = {
         "damping": dynamics.damping.copy(),
         "friction": dynamics.friction.copy(),
@@ -226,8 +251,7 @@ def load_nominal(
         "flange_rotation": np.asarray(placement.rotation).copy(),
         "flange_translation": np.asarray(placement.translation).copy(),
         "link_own_inertial": _urdf_link_parameters(urdf_path),
-        "ellipsoids": ellipsoids,
-        "hulls": hulls,  # where a COM may plausibly lie (link_inertia)
+        "mesh_bounds": bounds,  # where a body's mass and COM may plausibly lie (link_inertia)
     }
     return NominalModel(dynamics, info)
 

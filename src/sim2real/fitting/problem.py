@@ -321,7 +321,7 @@ def _refine_nonlinear(
     n_max = int(settings["refine_max_samples"])
     step = max(1, int(np.ceil(len(signals.time) / n_max)))
     rows = np.arange(0, len(signals.time), step)
-    sub_signals = _subset_signals(signals, rows)
+    sub_signals = subset_signals(signals, rows)
     sub = _Problem(problem.effects, sub_signals, problem.states, problem.weights, reuse_design=True)
     sub_tau = tau[rows]
 
@@ -380,7 +380,9 @@ def _refine_nonlinear(
     return problem.split_nonlinear(to_x_free(result.x))
 
 
-def _subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
+def subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
+    """The ``rows`` (sorted) of ``signals``, as :meth:`sim2real.fitting.TorqueData.subset` takes them of the data:
+    what :func:`sim2real.fitting.make_signals` computes on the subset, without computing it again."""
     segments = kept_segments(signals.segments, rows)
     regressor = signals._regressor[rows] if signals._regressor is not None else None
     parent = signals

@@ -314,9 +314,10 @@ def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -
             cols = signals.regressor
             anchors = correction_anchors(signals.nominal)
             # A body's mass must lie inside its meshes' ellipsoid where the CAD link itself does.
+            bounds = signals.nominal.get("mesh_bounds")
             ellipsoids = [
                 q if q is not None and float(np.trace(pseudo_inertia(a) @ q)) >= 0 else None
-                for a, q in zip(anchors, signals.nominal.get("ellipsoids") or [None] * len(anchors), strict=True)
+                for a, q in zip(anchors, (bounds.ellipsoids if bounds else None) or [None] * len(anchors), strict=True)
             ]
             inertial = InertialBlock(slice(start, start + cols.shape[2]), anchors, ellipsoids)
             lower.append(np.full(cols.shape[2], -np.inf))
