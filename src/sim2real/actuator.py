@@ -42,10 +42,9 @@ from typing import Any
 import numpy as np
 
 from sim2real.effects import EFFECTS, Signals, get_effect
-from sim2real.effects.actuation_delay import MAX_DELAY
 from sim2real.errors import InputError
 from sim2real.fitting import NominalModel, TorqueData, link_side, run_from_prepared, stack_runs
-from sim2real.measurements import PreparedRun
+from sim2real.measurements import PreparedRun, command_white_noise
 
 LINK_MODES: dict[str, str] = {
     "separate": "the runs log the measured torque (tau) and the command (tau_cmd): the actuator link is judged "
@@ -127,28 +126,13 @@ def torque_sensor(runs: Sequence[PreparedRun]) -> str:
 
 
 def command_noise_floor(run: PreparedRun) -> np.ndarray:
-    """Per joint, the RMS of the measured torque that no actuator model can explain.
-
-    The second differences of ``tau`` are regressed on the second differences of ``tau_cmd`` at every
-    lag up to the longest delay the fit allows (a short FIR filter, per joint); what is left is the
-    sensor's white noise, measured robustly as :func:`sim2real.measurements.white_noise_sigma` does.
-    The differences remove biases and slow motion; the lags hold any delay and gain, so the floor is the
-    same with or without the effects it is meant to expose.
-    """
+    """Per joint, the RMS of the measured torque that no actuator model can explain
+    (:func:`sim2real.measurements.command_white_noise`), as computed when the run was prepared (a run
+    prepared by an older version, which did not keep it, has it computed here)."""
     assert run.tau_cmd is not None and run.torque_source == "tau"
-    lags = int(round(MAX_DELAY / run.dt)) + 1
-    d2_tau = np.diff(run.tau, n=2, axis=0)
-    d2_cmd = np.diff(run.tau_cmd, n=2, axis=0)
-    rows = len(d2_tau) - lags
-    floor = np.empty(run.tau.shape[1])
-    for j in range(run.tau.shape[1]):
-        # Row i holds the command's differences at lags 0..lags-1 before sample lags + i (a view, no copy).
-        design = np.lib.stride_tricks.sliding_window_view(d2_cmd[:, j], lags)[1 : rows + 1, ::-1]
-        target = d2_tau[lags:, j]
-        coef = np.linalg.lstsq(design.T @ design, design.T @ target, rcond=None)[0]
-        left = target - design @ coef
-        floor[j] = 1.4826 * np.median(np.abs(left - np.median(left))) / np.sqrt(6.0)
-    return floor
+    if run.command_torque_sigma.size:
+        return np.asarray(run.command_torque_sigma, dtype=float).copy()
+    return command_white_noise(run.tau, run.tau_cmd, run.dt)
 
 
 def actuator_data(runs: Sequence[PreparedRun], joint_names: Sequence[str]) -> tuple[TorqueData, np.ndarray]:

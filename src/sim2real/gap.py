@@ -463,20 +463,34 @@ def model_armature(mjcf_path: str | Path, joints: Sequence[str], models: ReplayM
 def compute_gap(
     robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
     root: str | Path = ".", precomputed: Mapping[str, Any] | None = None, cache: FitCache | None = None,
-    before_replays: Callable[[dict[str, Any], list[TorqueComparison]], Any] | None = None,
+    progress: Callable[[dict[str, Any], list[TorqueComparison] | None], Any] | None = None,
 ) -> tuple[dict[str, Any], list[TorqueComparison]]:
     """The gap.json content (validated) and the per-run comparisons (for figures).
 
     ``measurement_list``: the measurement list, or the runs prepared from it (``.npz``); ``cache``: replays of
-    an earlier report kept there (:class:`ReplayModels`); ``before_replays``: called with the torque domain's
-    part of the content (the runs, the torque metrics, where it fails, the noise floor, the ladder) and the
-    comparisons before the commands are replayed (the report starts its figures there)."""
+    an earlier report kept there (:class:`ReplayModels`); ``progress``: called with the part of the content
+    known so far, twice: the joints, the noise floor and the precomputed sections (no comparisons yet), then
+    with the torque domain (the runs, the torque metrics, where it fails) and the comparisons, before the
+    commands are replayed (the report draws each figure as soon as what it shows is known)."""
     # joints come from the first run, the model locks everything else
     entries, prepared, settings = runs_for_model(measurement_list, urdf_path, root)
     models = ReplayModels(mjcf_path, cache) if mjcf_path is not None else None
     armature = model_armature(mjcf_path, prepared[0].joint_names, models) if mjcf_path is not None else None
     model = RigidBodyModel(urdf_path, prepared[0].joint_names, armature=armature)
     joints = model.joint_names
+
+    floors = np.array([estimate_noise_floor(p) for p in prepared])
+    weights = np.array([p.time.size for p in prepared], dtype=float)
+    floor = np.sqrt(np.average(floors**2, axis=0, weights=weights))
+    noise_floor = {"torque_rmse": _per_joint_dict(floor, joints, float(np.sqrt(np.mean(floor**2)))),
+                   "method": "white part of the raw torque from second differences (MAD), per joint; "
+                             "a model that explains everything else has about this RMSE"}
+    gap: dict[str, Any] = {"robot": robot, "joints": joints, "noise_floor": noise_floor}
+    for key in ("ladder", "diagnosis", "actuator", "links"):
+        if precomputed and key in precomputed:
+            gap[key] = json.loads(json.dumps(precomputed[key]))
+    if progress is not None:
+        progress(gap, None)
 
     comparisons = []
     for e, p in zip(entries, prepared):
@@ -488,13 +502,6 @@ def compute_gap(
     measured = np.concatenate([c.run.tau for c in comparisons])
     residual = np.concatenate([c.residual for c in comparisons])
     metrics = torque_metrics(measured, residual, joints)
-
-    floors = np.array([estimate_noise_floor(p) for p in prepared])
-    weights = np.array([p.time.size for p in prepared], dtype=float)
-    floor = np.sqrt(np.average(floors**2, axis=0, weights=weights))
-    noise_floor = {"torque_rmse": _per_joint_dict(floor, joints, float(np.sqrt(np.mean(floor**2)))),
-                   "method": "white part of the raw torque from second differences (MAD), per joint; "
-                             "a model that explains everything else has about this RMSE"}
 
     runs_out = []
     for e, c in zip(entries, comparisons):
@@ -509,19 +516,9 @@ def compute_gap(
                                            float(np.sqrt(np.mean(estimate_noise_floor(p) ** 2)))),
         })
 
-    gap = {
-        "robot": robot,
-        "joints": joints,
-        "runs": runs_out,
-        "metrics": metrics,
-        "where": where_it_fails(comparisons, model.lower, model.upper, floor),
-        "noise_floor": noise_floor,
-    }
-    for key in ("ladder", "diagnosis", "actuator", "links"):
-        if precomputed and key in precomputed:
-            gap[key] = json.loads(json.dumps(precomputed[key]))
-    if before_replays is not None:
-        before_replays(gap, comparisons)
+    gap.update({"runs": runs_out, "metrics": metrics, "where": where_it_fails(comparisons, model.lower, model.upper, floor)})
+    if progress is not None:
+        progress(gap, comparisons)
 
     if mjcf_path is None:
         metrics["state_domain"] = {"status": "skipped", "reason": "no MJCF given to replay the commands in"}
@@ -568,10 +565,10 @@ def build_gap_report(
     if precomputed_path is not None and Path(precomputed_path).exists():
         precomputed = json.loads(Path(precomputed_path).read_text(encoding="utf-8"))
     cache = FitCache(cache_dir)
-    drawing: list[GapFigures] = []  # started once what they show is known: drawn while the commands are replayed
+    drawing = GapFigures(figures, threads, cache)  # each figure drawn as soon as what it shows is known
     gap, comparisons = compute_gap(robot, urdf_path, mjcf_path, measurement_list, root, precomputed, cache,
-                                   lambda partial, runs: drawing.append(GapFigures(partial, runs, figures, threads, cache)))
-    drawing[0].finish()
+                                   drawing.show)
+    drawing.finish()
     md_dir = Path(gap_md).parent
     rel = {k: Path(os_relpath(v, md_dir)).as_posix() for k, v in figures.items()}
     from sim2real.io import write_text

@@ -95,6 +95,9 @@ class PreparedRun:
     qd_measured: np.ndarray | None = None  # logged velocity on the grid (unfiltered), if any
     contact: np.ndarray | None = None
     raw_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per-joint white-noise std
+    # per joint, the RMS of tau that no actuator model can explain from tau_cmd (command_white_noise); empty
+    # unless the run logs both
+    command_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass(frozen=True)
@@ -387,7 +390,35 @@ def prepare_run(
         filter=filter_info, qd_measured=None if qd_measured is None else qd_measured[sl], contact=contact,
         raw_torque_sigma=white_noise_sigma(raw_torque[keep_raw]),
         torque_sensor=str(run.meta.get("torque_sensor", "motor")) if run.tau is not None else "motor",
+        command_torque_sigma=(command_white_noise(tau[sl], tau_cmd[sl], dt)
+                              if tau_cmd is not None and torque_source == "tau" else np.zeros(0)),
     )
+
+
+def command_white_noise(tau: np.ndarray, tau_cmd: np.ndarray, dt: float) -> np.ndarray:
+    """Per joint, the RMS of the measured torque ``tau`` that no actuator model can explain from ``tau_cmd``.
+
+    The second differences of ``tau`` are regressed on the second differences of ``tau_cmd`` at every
+    lag up to the longest delay the fit allows (a short FIR filter, per joint); what is left is the
+    sensor's white noise, measured robustly as :func:`white_noise_sigma` does. The differences remove
+    biases and slow motion; the lags hold any delay and gain, so the floor is the same with or without the
+    effects it is meant to expose (:mod:`sim2real.actuator`'s noise floor).
+    """
+    from sim2real.effects.actuation_delay import MAX_DELAY
+
+    lags = int(round(MAX_DELAY / dt)) + 1
+    d2_tau = np.diff(tau, n=2, axis=0)
+    d2_cmd = np.diff(tau_cmd, n=2, axis=0)
+    rows = len(d2_tau) - lags
+    floor = np.empty(tau.shape[1])
+    for j in range(tau.shape[1]):
+        # Row i holds the command's differences at lags 0..lags-1 before sample lags + i (a view, no copy).
+        design = np.lib.stride_tricks.sliding_window_view(d2_cmd[:, j], lags)[1 : rows + 1, ::-1]
+        target = d2_tau[lags:, j]
+        coef = np.linalg.lstsq(design.T @ design, design.T @ target, rcond=None)[0]
+        left = target - design @ coef
+        floor[j] = 1.4826 * np.median(np.abs(left - np.median(left))) / np.sqrt(6.0)
+    return floor
 
 
 def estimate_noise_floor(prepared: PreparedRun) -> np.ndarray:
@@ -498,7 +529,9 @@ def prepare_for_model(
 # Prepared runs on disk (the rule ``prepare_runs``): one zip of .npy arrays and a JSON header, written with
 # fixed member times so that the same runs give the same bytes.
 PREPARED_SUFFIX = ".npz"
-_PREPARED_ARRAYS = ("time", "q", "qd", "qdd", "tau", "tau_cmd", "q_cmd", "qd_measured", "contact", "raw_torque_sigma")
+_PREPARED_ARRAYS = ("time", "q", "qd", "qdd", "tau", "tau_cmd", "q_cmd", "qd_measured", "contact", "raw_torque_sigma",
+                    "command_torque_sigma")
+_SIGMAS = ("raw_torque_sigma", "command_torque_sigma")  # always arrays (empty when unknown)
 
 
 def write_prepared_runs(
@@ -544,8 +577,8 @@ def read_prepared_runs(path: str | Path) -> tuple[list[MeasurementEntry], list[P
                 runs.append(PreparedRun(
                     name=item["name"], joint_names=list(item["joint_names"]), dt=float(item["dt"]),
                     torque_source=item["torque_source"], torque_sensor=item["torque_sensor"], filter=item["filter"],
-                    **{name: arrays.get(name) for name in _PREPARED_ARRAYS if name != "raw_torque_sigma"},
-                    raw_torque_sigma=arrays.get("raw_torque_sigma", np.zeros(0)),
+                    **{name: arrays.get(name) for name in _PREPARED_ARRAYS if name not in _SIGMAS},
+                    **{name: arrays.get(name, np.zeros(0)) for name in _SIGMAS},
                 ))
     except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
         raise InputError(path, None, f"not a file of prepared runs ({exc})",

@@ -153,7 +153,7 @@ def figure_ladder(gap: Mapping[str, Any], target: str | Path) -> None:
 
 
 def _draw(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any], figures: Mapping[str, str | Path]) -> bytes:
-    """One figure of :func:`write_gap_figures` by its key; its PNG's bytes."""
+    """One figure of :class:`GapFigures` by its key; its PNG's bytes."""
     if name == "torque":
         figure_torque(comparisons, figures[name])
     elif name == "residual_velocity":
@@ -165,69 +165,83 @@ def _draw(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any], figures
     return Path(figures[name]).read_bytes()
 
 
-def _figure_inputs(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any]) -> Any:
-    """What the figure ``name`` is drawn from (:func:`_draw`): the same inputs draw the same bytes."""
-    if name == "torque":
-        return _pick_run(comparisons)
-    if name == "residual_velocity":
-        return [(c.run.qd, c.residual, c.run.joint_names) for c in comparisons]
+FIGURES = ("torque", "residual_velocity", "regimes", "ladder")
+
+
+def _figure_inputs(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any] | None) -> Any:
+    """What the figure ``name`` is drawn from (:func:`_draw`): the same inputs draw the same bytes; None while
+    part of it is not known yet (:meth:`GapFigures.show`)."""
+    if name in ("torque", "residual_velocity"):
+        if comparisons is None:
+            return None
+        return (_pick_run(comparisons) if name == "torque"
+                else [(c.run.qd, c.residual, c.run.joint_names) for c in comparisons])
     if name == "regimes":
-        return gap["joints"], gap["where"]["per_joint"]
-    ladder = [(rung["effects"], rung["metrics"]["torque_rmse"]) for rung in gap.get("ladder") or []]
-    return gap["joints"], ladder or gap["metrics"]["torque_rmse"], gap["noise_floor"]["torque_rmse"]
+        return (gap["joints"], gap["where"]["per_joint"]) if "where" in gap else None
+    if gap.get("ladder"):
+        shown: Any = [(rung["effects"], rung["metrics"]["torque_rmse"]) for rung in gap["ladder"]]
+    elif "metrics" in gap:
+        shown = gap["metrics"]["torque_rmse"]  # no ladder: the nominal model's error alone
+    else:
+        return None
+    return gap["joints"], shown, gap["noise_floor"]["torque_rmse"]
 
 
-def _draw_all(names: Sequence[str], gap: Mapping[str, Any], comparisons: Sequence[Any],
+def _draw_all(names: Sequence[str], gap: Mapping[str, Any], comparisons: Sequence[Any] | None,
               figures: Mapping[str, str | Path]) -> list[bytes]:
     return [_draw(name, gap, comparisons, figures) for name in names]
 
 
 class GapFigures:
-    """The four figures of a gap report (keys: torque, residual_velocity, regimes, ladder), drawn from what they
-    show (:func:`_figure_inputs`): the runs' torques, where the model fails and the ladder's torque errors, all
-    known before the replays. On ``workers`` > 1 they are drawn by forked processes while the caller replays;
+    """The four figures of a gap report (:data:`FIGURES`), each drawn as soon as what it shows is known
+    (:meth:`show`): the ladder's from the ladder and the noise floor, the others from the torque domain, all
+    before the replays. On ``workers`` > 1 they are drawn by forked processes while the report goes on;
     :meth:`finish` waits for them. ``cache``: a :class:`sim2real.cache.FitCache` holding the figures of an
     earlier report: a figure drawn from the same inputs is written from it instead of drawn (same bytes)."""
 
-    def __init__(self, gap: Mapping[str, Any], comparisons: Sequence[Any], figures: Mapping[str, str | Path],
-                 workers: int = 1, cache: Any = None) -> None:
-        from importlib.metadata import version
-
+    def __init__(self, figures: Mapping[str, str | Path], workers: int = 1, cache: Any = None) -> None:
         from sim2real.cache import FitCache
-        from sim2real.forked import Forked
 
         self.cache = cache or FitCache(None)
         self.figures = figures
-        names = ["torque", "residual_velocity", "regimes", "ladder"]
-        self.keys = {name: self.cache.key(name, _figure_inputs(name, gap, comparisons), version("matplotlib"))
-                     for name in names}
-        self.kept = {name: self.cache.get("figure", self.keys[name]) for name in names}
-        missing = [name for name in names if self.kept[name] is None]
+        self.workers = max(1, int(workers))
+        self.keys: dict[str, str] = {}
+        self.kept: dict[str, tuple[Any] | None] = {}
         self.drawing: list[tuple[list[str], Callable[[], list[bytes]]]] = []
-        if workers > 1:
+
+    def show(self, gap: Mapping[str, Any], comparisons: Sequence[Any] | None = None) -> None:
+        """Start every figure not started yet whose inputs ``gap`` (the report so far) and ``comparisons`` hold."""
+        from importlib.metadata import version
+
+        from sim2real.forked import Forked
+
+        ready = []
+        for name in FIGURES:
+            inputs = None if name in self.keys else _figure_inputs(name, gap, comparisons)
+            if inputs is not None:
+                self.keys[name] = self.cache.key(name, inputs, version("matplotlib"))
+                self.kept[name] = self.cache.get("figure", self.keys[name])
+                if self.kept[name] is None:
+                    ready.append(name)
+        if self.workers > 1:
             # the two time-series grids in different processes: they take the longest
-            for group in (missing[k::workers] for k in range(min(workers, len(missing)))):
-                self.drawing.append((group, Forked(_draw_all, group, gap, comparisons, figures).result))
-        elif missing:
-            pngs = _draw_all(missing, gap, comparisons, figures)
-            self.drawing.append((missing, lambda: pngs))
+            for group in (ready[k::self.workers] for k in range(min(self.workers, len(ready)))):
+                self.drawing.append((group, Forked(_draw_all, group, gap, comparisons, self.figures).result))
+        elif ready:
+            pngs = _draw_all(ready, gap, comparisons, self.figures)
+            self.drawing.append((ready, lambda: pngs))
 
     def finish(self) -> None:
         """Wait for the figures being drawn, keep them, and write those read back from the cache."""
         from sim2real.io import write_bytes
 
+        assert set(self.keys) == set(FIGURES), f"figures never shown: {sorted(set(FIGURES) - set(self.keys))}"
         for group, drawn in self.drawing:
             for name, png in zip(group, drawn(), strict=True):
                 self.cache.put("figure", self.keys[name], png)
         for name, found in self.kept.items():
             if found is not None:
                 write_bytes(self.figures[name], found[0])
-
-
-def write_gap_figures(gap: Mapping[str, Any], comparisons: Sequence[Any], figures: Mapping[str, str | Path],
-                      workers: int = 1, cache: Any = None) -> None:
-    """The four figures of :class:`GapFigures`, drawn and written."""
-    GapFigures(gap, comparisons, figures, workers, cache).finish()
 
 
 def _fmt(x: float | None, digits: int = 3) -> str:
