@@ -169,10 +169,12 @@ def candidates_to_try(model_effects: Sequence[str], torque_source: str, forward:
     return tried, skipped
 
 
-def _trial_way(item: tuple[str, Mapping[str, Any]], model_effects: Sequence[str], **inputs: Any) -> fitting.FitResult:
-    """One way (:func:`sim2real.fitting.previous_ways`) of fitting the candidate ``item[0]`` on the current model."""
+def _trial_way(item: tuple[str, Mapping[str, Any]], model_effects: Sequence[str], **inputs: Any,
+               ) -> tuple[fitting.FitResult, np.ndarray] | None:
+    """One way (:func:`sim2real.fitting.previous_ways`) of fitting the candidate ``item[0]`` on the current model,
+    and its holdout residual (:func:`sim2real.fitting.rung._fit_way`)."""
     name, way = item
-    return fitting.fit([*model_effects, name], **inputs, **way)
+    return fitting._fit_way(way, effect_names=[*model_effects, name], **inputs)
 
 
 def trial_fits(names: Sequence[str], workers: int, *, model_effects: Sequence[str], nominal: Any, fit_data: Any,
@@ -192,7 +194,8 @@ def trial_fits(names: Sequence[str], workers: int, *, model_effects: Sequence[st
     if workers > 1 and len(items) > 1:
         import_solver()
     fits = map_forked(_trial_way, items, workers, {"model_effects": list(model_effects), "nominal": nominal,
-                                                    "data": fit_data, "settings": settings, "signals": fit_signals})
+                                                    "data": fit_data, "settings": settings, "signals": fit_signals,
+                                                    "holdout_data": holdout_data, "holdout_signals": holdout_signals})
     out = {}
     for name in names:
         candidate = [fit for (item_name, _), fit in zip(items, fits, strict=True) if item_name == name]

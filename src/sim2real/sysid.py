@@ -34,6 +34,7 @@ from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of 
 from sim2real.cache import FitCache
 from sim2real.inertial import program_store
 from sim2real.measurements import PreparedRun, estimate_noise_floor
+from sim2real.metrics import rmse
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -113,12 +114,12 @@ def fit_ladder(
         programs = ([[*effects, name] for name in candidates_to_try(
             effects, holdout_data.torque_source, holdout_signals.forward, candidates)[0]]
             if diagnose and cache.directory is not None and k == len(effect_names) else [])
-        result, _, carried = cache.get_or_compute(
+        result, residual, carried, free = cache.get_or_compute(
             "rung", cache.key(inputs, effects, previous, fit_settings),
-            functools.partial(fit_on_the_previous, effects, nominal, fit_data, holdout_data, previous, fit_settings,
+            functools.partial(_rung, effects, nominal, fit_data, holdout_data, previous, fit_settings,
                               fit_signals=fit_signals, holdout_signals=holdout_signals, workers=workers,
                               programs=programs))
-        metrics, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
+        metrics = {"torque_rmse": rmse(residual, holdout_data.joint_names)}
         x_floor = floor_units(residual, holdout_data.noise_floor)
         rung: dict[str, Any] = {
             "effects": effects,
@@ -129,9 +130,8 @@ def fit_ladder(
                         "torque_x_floor": {"overall": x_floor["overall"], "per_joint": dict(
                             zip(holdout_data.joint_names, x_floor["per_joint"], strict=True))}},
         }
-        if result.unconstrained is not None and result.consistency:
+        if free is not None:
             # The same rung without the physical constraints: what consistency costs (or gains) on holdout.
-            free, _ = holdout_metrics(result.unconstrained, nominal, holdout_data, holdout_signals)
             rung["metrics"]["unconstrained_torque_rmse"] = free["torque_rmse"]
             # Wall time stays out of the document (outputs are byte-identical on rebuild).
             rung["consistency"] = {k: v for k, v in result.consistency.items() if k != "solve_time_s"}
@@ -175,6 +175,21 @@ def fit_ladder(
             candidates=candidates, link=link, workers=workers,
         ))
     return round_floats(document), result
+
+
+def _rung(
+    effects: Sequence[str], nominal: NominalModel, fit_data: TorqueData, holdout_data: TorqueData,
+    previous: Mapping[str, np.ndarray] | None, settings: Mapping[str, Any], **options: Any,
+) -> tuple[FitResult, np.ndarray, str, dict[str, Any] | None]:
+    """One rung of :func:`fit_ladder` (:func:`fit_on_the_previous`) and, where it is constrained, the holdout
+    metrics of the same rung without the constraints: (fit, holdout residual, how its nonlinear parameters were
+    carried, unconstrained metrics or None), kept whole by the fit cache."""
+    result, residual, carried = fit_on_the_previous(effects, nominal, fit_data, holdout_data, previous, settings,
+                                                    **options)
+    free = None
+    if result.unconstrained is not None and result.consistency:
+        free, _ = holdout_metrics(result.unconstrained, nominal, holdout_data, options.get("holdout_signals"))
+    return result, residual, carried, free
 
 
 def fit_model(

@@ -142,7 +142,8 @@ def fit_on_the_previous(
     if workers > 1 and len(work) > 1:
         import_solver()
     fits = map_forked(_fit_way, work, workers, {
-        "effect_names": effect_names, "nominal": nominal, "data": fit_data, "settings": settings, "signals": fit_signals})
+        "effect_names": effect_names, "nominal": nominal, "data": fit_data, "settings": settings, "signals": fit_signals,
+        "holdout_data": holdout_data, "holdout_signals": holdout_signals})
     return better_way(fits[: len(ways)], effect_names, nominal, fit_data, holdout_data, previous, settings,
                       fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=uncertainty)
 
@@ -162,7 +163,7 @@ def previous_ways(previous: Mapping[str, np.ndarray], uncertainty: bool) -> list
 
 
 def better_way(
-    fits: Sequence[FitResult],
+    fits: Sequence[tuple[FitResult, np.ndarray]],
     effect_names: Sequence[str],
     nominal: NominalModel | None,
     fit_data: TorqueData,
@@ -174,35 +175,36 @@ def better_way(
     holdout_signals: Signals,
     uncertainty: bool,
 ) -> tuple[FitResult, np.ndarray, str]:
-    """Of the fits of :func:`previous_ways`, the one whose holdout residual is smaller, each joint in units of its
-    own floor (:func:`fit_on_the_previous`); held and asked for ``uncertainty``, it is fitted again with it."""
+    """Of the fits of :func:`previous_ways`, each with its holdout residual (:func:`_fit_way`), the one whose
+    residual is smaller, each joint in units of its own floor (:func:`fit_on_the_previous`); held and asked for
+    ``uncertainty``, it is fitted again with it."""
     weights = joint_weights(holdout_data.noise_floor, str({**DEFAULT_SETTINGS, **(settings or {})}["joint_weighting"]))
 
-    def judged(result: FitResult) -> tuple[np.ndarray, float]:
-        _, residual = holdout_metrics(result, nominal, holdout_data, holdout_signals)
-        return residual, float(np.sum((residual * weights) ** 2))
+    def score(residual: np.ndarray) -> float:
+        return float(np.sum((residual * weights) ** 2))
 
-    refined = fits[0]
-    residual, score = judged(refined)
+    refined, residual = fits[0]
     if not previous:
         return refined, residual, "refined"
-    held = fits[1]
-    held_residual, held_score = judged(held)
-    if held_score >= score:
+    held, held_residual = fits[1]
+    if score(held_residual) >= score(residual):
         return refined, residual, "refined"
     if uncertainty:
         held = fit(effect_names, nominal, fit_data, settings, signals=fit_signals, uncertainty=True,
                    nonlinear_fixed=previous)
+        _, held_residual = holdout_metrics(held, nominal, holdout_data, holdout_signals)  # the fit returned's, to the bit
     return held, held_residual, "held"
 
 
-def _fit_way(way: Mapping[str, Any], **inputs: Any) -> FitResult | None:
-    """:func:`fit` with one way of carrying the previous nonlinear parameters (:func:`fit_on_the_previous`), or
-    the program of the model ``way["program_for"]`` built (:func:`build_program`)."""
+def _fit_way(way: Mapping[str, Any], holdout_data: TorqueData, holdout_signals: Signals | None,
+             **inputs: Any) -> tuple[FitResult, np.ndarray] | None:
+    """:func:`fit` with one way of carrying the previous nonlinear parameters (:func:`fit_on_the_previous`), and
+    its holdout residual; or the program of the model ``way["program_for"]`` built (:func:`build_program`)."""
     if "program_for" in way:
         build_program(way["program_for"], inputs["nominal"], inputs["data"], inputs["signals"])
         return None
-    return fit(**inputs, **way)
+    result = fit(**inputs, **way)
+    return result, holdout_metrics(result, inputs["nominal"], holdout_data, holdout_signals)[1]
 
 
 def _consistent_fit(
