@@ -13,6 +13,8 @@ Pinocchio's dynamic parameter order per body: m, m*c (3), I about the joint fram
 
 from __future__ import annotations
 
+import functools
+
 from typing import Any
 
 import numpy as np
@@ -68,10 +70,19 @@ def correction_anchors(nominal: dict[str, Any]) -> np.ndarray:
     """
     total = np.asarray(nominal["inertial"], dtype=float).reshape(-1, 10)
     own = nominal.get("link_own_inertial", {})
+    links = tuple(nominal["body_links"])
+    # A pure function of these numbers, asked for by every bootstrap replicate's values: kept by their bytes.
+    return _anchors(total.tobytes(), links, tuple(
+        np.asarray(own[link], dtype=float).tobytes() if link in own else b"" for link in links)).copy()
+
+
+@functools.lru_cache(maxsize=16)
+def _anchors(total: bytes, links: tuple[str, ...], own: tuple[bytes, ...]) -> np.ndarray:
+    bodies = np.frombuffer(total, dtype=float).reshape(-1, 10)
     anchors = []
-    for b, link in enumerate(nominal["body_links"]):
-        candidate = np.asarray(own.get(link, total[b]), dtype=float)
-        anchors.append(candidate if physically_consistent(candidate) else total[b])
+    for b, link_own in enumerate(own[: len(links)]):
+        candidate = np.frombuffer(link_own, dtype=float) if link_own else bodies[b]
+        anchors.append(candidate if physically_consistent(candidate) else bodies[b])
     return np.asarray(anchors)
 
 
