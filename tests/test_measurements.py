@@ -145,10 +145,12 @@ def test_parquet_roundtrip_and_tau_cmd_fallback(tmp_path):
 
 
 def test_the_actuator_links_noise_floor_is_prepared_with_the_run_and_read_back(tmp_path):
-    """A run that logs tau and tau_cmd carries the actuator link's floor from its preparation (what tau has that
-    no filter of the command explains), through the prepared runs' file; one prepared without it gets it computed."""
+    """A run that logs tau and tau_cmd carries the actuator link's floor from the rule that prepares it (what tau
+    has that no filter of the command explains), through the prepared runs' file; one without it gets it computed."""
     from sim2real.actuator import command_noise_floor
-    from sim2real.measurements import MeasurementEntry, command_white_noise, read_prepared_runs, write_prepared_runs
+    from sim2real.measurements import (
+        MeasurementEntry, command_white_noise, read_prepared_runs, with_command_floor, write_prepared_runs,
+    )
 
     rng = np.random.default_rng(5)
     t = np.arange(6000) * 0.001
@@ -156,7 +158,7 @@ def test_the_actuator_links_noise_floor_is_prepared_with_the_run_and_read_back(t
     tau_cmd = 2.0 * qdd + rng.normal(scale=0.3, size=qdd.shape)
     tau = 0.9 * np.roll(tau_cmd, 4, axis=0) + rng.normal(scale=0.05, size=qdd.shape)  # a gain, a delay, noise
     write_run(tmp_path / "r.parquet", t, JOINTS, {"q": q, "tau": tau, "tau_cmd": tau_cmd}, META)
-    run = prepare_run(load_run(tmp_path / "r.parquet"))
+    run = with_command_floor(prepare_run(load_run(tmp_path / "r.parquet")))
     expected = command_white_noise(run.tau, run.tau_cmd, run.dt)
     assert run.command_torque_sigma.shape == (len(JOINTS),) and np.array_equal(run.command_torque_sigma, expected)
     assert np.all((expected > 0.02) & (expected < 0.2))  # the sensor's noise (0.05 N*m, differenced and robust)
@@ -164,7 +166,8 @@ def test_the_actuator_links_noise_floor_is_prepared_with_the_run_and_read_back(t
     back = read_prepared_runs(tmp_path / "runs.npz")[1][0]
     assert np.array_equal(command_noise_floor(back), expected)
     assert np.array_equal(command_noise_floor(dataclasses.replace(back, command_torque_sigma=np.zeros(0))), expected)
-    assert prepare_run(dataclasses.replace(load_run(tmp_path / "r.parquet"), tau=None)).command_torque_sigma.size == 0
+    only_commands = with_command_floor(prepare_run(dataclasses.replace(load_run(tmp_path / "r.parquet"), tau=None)))
+    assert only_commands.command_torque_sigma.size == 0
 
 
 def test_noise_floor_matches_white_torque_noise(tmp_path):

@@ -95,8 +95,8 @@ class PreparedRun:
     qd_measured: np.ndarray | None = None  # logged velocity on the grid (unfiltered), if any
     contact: np.ndarray | None = None
     raw_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per-joint white-noise std
-    # per joint, the RMS of tau that no actuator model can explain from tau_cmd (command_white_noise); empty
-    # unless the run logs both
+    # per joint, the RMS of tau that no actuator model can explain from tau_cmd (with_command_floor); empty
+    # until computed, and unless the run logs both
     command_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
@@ -390,9 +390,15 @@ def prepare_run(
         filter=filter_info, qd_measured=None if qd_measured is None else qd_measured[sl], contact=contact,
         raw_torque_sigma=white_noise_sigma(raw_torque[keep_raw]),
         torque_sensor=str(run.meta.get("torque_sensor", "motor")) if run.tau is not None else "motor",
-        command_torque_sigma=(command_white_noise(tau[sl], tau_cmd[sl], dt)
-                              if tau_cmd is not None and torque_source == "tau" else np.zeros(0)),
     )
+
+
+def with_command_floor(run: PreparedRun) -> PreparedRun:
+    """``run`` with its actuator-link noise floor (:func:`command_white_noise`, ``command_torque_sigma``) where it
+    logs both the measured and the commanded torque: computed once, by the rule that prepares the runs."""
+    if run.tau_cmd is None or run.torque_source != "tau" or run.command_torque_sigma.size:
+        return run
+    return dataclasses.replace(run, command_torque_sigma=command_white_noise(run.tau, run.tau_cmd, run.dt))
 
 
 def command_white_noise(tau: np.ndarray, tau_cmd: np.ndarray, dt: float) -> np.ndarray:
@@ -523,7 +529,8 @@ def prepare_for_model(
                              f"name the columns after the URDF's joints ({', '.join(probe.joint_names)})")
     probe = RigidBodyModel(urdf_path, runs[0].joint_names)
     limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(probe.joint_names, probe.lower, probe.upper, strict=True)}
-    return entries, prepare_runs(runs, settings, probe.joint_names, limits), settings
+    prepared = [with_command_floor(run) for run in prepare_runs(runs, settings, probe.joint_names, limits)]
+    return entries, prepared, settings
 
 
 # Prepared runs on disk (the rule ``prepare_runs``): one zip of .npy arrays and a JSON header, written with
