@@ -88,18 +88,19 @@ class RigidBodyModel:
         return np.asarray(vec, dtype=float)[self._perm].copy()
 
     def _to_pin(self, x: np.ndarray) -> np.ndarray:
-        out = np.empty(self.n)
-        out[self._perm] = x
+        """Samples (N, n) in the caller's joint order -> Pinocchio's, all at once (rows contiguous)."""
+        out = np.empty_like(x)
+        out[:, self._perm] = x
         return out
 
     def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Joint torques (N, n) of the nominal model: RNEA with armature, plus URDF damping and friction."""
         q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, qd, qdd))
+        pq, pqd, pqdd = self._to_pin(q), self._to_pin(qd), self._to_pin(qdd)
         tau = np.empty_like(q)
         for k in range(q.shape[0]):
-            t = pin.rnea(self.model, self.data, self._to_pin(q[k]), self._to_pin(qd[k]), self._to_pin(qdd[k]))
-            tau[k] = np.asarray(t)[self._perm]
-        return tau + self.damping * qd + self.friction * np.sign(qd)
+            tau[k] = pin.rnea(self.model, self.data, pq[k], pqd[k], pqdd[k])
+        return tau[:, self._perm] + self.damping * qd + self.friction * np.sign(qd)
 
     def drive_torque(self, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """The drive's part of :meth:`inverse_dynamics` (N, n): armature * qdd + damping * qd + friction * sign(qd).
@@ -111,10 +112,11 @@ class RigidBodyModel:
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
         q = np.atleast_2d(np.asarray(q, dtype=float))
+        pq = self._to_pin(q)
         out = np.empty_like(q)
         for k in range(q.shape[0]):
-            out[k] = np.asarray(pin.computeGeneralizedGravity(self.model, self.data, self._to_pin(q[k])))[self._perm]
-        return out
+            out[k] = pin.computeGeneralizedGravity(self.model, self.data, pq[k])
+        return out[:, self._perm]
 
     def inertial_parameters(self) -> np.ndarray:
         """Dynamic parameters (10 per body, Pinocchio order) of the moving bodies, shape (n_bodies*10,)."""
@@ -123,10 +125,8 @@ class RigidBodyModel:
     def regressor(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Joint-torque regressor, shape (N, n, 10*n_bodies): rnea (without armature) = Y @ params."""
         q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, qd, qdd))
+        pq, pqd, pqdd = self._to_pin(q), self._to_pin(qd), self._to_pin(qdd)
         out = np.empty((q.shape[0], self.n, INERTIAL_PARAMS_PER_BODY * (self.model.njoints - 1)))
         for k in range(q.shape[0]):
-            y = pin.computeJointTorqueRegressor(
-                self.model, self.data, self._to_pin(q[k]), self._to_pin(qd[k]), self._to_pin(qdd[k])
-            )
-            out[k] = np.asarray(y)[self._perm]
+            out[k] = np.asarray(pin.computeJointTorqueRegressor(self.model, self.data, pq[k], pqd[k], pqdd[k]))[self._perm]
         return out
