@@ -77,6 +77,20 @@ def test_a_hidden_actuator_effect_is_named_on_the_actuator_link_and_the_body_ver
         assert values["bias"]["panda_joint2"] == pytest.approx(-0.5, abs=0.02)
 
 
+def test_a_long_logs_delay_is_refined_on_windows_at_the_logs_own_step(lab, monkeypatch):
+    """Beyond refine_max_samples the actuator link refines on windows spread over the runs (its memory stays
+    put however long the log): the delay of a few samples is found as on every sample, and the link falls to
+    its floor. The cap is lowered here so that the lab's short runs exceed it."""
+    from sim2real import actuator
+
+    monkeypatch.setattr(actuator, "ACTUATOR_FIT_SETTINGS",
+                        {**actuator.ACTUATOR_FIT_SETTINGS, "refine_max_samples": 4000, "refine_windows_s": 1.0})
+    link = lab.model("sensor_actuation_delay", ["actuation_delay"])["actuator"]
+    delay = link["ladder"][-1]["params"]["actuation_delay"]["delay"]
+    assert delay == pytest.approx(0.006, abs=0.5e-3)
+    assert overall(link["ladder"][-1]) <= 1.5 * floor(link), (overall(link["ladder"][-1]), floor(link))
+
+
 @pytest.mark.parametrize("scenario", sorted(ACTUATOR_SCENARIOS))
 def test_without_the_sensor_the_report_says_what_the_commands_can_still_tell(lab, scenario):
     hidden = ACTUATOR_SCENARIOS[scenario]

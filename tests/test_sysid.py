@@ -8,6 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sim2real import sysid
 from sim2real.errors import InputError
@@ -60,6 +62,52 @@ def test_bootstrap_intervals_widen_for_few_blocks_and_uneven_ones():
     uneven = np.r_[np.ones(10), np.full(10, 0.1)]
     assert small_sample_stretch(uneven, 0.95) > small_sample_stretch(np.ones(20), 0.95)
     assert small_sample_stretch(np.ones(1), 0.95) == 1.0
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(replicates=st.integers(1, 9), size=st.integers(1, 12), rank_deficient=st.booleans(),
+       scales=st.lists(st.floats(-6, 6), min_size=12, max_size=12), seed=st.integers(0, 2**16))
+def test_stacked_lstsq_is_each_replicates_own_solve_to_the_bit(replicates, size, rank_deficient, scales, seed):
+    """The bootstrap solves its replicates in one call; every one is the solve np.linalg.lstsq gives it alone,
+    for badly scaled and singular Gram matrices too (the intervals in gap.json depend on it)."""
+    from sim2real.fitting.bootstrap import stacked_lstsq
+
+    rng = np.random.default_rng(seed)
+    columns = rng.normal(size=(replicates, 3 * size, size)) * 10.0 ** np.asarray(scales[:size])
+    if rank_deficient and size > 1:
+        columns[:, :, -1] = 2.0 * columns[:, :, 0]
+    grams = np.einsum("kij,kil->kjl", columns, columns)
+    rhs = rng.normal(size=(replicates, size))
+    stacked = stacked_lstsq(grams, rhs)
+    for k in range(replicates):
+        assert np.array_equal(stacked[k], np.linalg.lstsq(grams[k], rhs[k], rcond=1e-12)[0])
+    assert stacked_lstsq(grams[:, :, :0], rhs).shape == (replicates, 0)
+
+
+def test_the_refinement_runs_on_windows_of_the_runs_at_their_own_step_beyond_its_sample_cap():
+    from sim2real.effects import Signals
+    from sim2real.fitting.problem import refinement_rows
+
+    lengths = [70_000, 3_000, 50_000]  # three runs at 1 kHz, one shorter than a window
+    time = np.concatenate([np.arange(n) * 1e-3 for n in lengths])
+    bounds = np.cumsum([0, *lengths])
+    runs = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    zeros = np.zeros((len(time), 1))
+    signals = Signals(["j"], time, zeros, zeros, zeros, zeros, runs)
+    everything, none = refinement_rows(signals, 10**6, 5.0)
+    assert none is None and np.array_equal(everything, np.arange(len(time)))
+    every_kth, none = refinement_rows(signals, 12_000)
+    assert none is None and np.all(np.diff(every_kth) == 11)
+    rows, windows = refinement_rows(signals, 12_000, 5.0)
+    assert len(rows) <= 12_000 and len(windows) == 2  # 12 000 // 5 000 windows, the first and the last
+    assert windows[0].start == 0 and windows[-1].stop == len(rows)
+    for window in windows:
+        taken = rows[window]
+        assert np.all(np.diff(taken) == 1)  # contiguous: the log's own step
+        assert sum(run.start <= taken[0] and taken[-1] < run.stop for run in runs) == 1  # inside one run
+    assert rows[0] == 0 and rows[-1] > bounds[2]  # spread from the first run to the last
+    many, windows = refinement_rows(signals, 60_000, 5.0)
+    assert len(windows) == 12 and len(np.unique(many)) == len(many)
 
 
 def test_payload_and_delay_are_recovered(nominal):

@@ -55,8 +55,10 @@ LINK_MODES: dict[str, str] = {
     "motion; the actuator (command -> applied torque) cannot be seen",
 }
 
-# The actuator link is fitted on every sample: a delay of a few ms is a few samples.
-ACTUATOR_FIT_SETTINGS: dict[str, Any] = {"fit_rate_hz": None, "refine_max_samples": 10**9}
+# The actuator link is fitted on every sample: a delay of a few ms is a few samples. Its nonlinear refinement
+# (the delay, friction slopes) runs on up to two minutes at 1 kHz; a longer log's on 5 s windows spread over it
+# at the log's own step (fitting.problem.refinement_rows), so its memory does not grow with the log.
+ACTUATOR_FIT_SETTINGS: dict[str, Any] = {"fit_rate_hz": None, "refine_max_samples": 120_000, "refine_windows_s": 5.0}
 
 
 def link_mode(runs: Sequence[PreparedRun]) -> str:

@@ -15,6 +15,26 @@ from sim2real.inertial import column_norms
 
 
 DELAY_STEP_S = 2e-4  # half-step of the central difference of the prediction in the delay (bootstrap)
+BOOTSTRAP_CHUNK_BYTES = 64 * 2**20  # the replicates' resampled Gram matrices held at once
+
+
+def stacked_lstsq(a: np.ndarray, b: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
+    """``np.linalg.lstsq(a[k], b[k], rcond)[0]`` for every k of a stack ``a`` (K, m, n), ``b`` (K, m): the same
+    LAPACK solve to the bit, in one call of the gufunc that ``np.linalg.lstsq`` wraps one matrix at a time
+    (the bootstrap's replicates: a Python call per replicate cost more than its solve)."""
+    if a.shape[0] == 0 or a.shape[2] == 0:
+        return np.zeros((a.shape[0], a.shape[2]))
+    try:
+        from numpy.linalg import _umath_linalg
+    except ImportError:  # a numpy without it: one matrix at a time
+        return np.array([np.linalg.lstsq(a_k, b_k, rcond=rcond)[0] for a_k, b_k in zip(a, b, strict=True)])
+    def did_not_converge(*_: object) -> None:
+        raise np.linalg.LinAlgError("SVD did not converge in Linear Least Squares")
+
+    with np.errstate(call=did_not_converge, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        solution = _umath_linalg.lstsq(np.ascontiguousarray(a, dtype=float), np.asarray(b, dtype=float)[:, :, None],
+                                       float(rcond), signature="ddd->ddid")[0]
+    return solution[:, :, 0]
 
 
 def _block_bootstrap(
@@ -74,13 +94,23 @@ def _block_bootstrap(
     # The delay's steps are centred like the linear solves: the refinement ran on a subset of the samples.
     full_step = delay_rhs_arr.sum() / delay_grams_arr.sum() if shift is not None and delay_grams_arr.sum() > 0 else 0.0
     rng = np.random.default_rng(int(settings["seed"]))
+    picks = np.empty((replicates, len(grams)), dtype=np.int64)
+    for row in picks:  # one draw per replicate, as the replicates have always been drawn
+        row[:] = rng.integers(0, len(grams), size=len(grams))
+    # Each replicate's sums and solve as its own would be (the same bits), a few replicates at a time: the
+    # stacked Gram matrices of a long log's hundreds of blocks are large.
+    coefs = np.empty((replicates, p))
+    chunk = max(1, BOOTSTRAP_CHUNK_BYTES // max(1, grams_arr[:1].nbytes * len(grams)))
+    for start in range(0, replicates, chunk):
+        rows = picks[start : start + chunk]
+        coefs[start : start + chunk] = stacked_lstsq(grams_arr[rows].sum(axis=1), rhs_arr[rows].sum(axis=1)) / scale
+    if shift is not None:
+        replicate_grams, replicate_rhs = delay_grams_arr[picks].sum(axis=1), delay_rhs_arr[picks].sum(axis=1)
     out = []
-    for _ in range(replicates):
-        pick = rng.integers(0, len(grams), size=len(grams))
-        coef = np.linalg.lstsq(grams_arr[pick].sum(axis=0), rhs_arr[pick].sum(axis=0), rcond=1e-12)[0] / scale
+    for index, coef in enumerate(coefs):
         replicate_nonlinear = dict(nonlinear)
-        if shift is not None and delay_grams_arr[pick].sum() > 0:
-            step = delay_rhs_arr[pick].sum() / delay_grams_arr[pick].sum() - full_step
+        if shift is not None and replicate_grams[index] > 0:
+            step = replicate_rhs[index] / replicate_grams[index] - full_step
             replicate_nonlinear[shift.name] = np.array([float(np.clip(delay + stretch * step, 0.0, MAX_DELAY))])
         out.append((_split_theta(problem.effects, estimate + stretch * (coef - full), sizes), replicate_nonlinear))
     return out

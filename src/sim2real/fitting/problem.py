@@ -317,11 +317,10 @@ def _refine_nonlinear(
     x0 = np.where(at_bound & (lower < upper), default, x0)
     if held.all():
         return problem.split_nonlinear(x0)
-    # The refinement runs on a subset of whole runs' samples (every k-th: keeps the time grid uniform).
-    n_max = int(settings["refine_max_samples"])
-    step = max(1, int(np.ceil(len(signals.time) / n_max)))
-    rows = np.arange(0, len(signals.time), step)
+    rows, windows = refinement_rows(signals, int(settings["refine_max_samples"]), settings.get("refine_windows_s"))
     sub_signals = subset_signals(signals, rows)
+    if windows is not None:
+        sub_signals.segments = windows
     sub = _Problem(problem.effects, sub_signals, problem.states, problem.weights, reuse_design=True)
     sub_tau = tau[rows]
 
@@ -393,6 +392,32 @@ def subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
         regressor_fn=lambda: parent.regressor[rows], nominal=signals.nominal, forward=signals.forward,
         unshifted=None if signals.unshifted is None else signals.unshifted[rows], _regressor=regressor,
     )
+
+
+def refinement_rows(signals: Signals, max_samples: int, window_s: float | None = None) -> tuple[np.ndarray, list[slice] | None]:
+    """The samples the nonlinear refinement runs on, and their segments when they are not the runs'.
+
+    Up to ``max_samples``, all of them. Beyond: every k-th sample of whole runs (the time grid stays uniform,
+    k times coarser); or, with ``window_s``, windows of that length spread evenly over the runs, each its own
+    segment (a time shift never crosses them), so the sampling step stays the log's: the actuator link
+    refines a delay of a few samples. Its memory then stays put however long the log (the refinement's
+    Jacobian is samples x joints x parameters)."""
+    count = len(signals.time)
+    if window_s is None or count <= max_samples:
+        return np.arange(0, count, max(1, int(np.ceil(count / max_samples)))), None
+    dt = float(np.median(np.diff(signals.time)))
+    width = max(2, int(round(float(window_s) / dt)))
+    candidates = []
+    for seg in signals.segments:
+        length = seg.stop - seg.start
+        candidates.extend((start, start + width) for start in range(seg.start, seg.stop - width + 1, width))
+        if 0 < length < width:
+            candidates.append((seg.start, seg.stop))
+    wanted = max(1, max_samples // width)
+    picked = np.unique(np.linspace(0, len(candidates) - 1, min(wanted, len(candidates))).round().astype(int))
+    rows = np.concatenate([np.arange(*candidates[k]) for k in picked])
+    bounds = np.cumsum([0] + [candidates[k][1] - candidates[k][0] for k in picked])
+    return rows, [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
 def _values(effects: list[Effect], theta, nonlinear, signals: Signals, states) -> dict[str, Any]:

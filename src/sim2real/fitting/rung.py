@@ -24,6 +24,7 @@ from sim2real.metrics import rmse
 DEFAULT_SETTINGS: dict[str, Any] = {
     "fit_rate_hz": 200.0,  # fit and judge on a decimated grid: the filtered signals are smooth
     "refine_max_samples": 2000,  # samples used by the nonlinear refinement
+    "refine_windows_s": None,  # beyond refine_max_samples: windows of this length instead of every k-th sample
     "bootstrap_replicates": 200,
     "bootstrap_block_s": 1.0,
     "confidence": 0.95,
