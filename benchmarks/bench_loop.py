@@ -8,10 +8,11 @@ Median of ``--repeats``.
 
 Part 2, where a round spends its time and how that grows with the log: the lab's ``real_arm_like`` arm is
 logged for each ``--lengths`` (seconds; default 20 s, 2 min, 10 min), and one round (``sysid.run_sysid`` +
-``gap.build_gap_report``, the two rules' functions) runs in a fresh process under cProfile. Stages are the
+``gap.build_gap_report``, the two rules' functions, after ``prepare_for_model``) runs under cProfile. Stages are the
 cumulative time of the functions that do them (nested stages overlap: the diagnosis holds its candidates'
 fits; on the one thread of this round the gap report draws its figures inside compute_gap, before the
-replays). Peak memory is the process's maximum resident set.
+replays). Each rule runs in its own fresh process, as in the DAG; its peak memory is the maximum resident set
+of that process and of the workers it forked.
 
     python benchmarks/bench_loop.py [--repeats 3] [--lengths 20 120 600] [--skip-demo]
 """
@@ -67,12 +68,15 @@ def stage_times(stats: pstats.Stats) -> dict[str, float]:
     return out
 
 
-def one_round(tree: str, measurements: str, out: str, queue: multiprocessing.Queue) -> None:
-    """In a fresh process: sysid then gap report on ``measurements``; stage times, wall time, peak RSS."""
-    from sim2real.gap import build_gap_report
-    from sim2real.sysid import run_sysid
+RULES = ("prepare_runs", "sysid", "gap_report")
 
+
+def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiprocessing.Queue) -> None:
+    """In a fresh process, as the DAG runs it: one rule's function under cProfile; stage times, wall time and
+    the peak resident set of the process and of the workers it forked."""
+    from sim2real.gap import build_gap_report
     from sim2real.measurements import prepare_for_model, write_prepared_runs
+    from sim2real.sysid import run_sysid
 
     t = Path(tree)
     o = Path(out)
@@ -80,33 +84,38 @@ def one_round(tree: str, measurements: str, out: str, queue: multiprocessing.Que
     profiler = cProfile.Profile()
     started = time.perf_counter()
     profiler.enable()
-    # as the DAG does: the runs prepared once (rule prepare_runs), then the two rules of a round read them
-    write_prepared_runs(prepared, *prepare_for_model(measurements, t / "results/panda/panda.urdf", t))
-    prepare_s = time.perf_counter() - started
-    run_sysid("panda", t / "results/panda/panda.urdf", t / "configs/panda/robot.yaml", t / "configs/panda/model.yaml",
-              prepared, o / "ladder.json", o / "params.yaml", o / "calibration.yaml", root=t)
-    sysid_s = time.perf_counter() - started - prepare_s
-    build_gap_report("panda", t / "results/panda/panda.urdf", t / "results/panda/mjcf/panda.xml", prepared,
-                     o / "gap.json", o / "gap.md", {k: o / f"{k}.png" for k in ("torque", "residual_velocity",
-                                                                               "regimes", "ladder")},
-                     precomputed_path=o / "ladder.json", root=t)
+    if rule == "prepare_runs":  # once per log: a round reads the prepared runs
+        write_prepared_runs(prepared, *prepare_for_model(measurements, t / "results/panda/panda.urdf", t))
+    elif rule == "sysid":
+        run_sysid("panda", t / "results/panda/panda.urdf", t / "configs/panda/robot.yaml",
+                  t / "configs/panda/model.yaml", prepared, o / "ladder.json", o / "params.yaml",
+                  o / "calibration.yaml", root=t)
+    else:
+        build_gap_report("panda", t / "results/panda/panda.urdf", t / "results/panda/mjcf/panda.xml", prepared,
+                         o / "gap.json", o / "gap.md", {k: o / f"{k}.png" for k in ("torque", "residual_velocity",
+                                                                                   "regimes", "ladder")},
+                         precomputed_path=o / "ladder.json", root=t)
     profiler.disable()
-    total = time.perf_counter() - started
-    stages = stage_times(pstats.Stats(profiler))
+    seconds = time.perf_counter() - started
     peak_mib = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)) / 1024.0
-    queue.put({"prepare_s": prepare_s, "sysid_s": sysid_s, "gap_s": total - prepare_s - sysid_s, "total_s": total,
-               "stages": stages, "peak_mib": peak_mib})
+    queue.put({"seconds": seconds, "stages": stage_times(pstats.Stats(profiler)), "peak_mib": peak_mib})
 
 
 def profiled_round(tree: Path, measurements: Path, out: Path) -> dict:
+    """The runs prepared, then one round (sysid, gap report), each rule in its own fresh process."""
     out.mkdir(parents=True, exist_ok=True)
     context = multiprocessing.get_context("spawn")
-    queue = context.Queue()
-    process = context.Process(target=one_round, args=(str(tree), str(measurements), str(out), queue))
-    process.start()
-    result = queue.get()
-    process.join()
-    return result
+    rules = {}
+    for rule in RULES:
+        queue = context.Queue()
+        process = context.Process(target=one_rule, args=(rule, str(tree), str(measurements), str(out), queue))
+        process.start()
+        rules[rule] = queue.get()
+        process.join()
+    return {"prepare_s": rules["prepare_runs"]["seconds"], "sysid_s": rules["sysid"]["seconds"],
+            "gap_s": rules["gap_report"]["seconds"],
+            "stages": {stage: sum(r["stages"][stage] for r in rules.values()) for stage in STAGES},
+            "peak_mib": {rule: rules[rule]["peak_mib"] for rule in RULES}}
 
 
 def demo_rounds(tree: Path, repeats: int) -> None:
@@ -180,9 +189,11 @@ def main() -> None:
             listing = lab_runs(tree, length)
             results[length] = profiled_round(tree, listing, Path(tmp) / f"round_{int(length)}")
             r = results[length]
+            peaks = r["peak_mib"]
             print(f"\nreal_arm_like, {length:g} s fit + {length:g} s holdout at 1 kHz: prepare runs {r['prepare_s']:.1f} s, "
-                  f"sysid {r['sysid_s']:.1f} s, gap report {r['gap_s']:.1f} s, peak memory {r['peak_mib']:.0f} MiB "
-                  "(the largest process, cProfile on)")
+                  f"sysid {r['sysid_s']:.1f} s, gap report {r['gap_s']:.1f} s; peak memory: prepare runs "
+                  f"{peaks['prepare_runs']:.0f} MiB, sysid {peaks['sysid']:.0f} MiB, gap report {peaks['gap_report']:.0f} MiB "
+                  f"(each rule's process with its workers, cProfile on; target: a round under 2048 MiB)")
         lengths = list(results)
         print("\nstage [s]" + "".join(f"{f'{L:g} s log':>14s}" for L in lengths)
               + (f"{'x ' + f'{lengths[-1]:g}/{lengths[-2]:g}':>12s}" if len(lengths) > 1 else ""))

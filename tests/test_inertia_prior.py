@@ -59,3 +59,31 @@ def test_the_chosen_weight_lets_a_seen_body_move_and_holds_an_unseen_one_at_cad(
     still, *_ = choose(anchor, np.zeros(10), rows=400)
     assert still.weight == PRIOR_GRID[-1], still.scores
     assert still.scores[-1] == min(still.scores)
+
+
+@pytest.mark.parametrize("chunk_rows", [None, 97])
+def test_a_design_kept_as_blocks_chooses_and_solves_to_the_same_bits(anchor, monkeypatch, chunk_rows):
+    """The consistent fit hands its design over as blocks (inertial.DesignRows: rows put together a chunk at a
+    time, so a long log's weighted design never exists whole): the weight, every score and the solution are
+    the bits of the design put together, in one chunk (the demo) and in many."""
+    from sim2real import inertial
+
+    if chunk_rows is not None:
+        monkeypatch.setattr(inertial, "CHUNK_ROWS", chunk_rows)
+    design, target = regression(anchor, 0.3 * anchor, rows=300)
+    rng = np.random.default_rng(3)
+    design = np.concatenate([design, rng.normal(size=(300, 1, 2))], axis=2)  # the body and another effect's block
+    design = np.concatenate([design, 0.5 * design[:, :, ::-1]], axis=1)  # two joints, so rows cross samples
+    target = np.concatenate([target, 0.5 * target], axis=1)
+    weights = np.array([2.0, 0.25])
+    block = InertialBlock(slice(0, 10), anchor[None, :], [None])
+    lower = np.r_[np.full(10, -np.inf), 0.0, 0.0]
+    whole = design * weights[None, :, None]
+    kept = inertial.DesignRows([design[:, :, :10], design[:, :, 10:]], weights)
+    assert kept.shape == whole.reshape(-1, 12).shape
+    for rows in (slice(0, 600), slice(3, 8), slice(599, 600), slice(1, 2)):
+        assert np.array_equal(kept[rows], whole.reshape(-1, 12)[rows])
+    chosen = [choose_prior_weight(d, target * weights, lower, block, NOISE**2) for d in (whole, kept)]
+    assert chosen[0].weight == chosen[1].weight and chosen[0].scores == chosen[1].scores
+    solved = [solve_consistent(d, target * weights, lower, block, chosen[0].weight * NOISE**2) for d in (whole, kept)]
+    assert np.array_equal(solved[0].coefficients, solved[1].coefficients)

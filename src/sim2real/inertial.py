@@ -190,13 +190,13 @@ class _ConsistentProgram:
         self.problem = cp.Problem(cp.Minimize(objective), constraints)
         self.store_path: Path | None = None  # where to keep it once canonicalised (program_store)
 
-    def solve(self, design: np.ndarray, target: np.ndarray, regularization: float,
+    def solve(self, design: np.ndarray | DesignRows, target: np.ndarray, regularization: float,
               scale: np.ndarray | None = None) -> ConsistentSolution:
         """Solve on rows ``design`` (rows, p) ~ ``target`` (rows,) with the prior's weight ``regularization``;
         ``scale``: the columns' scale (default: their norms on these rows)."""
         return self.solve_prepared(self.prepare(design, target, scale), regularization)
 
-    def prepare(self, design: np.ndarray, target: np.ndarray, scale: np.ndarray | None = None,
+    def prepare(self, design: np.ndarray | DesignRows, target: np.ndarray, scale: np.ndarray | None = None,
                 rows: Sequence[slice] | None = None) -> _DataTerm:
         """The data term of rows ``design`` ~ ``target`` as the program takes it (the costly part of a solve:
         the cross-validation solves each training set at every prior weight, so it is computed once);
@@ -281,9 +281,38 @@ class _DataTerm:
 
 
 # Rows of a (samples x joints, coefficients) design summed at a time: a long log's data term costs a chunk's
-# memory, not the log's. A design of up to this many rows (the demo's, any log of a minute or two at the fit's
-# 200 Hz) is summed in one product, as it always was.
-CHUNK_ROWS = 1 << 18
+# memory, not the log's. A design of up to this many rows (the demo's; a log of about 45 s at the fit's
+# 200 Hz on 7 joints) is summed in one product, as it always was.
+CHUNK_ROWS = 1 << 16
+
+
+class DesignRows:
+    """The rows (samples x joints, p) of a design whose columns are kept as blocks (N, n, k_i), each joint's
+    rows multiplied by its weight: rows are put together when asked for (``design[a:b]``), a chunk at a time,
+    so the whole weighted design (on a long log the largest array of a fit) never exists. The rows are the
+    bits ``(np.concatenate(blocks, axis=2) * weights[None, :, None]).reshape(-1, p)[a:b]`` would hold."""
+
+    def __init__(self, blocks: Sequence[np.ndarray], weights: np.ndarray) -> None:
+        self.blocks = list(blocks)
+        self.weights = np.asarray(weights, dtype=float)
+        self.samples, self.joints = self.blocks[0].shape[:2]
+        self.shape = (self.samples * self.joints, sum(b.shape[2] for b in self.blocks))
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        start, stop, step = rows.indices(self.shape[0])
+        assert step == 1, "rows are taken as one contiguous range"
+        first, last = start // self.joints, -(-stop // self.joints)
+        part = np.concatenate([b[first:last] for b in self.blocks], axis=2)
+        part *= self.weights[None, :, None]
+        offset = first * self.joints
+        return part.reshape(-1, self.shape[1])[start - offset : stop - offset]
+
+
+def _as_rows(design: np.ndarray | DesignRows) -> tuple[np.ndarray | DesignRows, int, int]:
+    """A design (N, n, p) as its rows (N * n, p) (a view, or the :class:`DesignRows` themselves), N and n."""
+    if isinstance(design, DesignRows):
+        return design, design.samples, design.joints
+    return design.reshape(-1, design.shape[2]), design.shape[0], design.shape[1]
 
 
 def _chunks(rows: Sequence[slice]) -> list[list[slice]]:
@@ -303,12 +332,12 @@ def _chunks(rows: Sequence[slice]) -> list[list[slice]]:
     return [g for g in groups if g]
 
 
-def _rows_of(a: np.ndarray, group: Sequence[slice]) -> np.ndarray:
+def _rows_of(a: np.ndarray | DesignRows, group: Sequence[slice]) -> np.ndarray:
     """The rows of ``group`` (a view when it is one slice)."""
     return a[group[0]] if len(group) == 1 else np.concatenate([a[part] for part in group])
 
 
-def column_norms(a: np.ndarray, rows: Sequence[slice] | None = None) -> np.ndarray:
+def column_norms(a: np.ndarray | DesignRows, rows: Sequence[slice] | None = None) -> np.ndarray:
     """The Euclidean norm of each column of ``a`` (rows x columns) over ``rows`` (default: all), summed chunk
     by chunk (CHUNK_ROWS); numpy's own norm when the rows fit in one chunk."""
     groups = _chunks([slice(0, a.shape[0])] if rows is None else rows)
@@ -317,13 +346,13 @@ def column_norms(a: np.ndarray, rows: Sequence[slice] | None = None) -> np.ndarr
     return np.sqrt(sum(np.sum(_rows_of(a, group) ** 2, axis=0) for group in groups))
 
 
-def _column_scale(a: np.ndarray, rows: Sequence[slice] | None = None) -> np.ndarray:
+def _column_scale(a: np.ndarray | DesignRows, rows: Sequence[slice] | None = None) -> np.ndarray:
     # Scaled coefficients z = x * norm (unit-norm columns): a well-conditioned data term.
     norms = column_norms(a, rows)
     return np.where(norms > 1e-12 * max(norms.max(), 1e-300), norms, 1.0)
 
 
-def _normal_equations(design: np.ndarray, target: np.ndarray, scale: np.ndarray,
+def _normal_equations(design: np.ndarray | DesignRows, target: np.ndarray, scale: np.ndarray,
                       rows: Sequence[slice]) -> tuple[np.ndarray, np.ndarray, int]:
     """Gram matrix and right-hand side of the column-scaled rows, summed chunk by chunk; the row count."""
     gram = np.zeros((design.shape[1], design.shape[1]))
@@ -342,7 +371,7 @@ def _normal_equations(design: np.ndarray, target: np.ndarray, scale: np.ndarray,
 
 
 def solve_consistent(
-    design: np.ndarray,
+    design: np.ndarray | DesignRows,
     target: np.ndarray,
     lower: np.ndarray,
     inertial: InertialBlock | None,
@@ -354,7 +383,7 @@ def solve_consistent(
     ``lower``: (p,) lower bounds on x (-inf where none); ``regularization``: weight of the entropic
     divergence in (N*m)^2 (the data term is the mean squared residual).
     """
-    a = design.reshape(-1, design.shape[2])
+    a, _, _ = _as_rows(design)
     return _program(a.shape[1], lower, inertial).solve(a, target.reshape(-1), regularization)
 
 
@@ -438,6 +467,14 @@ PRIOR_BLOCKS = 4
 PRIOR_TOLERANCE = 0.01
 
 
+def _squared_residual(design: np.ndarray | DesignRows, target: np.ndarray, rows: slice, x: np.ndarray) -> float:
+    """Sum of squares of ``design[rows] @ x - target[rows]``, chunk by chunk (CHUNK_ROWS; one sum when they fit)."""
+    groups = _chunks([rows])
+    if len(groups) == 1:
+        return float(np.sum((_rows_of(design, groups[0]) @ x - _rows_of(target, groups[0])) ** 2))
+    return float(sum(np.sum((_rows_of(design, g) @ x - _rows_of(target, g)) ** 2) for g in groups))
+
+
 @dataclass
 class PriorChoice:
     """The inertial prior's weight chosen on held-out blocks: ``weight`` and each ``grid`` weight's
@@ -450,7 +487,7 @@ class PriorChoice:
 
 
 def choose_prior_weight(
-    design: np.ndarray,
+    design: np.ndarray | DesignRows,
     target: np.ndarray,
     lower: np.ndarray,
     inertial: InertialBlock,
@@ -464,10 +501,10 @@ def choose_prior_weight(
     left out; the score is the held-out RMS over every block. Contiguous blocks in time, not random
     rows: neighbouring samples share their noise and motion, so a random split would reward fitting it.
     """
-    p = design.shape[2]
-    joints = design.shape[1]
-    flat, flat_target = design.reshape(-1, p), target.reshape(-1)  # views: samples x joints rows
-    bounds = [(int(b[0]), int(b[-1]) + 1) for b in np.array_split(np.arange(design.shape[0]), blocks)]
+    flat, samples, joints = _as_rows(design)  # samples x joints rows
+    p = flat.shape[1]
+    flat_target = target.reshape(-1)
+    bounds = [(int(b[0]), int(b[-1]) + 1) for b in np.array_split(np.arange(samples), blocks)]
     scale = _column_scale(flat)
     program = _program(p, lower, inertial)
     squared = np.zeros(len(grid))
@@ -478,7 +515,7 @@ def choose_prior_weight(
         term = program.prepare(flat, flat_target, scale, train)
         for g, relative in enumerate(grid):
             solution = program.solve_prepared(term, relative * floor_variance)
-            squared[g] += float(np.sum((flat[held] @ solution.coefficients - flat_target[held]) ** 2))
+            squared[g] += _squared_residual(flat, flat_target, held, solution.coefficients)
     rows = bounds
     scores = np.sqrt(squared / max(target.size, 1))
     best = float(scores.min())

@@ -18,6 +18,9 @@ from sim2real.effects.actuation_delay import MAX_DELAY, shift_prediction
 from sim2real.fitting.data import kept_segments
 
 
+PREDICT_CHUNK_BYTES = 32 * 2**20  # the design's rows put together at once by _Problem.predict
+
+
 @dataclass
 class FitResult:
     effects: list[str]
@@ -106,14 +109,7 @@ class _Problem:
             for effect, columns in moving:
                 design[:, :, columns] = self.block(effect, nonlinear)
             return design, list(sizes)
-        blocks, sizes = [], []
-        for effect in self.effects:
-            if effect.time_shift:
-                sizes.append(0)
-                continue
-            cols = self.block(effect, nonlinear)
-            blocks.append(cols)
-            sizes.append(cols.shape[2])
+        blocks, sizes = self._blocks(nonlinear)
         n_samples, n = self.signals.q.shape
         design = np.concatenate(blocks, axis=2) if blocks else np.zeros((n_samples, n, 0))
         if self.reuse_design:
@@ -122,6 +118,18 @@ class _Problem:
                       if sizes[k] and effect.name not in self.static_columns]
             self._reused = (design, list(sizes), moving)
         return design, sizes
+
+    def _blocks(self, nonlinear: dict[str, np.ndarray]) -> tuple[list[np.ndarray], list[int]]:
+        """Each effect's columns (before the time shift; a time shift has none) and their sizes."""
+        blocks, sizes = [], []
+        for effect in self.effects:
+            if effect.time_shift:
+                sizes.append(0)
+                continue
+            cols = self.block(effect, nonlinear)
+            blocks.append(cols)
+            sizes.append(cols.shape[2])
+        return blocks, sizes
 
     def offsets(self, theta: dict[str, np.ndarray]) -> np.ndarray:
         total = np.zeros_like(self.signals.tau_nominal)
@@ -134,7 +142,23 @@ class _Problem:
 
     def predict(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray],
                 shifted: tuple[np.ndarray, list[int]] | None = None) -> np.ndarray:
-        """The prediction; ``shifted``: :meth:`shifted_design` at ``nonlinear`` when the caller has it already."""
+        """The prediction; ``shifted``: :meth:`shifted_design` at ``nonlinear`` when the caller has it already.
+
+        Without a time shift the design is put together a few thousand samples at a time, never whole (on a
+        long log the largest array of a fit): the same bits, as matmul multiplies sample by sample."""
+        if shifted is None and not self.reuse_design and self.delay(nonlinear) == 0.0:
+            blocks, sizes = self._blocks(nonlinear)
+            flat = _flatten_theta(self.effects, theta, sizes)
+            base = self.base(theta, nonlinear)
+            n_samples, n = self.signals.q.shape
+            out = np.empty(base.shape, dtype=np.result_type(base, flat))
+            step = max(1, PREDICT_CHUNK_BYTES // max(1, 8 * n * int(flat.size)))
+            for start in range(0, n_samples, step):
+                rows = slice(start, start + step)
+                design = (np.concatenate([b[rows] for b in blocks], axis=2) if blocks
+                          else np.zeros((len(base[rows]), n, 0)))
+                out[rows] = base[rows] + design @ flat
+            return out
         design, sizes = self.shifted_design(nonlinear) if shifted is None else shifted
         return self.base(theta, nonlinear) + design @ _flatten_theta(self.effects, theta, sizes)
 

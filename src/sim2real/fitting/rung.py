@@ -218,7 +218,8 @@ def _consistent_fit(
     with its own columns and lower bounds. Offsets that are not linear (a payload's own inertia) are
     held at the current estimate and updated by fixed-point iteration, as in the unconstrained fit.
     """
-    from sim2real.inertial import InfeasibleFit, choose_prior_weight, physically_consistent, solve_consistent
+    from sim2real.inertial import (DesignRows, InfeasibleFit, choose_prior_weight, physically_consistent,
+                                   solve_consistent)
 
     signals = problem.signals
     blocks, lower, inertial = _consistent_blocks(problem, nonlinear)
@@ -226,11 +227,15 @@ def _consistent_fit(
     record: dict[str, Any] = {"notes": []}
     if not blocks:
         return theta_free, free_residual, record
-    shifted = problem.shift(np.concatenate([b[2] for b in blocks], axis=2), [b[0] for b in blocks],
-                            [b[2].shape[2] for b in blocks], nonlinear)
-    # In the data term's units (each joint by its floor), made once: on a long log it is the largest array here.
-    weighted = shifted  # a new array (the blocks put together): weighted in place
-    weighted *= problem.weights[None, :, None]
+    # In the data term's units (each joint by its floor). On a long log the largest array of the fit: without a
+    # time shift its rows are put together a chunk at a time (DesignRows), never whole; the same bits.
+    weighted: np.ndarray | DesignRows
+    if problem.delay(nonlinear) == 0.0:
+        weighted = DesignRows([b[2] for b in blocks], problem.weights)
+    else:
+        weighted = problem.shift(np.concatenate([b[2] for b in blocks], axis=2), [b[0] for b in blocks],
+                                 [b[2].shape[2] for b in blocks], nonlinear)  # a new array: weighted in place
+        weighted *= problem.weights[None, :, None]
     bounds = np.concatenate(lower)
     floor = float(np.mean(np.asarray(data.noise_floor, dtype=float) ** 2))
     relative = settings["inertia_regularization"]
@@ -274,7 +279,7 @@ def _consistent_fit(
             "Check the torque signs and units of the runs and the URDF's inertials"
         )
         return theta_free, free_residual, record
-    del weighted  # before the prediction puts the design together again (a long log's largest array)
+    del weighted  # before the prediction (a long log's largest array, when it was put together)
     residual = data.tau - problem.predict(theta, nonlinear)
     record.update({"status": solution.status, "solve_time_s": solve_time})
     free_physical = _physical(problem, theta_free, signals)
