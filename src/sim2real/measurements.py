@@ -33,7 +33,7 @@ Preparation (``prepare_run``, per run) for the comparisons:
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -539,6 +539,9 @@ PREPARED_SUFFIX = ".npz"
 _PREPARED_ARRAYS = ("time", "q", "qd", "qdd", "tau", "tau_cmd", "q_cmd", "qd_measured", "contact", "raw_torque_sigma",
                     "command_torque_sigma")
 _SIGMAS = ("raw_torque_sigma", "command_torque_sigma")  # always arrays (empty when unknown)
+# What the fit reads of the prepared runs (sim2real.sysid.run_sysid): not the commanded positions, the logged
+# velocity or the contacts.
+FIT_ARRAYS = ("time", "q", "qd", "qdd", "tau", "tau_cmd", *_SIGMAS)
 
 
 def write_prepared_runs(
@@ -568,8 +571,11 @@ def write_prepared_runs(
                          json.dumps(header, sort_keys=True, indent=1))
 
 
-def read_prepared_runs(path: str | Path) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
-    """The file of :func:`write_prepared_runs`: (entries, prepared runs, settings), as they were written."""
+def read_prepared_runs(path: str | Path, arrays: Collection[str] | None = None,
+                       ) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
+    """The file of :func:`write_prepared_runs`: (entries, prepared runs, settings), as they were written.
+    ``arrays``: read only these of the runs' arrays (the others None; default: all): a 10-minute log at 1 kHz
+    holds 32 MB per signal and run, and the fit never reads the commanded positions or the logged velocity."""
     import json
     import zipfile
 
@@ -578,14 +584,14 @@ def read_prepared_runs(path: str | Path) -> tuple[list[MeasurementEntry], list[P
             header = json.loads(archive.read("header.json"))
             entries, runs = [], []
             for i, item in enumerate(header["runs"]):
-                arrays = {name: np.lib.format.read_array(archive.open(f"{i}/{name}.npy"), allow_pickle=False)
-                          for name in item["arrays"]}
+                read = {name: np.lib.format.read_array(archive.open(f"{i}/{name}.npy"), allow_pickle=False)
+                        for name in item["arrays"] if arrays is None or name in arrays}
                 entries.append(MeasurementEntry(item["entry"]["name"], Path(item["entry"]["path"]), item["entry"]["role"]))
                 runs.append(PreparedRun(
                     name=item["name"], joint_names=list(item["joint_names"]), dt=float(item["dt"]),
                     torque_source=item["torque_source"], torque_sensor=item["torque_sensor"], filter=item["filter"],
-                    **{name: arrays.get(name) for name in _PREPARED_ARRAYS if name not in _SIGMAS},
-                    **{name: arrays.get(name, np.zeros(0)) for name in _SIGMAS},
+                    **{name: read.get(name) for name in _PREPARED_ARRAYS if name not in _SIGMAS},
+                    **{name: read.get(name, np.zeros(0)) for name in _SIGMAS},
                 ))
     except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
         raise InputError(path, None, f"not a file of prepared runs ({exc})",
@@ -594,12 +600,13 @@ def read_prepared_runs(path: str | Path) -> tuple[list[MeasurementEntry], list[P
 
 
 def runs_for_model(
-    source: str | Path, urdf_path: str | Path, root: str | Path = ".",
+    source: str | Path, urdf_path: str | Path, root: str | Path = ".", arrays: Collection[str] | None = None,
 ) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
-    """Prepared runs from ``source``: a file of :func:`write_prepared_runs` (``.npz``), read back, or a
-    measurement list, read and prepared against the URDF (:func:`prepare_for_model`)."""
+    """Prepared runs from ``source``: a file of :func:`write_prepared_runs` (``.npz``), read back (``arrays``:
+    only these, :func:`read_prepared_runs`), or a measurement list, read and prepared against the URDF
+    (:func:`prepare_for_model`)."""
     if Path(source).suffix == PREPARED_SUFFIX:
-        return read_prepared_runs(source)
+        return read_prepared_runs(source, arrays)
     return prepare_for_model(source, urdf_path, root)
 
 

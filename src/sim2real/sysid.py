@@ -382,11 +382,11 @@ def run_sysid(
     """
     from sim2real.effects import calibration_from_params
     from sim2real.io import read_yaml, write_json, write_yaml
-    from sim2real.measurements import runs_for_model
+    from sim2real.measurements import FIT_ARRAYS, runs_for_model
 
     model_config = load_model_config(model_config_path)
     robot_config = read_yaml(robot_config_path) or {}
-    entries, prepared, _ = runs_for_model(measurement_list, urdf_path, root)
+    entries, prepared, _ = runs_for_model(measurement_list, urdf_path, root, FIT_ARRAYS)
     joints = prepared[0].joint_names
     cache = FitCache(cache_dir)
     nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"), cache=cache)

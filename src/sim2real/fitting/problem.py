@@ -146,21 +146,26 @@ class _Problem:
 
         Without a time shift the design is put together a few thousand samples at a time, never whole (on a
         long log the largest array of a fit): the same bits, as matmul multiplies sample by sample."""
-        if shifted is None and not self.reuse_design and self.delay(nonlinear) == 0.0:
-            blocks, sizes = self._blocks(nonlinear)
-            flat = _flatten_theta(self.effects, theta, sizes)
-            base = self.base(theta, nonlinear)
-            n_samples, n = self.signals.q.shape
-            out = np.empty(base.shape, dtype=np.result_type(base, flat))
-            step = max(1, PREDICT_CHUNK_BYTES // max(1, 8 * n * int(flat.size)))
-            for start in range(0, n_samples, step):
-                rows = slice(start, start + step)
-                design = (np.concatenate([b[rows] for b in blocks], axis=2) if blocks
-                          else np.zeros((len(base[rows]), n, 0)))
-                out[rows] = base[rows] + design @ flat
-            return out
+        if shifted is None and self.delay(nonlinear) == 0.0:
+            return self.predict_from_blocks(theta, nonlinear, *self._blocks(nonlinear))
         design, sizes = self.shifted_design(nonlinear) if shifted is None else shifted
         return self.base(theta, nonlinear) + design @ _flatten_theta(self.effects, theta, sizes)
+
+    def predict_from_blocks(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray],
+                            blocks: list[np.ndarray], sizes: list[int]) -> np.ndarray:
+        """:meth:`predict` without a time shift from the effects' columns (:meth:`_blocks`), the design put
+        together a few thousand samples at a time."""
+        flat = _flatten_theta(self.effects, theta, sizes)
+        base = self.base(theta, nonlinear)
+        n_samples, n = self.signals.q.shape
+        out = np.empty(base.shape, dtype=np.result_type(base, flat))
+        step = max(1, PREDICT_CHUNK_BYTES // max(1, 8 * n * int(flat.size)))
+        for start in range(0, n_samples, step):
+            rows = slice(start, start + step)
+            design = (np.concatenate([b[rows] for b in blocks], axis=2) if blocks
+                      else np.zeros((len(base[rows]), n, 0)))
+            out[rows] = base[rows] + design @ flat
+        return out
 
 
 def _flatten_theta(effects: list[Effect], theta: dict[str, np.ndarray], sizes: list[int]) -> np.ndarray:
@@ -194,15 +199,16 @@ class _ScaledBlock:
 
 
 def _scaled_block(block: np.ndarray, weights: np.ndarray | None) -> _ScaledBlock:
-    if weights is not None:
-        block = block * weights[None, :, None]
-    scale = np.linalg.norm(block.reshape(-1, block.shape[2]), axis=0)
+    weighted = block if weights is None else block * weights[None, :, None]
+    scale = np.linalg.norm(weighted.reshape(-1, weighted.shape[2]), axis=0)
     scale[scale == 0] = 1.0
-    acting = np.any(block != 0.0, axis=0)  # (n, k)
+    acting = np.any(weighted != 0.0, axis=0)  # (n, k)
+    del weighted  # each joint's rows are weighted again below, so a long log never holds both copies
     joints = []
     for j in range(block.shape[1]):
         cols = np.flatnonzero(acting[j])
-        joints.append((cols, block[:, j, cols] / scale[cols]))
+        rows = block[:, j, cols] if weights is None else block[:, j, cols] * weights[j]
+        joints.append((cols, rows / scale[cols]))
     return _ScaledBlock(joints, scale)
 
 
@@ -296,17 +302,25 @@ def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndar
                 cache: _GramCache | None = None):
     """Linear parameters at fixed nonlinear ones; offsets (payload inertia) by fixed-point iteration.
     ``cache``: the blocks that stay put between calls (:func:`_refine_nonlinear`)."""
-    shifted, sizes = problem.shifted_design(nonlinear)
+    # Without a time shift the effects' columns are solved as they are, never put together into one design (on a
+    # long log the largest array of a fit); the same values, so the same bits.
+    direct = problem.delay(nonlinear) == 0.0
+    if direct:
+        columns, sizes = problem._blocks(nonlinear)
+        blocks = [b for b in columns if b.shape[2]]
+    else:
+        shifted, sizes = problem.shifted_design(nonlinear)
+        blocks = _column_blocks(shifted, sizes)
     has_offset = any(type(e).offset is not Effect.offset for e in problem.effects)
     theta: dict[str, np.ndarray] = {}
     for _ in range(iterations if has_offset else 1):
-        blocks = _column_blocks(shifted, sizes)
         if cache is not None:
             cache.static = [e.name in problem.static_columns for e, size in zip(problem.effects, sizes, strict=True) if size]
         flat = _solve_blocks(blocks, tau - problem.base(theta, nonlinear), problem.weights, cache)
         theta = _split_theta(problem.effects, flat, sizes)
-    residual = tau - problem.predict(theta, nonlinear, (shifted, sizes))
-    return theta, residual, sizes
+    predicted = (problem.predict_from_blocks(theta, nonlinear, columns, sizes) if direct
+                 else problem.predict(theta, nonlinear, (shifted, sizes)))
+    return theta, tau - predicted, sizes
 
 
 def _refine_nonlinear(
