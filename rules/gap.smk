@@ -85,7 +85,7 @@ rule gap_report:
         "results/{robot}/logs/{campaign}gap_report.log",
     benchmark:
         "results/{robot}/benchmarks/{campaign}gap_report.tsv"
-    # the figures are drawn side by side (sim2real.report.write_gap_figures)
+    # the figures are drawn in worker processes while the replays run (sim2real.report.GapFigures)
     threads: 2
     resources:
         mem_mb=1024,

@@ -75,6 +75,9 @@ class Signals:
     # on the motion now, so the delay that shifts the command does not shift them.
     unshifted: np.ndarray | None = None
     _regressor: np.ndarray | None = None
+    # What effects compute once per signals (e.g. link_inertia's basis), keyed by the effect; never compared
+    # or digested (a leading underscore: sim2real.cache leaves it out).
+    _memo: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def n(self) -> int:

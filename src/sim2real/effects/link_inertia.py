@@ -24,6 +24,7 @@ from sim2real.inertial import entropic_divergence, physically_consistent
 
 RELATIVE_SINGULAR_TOL = 1e-3  # directions excited 1000x less than the best are left at nominal
 STRUCTURAL_ZERO = 1e-9  # relative column norm below which a parameter does not act at all
+NORM_CHUNK_ROWS = 1 << 15  # regressor rows whose squares are summed at a time (STRUCTURAL_ZERO's norms)
 # A body "moved" when the fit changed it beyond these (else it stayed at its URDF values).
 MOVED_MASS_FRACTION = 0.02
 MOVED_COM_M = 0.003
@@ -157,18 +158,30 @@ class LinkInertia(Effect):
     joint_local = False
 
     def prepare(self, signals: Signals) -> dict[str, Any]:
+        # The same signals give the same basis: the rungs and candidates of a round compute it once (on a long log
+        # this reads the whole regressor). Each fit gets its own dict: set_correction writes into it.
+        kept = signals._memo.get("link_inertia.prepare")
+        if kept is None:
+            kept = signals._memo["link_inertia.prepare"] = self._prepare(signals)
+        return {key: value.copy() if isinstance(value, np.ndarray) else value for key, value in kept.items()}
+
+    def _prepare(self, signals: Signals) -> dict[str, Any]:
         y = signals.regressor.reshape(-1, signals.regressor.shape[2])
         n_params = y.shape[1]
         # Work in relative units (parameter / its typical size on that body): the minimum-norm
         # correction and the consistency move are then the smallest *relative* changes to the URDF.
         scale = parameter_scales(np.asarray(signals.nominal["inertial"]))
-        yw = y * scale
-        norms = np.linalg.norm(yw, axis=0)
-        # Parameters that (numerically) never act on the measured joints are not identifiable at all.
+        # Parameters that (numerically) never act on the measured joints are not identifiable at all. Their norms
+        # are summed a chunk of rows at a time (they only meet a threshold: no copy of the regressor for them).
+        squares = np.zeros(n_params)
+        for start in range(0, y.shape[0], NORM_CHUNK_ROWS):
+            squares += np.sum((y[start : start + NORM_CHUNK_ROWS] * scale) ** 2, axis=0)
+        norms = np.sqrt(squares)
         active = np.flatnonzero(norms > STRUCTURAL_ZERO * norms.max())
-        ya = yw[:, active]
+        ya = y[:, active] * scale[active]  # the scaled active columns, as (y * scale)[:, active] to the bit
         # Eigen-decomposition of the Gram matrix = SVD of the stacked regressor, much cheaper.
         eigval, eigvec = np.linalg.eigh(ya.T @ ya)
+        del ya
         order = np.argsort(eigval)[::-1]
         singular = np.sqrt(np.clip(eigval[order], 0.0, None))
         rank = int(np.sum(singular > RELATIVE_SINGULAR_TOL * singular[0]))
