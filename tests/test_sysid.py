@@ -110,6 +110,30 @@ def test_the_refinement_runs_on_windows_of_the_runs_at_their_own_step_beyond_its
     assert len(windows) == 12 and len(np.unique(many)) == len(many)
 
 
+@settings(max_examples=30, deadline=None, derandomize=True)
+@given(samples=st.integers(1, 400), joints=st.integers(1, 7), columns=st.integers(1, 12), chunk=st.integers(1, 300),
+       weighted=st.booleans(), seed=st.integers(0, 2**16))
+def test_a_long_logs_block_is_scaled_chunk_by_chunk_to_the_same_bits(samples, joints, columns, chunk, weighted, seed):
+    """A long log's columns are weighted and their norms summed a chunk of samples at a time, never as one
+    weighted copy: the same scale, rows and acting columns as the block taken whole (the demo's path)."""
+    from sim2real.fitting import problem
+
+    rng = np.random.default_rng(seed)
+    block = rng.normal(size=(samples, joints, columns)) * 10.0 ** rng.normal(size=(samples, 1, 1))
+    block[:, rng.integers(0, joints), rng.integers(0, columns)] = 0.0  # a column that does not act on a joint
+    weights = rng.uniform(0.1, 10.0, size=joints) if weighted else None
+    whole = problem._scaled_block(block, weights)
+    original = problem.SCALE_CHUNK_ROWS
+    try:
+        problem.SCALE_CHUNK_ROWS = chunk
+        chunked = problem._scaled_block(block, weights)
+    finally:
+        problem.SCALE_CHUNK_ROWS = original
+    assert np.array_equal(whole.scale, chunked.scale)
+    for (cols_a, rows_a), (cols_b, rows_b) in zip(whole.joints, chunked.joints, strict=True):
+        assert np.array_equal(cols_a, cols_b) and np.array_equal(rows_a, rows_b)
+
+
 def test_payload_and_delay_are_recovered(nominal):
     payload = sysid.fit(["payload"], nominal, _data({"payload": (1.2, [0.02, 0.0, 0.12])}, [3]), FAST)
     assert payload.values["payload"]["mass"] == pytest.approx(1.2, rel=0.02)

@@ -19,6 +19,7 @@ from sim2real.fitting.data import kept_segments
 
 
 PREDICT_CHUNK_BYTES = 32 * 2**20  # the design's rows put together at once by _Problem.predict
+SCALE_CHUNK_ROWS = 1 << 16  # rows (samples x joints) of a block weighted at once to find its columns' norms
 
 
 @dataclass
@@ -199,11 +200,25 @@ class _ScaledBlock:
 
 
 def _scaled_block(block: np.ndarray, weights: np.ndarray | None) -> _ScaledBlock:
-    weighted = block if weights is None else block * weights[None, :, None]
-    scale = np.linalg.norm(weighted.reshape(-1, weighted.shape[2]), axis=0)
+    n_samples, n, k = block.shape
+    if k < 2 or n_samples * n <= SCALE_CHUNK_ROWS:
+        weighted = block if weights is None else block * weights[None, :, None]
+        scale = np.linalg.norm(weighted.reshape(-1, k), axis=0)
+        acting = np.any(weighted != 0.0, axis=0)  # (n, k)
+        del weighted  # each joint's rows are weighted again below, so a long log never holds both copies
+    else:
+        # A long log's block, a chunk of samples at a time: numpy sums the squares of a column over the rows one
+        # row after the other (two or more columns), so each chunk's sum continues the last (its first row):
+        # the same bits as np.linalg.norm of the whole weighted block, which never exists.
+        squares = np.zeros((0, k))
+        acting = np.zeros((n, k), dtype=bool)
+        step = max(1, SCALE_CHUNK_ROWS // n)
+        for start in range(0, n_samples, step):
+            part = block[start : start + step] if weights is None else block[start : start + step] * weights[None, :, None]
+            squares = np.add.reduce(np.concatenate([squares, (part * part).reshape(-1, k)]), axis=0, keepdims=True)
+            acting |= np.any(part != 0.0, axis=0)
+        scale = np.sqrt(squares[0])
     scale[scale == 0] = 1.0
-    acting = np.any(weighted != 0.0, axis=0)  # (n, k)
-    del weighted  # each joint's rows are weighted again below, so a long log never holds both copies
     joints = []
     for j in range(block.shape[1]):
         cols = np.flatnonzero(acting[j])
