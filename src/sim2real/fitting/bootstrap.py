@@ -11,7 +11,7 @@ import numpy as np
 
 from sim2real.effects.actuation_delay import MAX_DELAY
 from sim2real.fitting.problem import _Problem, _flatten_theta, _split_theta
-from sim2real.inertial import column_norms
+from sim2real.inertial import DesignRows, column_norms
 
 
 DELAY_STEP_S = 2e-4  # half-step of the central difference of the prediction in the delay (bootstrap)
@@ -55,12 +55,21 @@ def _block_bootstrap(
         return []
     signals = problem.signals
     weights = problem.weights
-    shifted, _ = problem.shifted_design(nonlinear)  # a new array (the effects' columns put together)
-    shifted *= weights[None, :, None]  # the replicates solve the same weighted problem as the fit
+    joints = signals.n
+    # The replicates solve the same weighted problem as the fit. Without a time shift the weighted design's rows
+    # are put together block by block (DesignRows; on a long log the whole would be the largest array here).
+    design: np.ndarray | DesignRows
+    if problem.delay(nonlinear) == 0.0:
+        columns = [b for b in problem._blocks(nonlinear)[0] if b.shape[2]]
+        design = DesignRows(columns, weights) if columns else np.zeros((len(signals.time) * joints, 0))
+    else:
+        shifted, _ = problem.shifted_design(nonlinear)  # a new array (the effects' columns put together)
+        shifted *= weights[None, :, None]
+        design = shifted.reshape(shifted.shape[0] * shifted.shape[1], shifted.shape[2])
     # Offsets (payload inertia) are held at the estimate: the replicates are linear solves.
     target = (tau - problem.base(theta, nonlinear)) * weights
-    rows, p = shifted.shape[0] * shifted.shape[1], shifted.shape[2]
-    scale = column_norms(shifted.reshape(rows, p))
+    p = design.shape[1]
+    scale = column_norms(design)
     scale[scale == 0] = 1.0
     if shift is not None:
         delay = float(nonlinear[shift.name][0])
@@ -75,7 +84,7 @@ def _block_bootstrap(
     for seg in signals.segments:
         for start in range(seg.start, seg.stop, block):
             stop = min(start + block, seg.stop)
-            a = (shifted[start:stop] / scale).reshape((stop - start) * shifted.shape[1], p)
+            a = design[start * joints : stop * joints] / scale
             y = target[start:stop].reshape(-1)
             grams.append(a.T @ a)
             rhs.append(a.T @ y)
