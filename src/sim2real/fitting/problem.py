@@ -222,8 +222,9 @@ def _scaled_block(block: np.ndarray, weights: np.ndarray | None) -> _ScaledBlock
     joints = []
     for j in range(block.shape[1]):
         cols = np.flatnonzero(acting[j])
-        rows = block[:, j, cols] if weights is None else block[:, j, cols] * weights[j]
-        joints.append((cols, rows / scale[cols]))
+        rows = block[:, j, cols] if weights is None else block[:, j, cols] * weights[j]  # a new array either way
+        rows /= scale[cols]
+        joints.append((cols, rows))
     return _ScaledBlock(joints, scale)
 
 
