@@ -200,6 +200,7 @@ def fit_model(
     robot: str = "{robot}",
     workers: int = 1,
     cache: FitCache | None = None,
+    release_runs: bool = False,
 ) -> tuple[dict[str, Any], list[FitResult]]:
     """Both links of the model (:mod:`sim2real.actuator`) on prepared runs by role (``fit``, ``holdout``).
 
@@ -207,7 +208,9 @@ def fit_model(
     without a torque sensor: both links together, judged on the command); with a sensor and commands the
     actuator link's are under ``actuator``; ``links`` says what these runs can tell apart. Returns the
     ``ladder.json`` content and the last rung's fit of each link fitted. ``workers``: processes the
-    diagnoses fit their candidates on; ``cache``: fits of earlier rounds (:func:`fit_ladder`).
+    diagnoses fit their candidates on; ``cache``: fits of earlier rounds (:func:`fit_ladder`);
+    ``release_runs``: empty the lists of ``runs`` once both links have what they need of them (the caller
+    holds no other reference: a 10-minute log's runs at 1 kHz are hundreds of MB the body link does not need).
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
@@ -225,6 +228,12 @@ def fit_model(
     # The actuator link does not depend on the body link: on two or more threads it is fitted beside it.
     beside = (Forked(_actuator_link, effect_names, nominal, runs, settings, robot, sensor, 1, cache, fork=workers > 1)
               if mode == "separate" else None)
+    if release_runs:
+        if beside is not None and beside.process is None:
+            beside = _Done(beside.result())  # on one process the actuator link first, while the runs are here
+        for listed in runs.values():
+            if isinstance(listed, list):
+                listed.clear()
     document, result = fit_ladder(
         body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
         candidates=actuator.candidates_of_link("body", sensor) if mode == "separate" or sensor == "link" else None,
@@ -247,6 +256,16 @@ def fit_model(
         results.append(link_result)
     document["links"] = round_floats(actuator.separability(mode, effect_names, confounded, sensor))
     return document, results
+
+
+class _Done:
+    """A result already computed, asked for as a :class:`sim2real.forked.Forked` one is."""
+
+    def __init__(self, value: Any) -> None:
+        self.value = value
+
+    def result(self) -> Any:
+        return self.value
 
 
 def _actuator_link(
@@ -393,13 +412,14 @@ def run_sysid(
     by_role: dict[str, list[PreparedRun]] = {"fit": [], "holdout": []}
     for entry, run in zip(entries, prepared, strict=True):
         by_role[entry.role].append(run)
+    del prepared  # by_role holds the runs alone: fit_model empties it once the links have what they need
     for role in ("fit", "holdout"):
         if not by_role[role]:
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
     with program_store(cache_dir):  # the consistent fit's canonicalised programs, kept beside the fits
         document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot,
-                                      workers=threads, cache=cache)
+                                      workers=threads, cache=cache, release_runs=True)
     params = params_document(results, nominal, document["torque_source"], robot)
     write_json(ladder_json, document)
     write_yaml(params_yaml, params)
