@@ -412,7 +412,7 @@ def run_sysid(
     by_role: dict[str, list[PreparedRun]] = {"fit": [], "holdout": []}
     for entry, run in zip(entries, prepared, strict=True):
         by_role[entry.role].append(run)
-    del prepared  # by_role holds the runs alone: fit_model empties it once the links have what they need
+    del prepared, run  # by_role holds the runs alone: fit_model empties it once the links have what they need
     for role in ("fit", "holdout"):
         if not by_role[role]:
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",

@@ -199,13 +199,14 @@ class _ScaledBlock:
     scale: np.ndarray
 
 
-def _scaled_block(block: np.ndarray, weights: np.ndarray | None) -> _ScaledBlock:
+def _block_scale(block: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The weighted block's column norms (1 where a column is all zero) and which columns act on each joint (n, k)."""
     n_samples, n, k = block.shape
     if k < 2 or n_samples * n <= SCALE_CHUNK_ROWS:
         weighted = block if weights is None else block * weights[None, :, None]
         scale = np.linalg.norm(weighted.reshape(-1, k), axis=0)
         acting = np.any(weighted != 0.0, axis=0)  # (n, k)
-        del weighted  # each joint's rows are weighted again below, so a long log never holds both copies
+        del weighted  # each joint's rows are weighted again later, so a long log never holds both copies
     else:
         # A long log's block, a chunk of samples at a time: numpy sums the squares of a column over the rows one
         # row after the other (two or more columns), so each chunk's sum continues the last (its first row):
@@ -219,13 +220,47 @@ def _scaled_block(block: np.ndarray, weights: np.ndarray | None) -> _ScaledBlock
             acting |= np.any(part != 0.0, axis=0)
         scale = np.sqrt(squares[0])
     scale[scale == 0] = 1.0
+    return scale, acting
+
+
+def _joint_rows(block: np.ndarray, weights: np.ndarray | None, joint: int, cols: np.ndarray,
+                scale: np.ndarray) -> np.ndarray:
+    """Joint ``joint``'s rows of the block's columns ``cols``, weighted and on unit-norm columns (a new array)."""
+    rows = block[:, joint, cols] if weights is None else block[:, joint, cols] * weights[joint]
+    rows /= scale[cols]
+    return rows
+
+
+def _scaled_block(block: np.ndarray, weights: np.ndarray | None) -> _ScaledBlock:
+    scale, acting = _block_scale(block, weights)
     joints = []
     for j in range(block.shape[1]):
         cols = np.flatnonzero(acting[j])
-        rows = block[:, j, cols] if weights is None else block[:, j, cols] * weights[j]  # a new array either way
-        rows /= scale[cols]
-        joints.append((cols, rows))
+        joints.append((cols, _joint_rows(block, weights, j, cols, scale)))
     return _ScaledBlock(joints, scale)
+
+
+def _normal_equations_by_joint(blocks: Sequence[np.ndarray], target: np.ndarray, weights: np.ndarray | None,
+                               ) -> tuple[list[list[np.ndarray]], list[np.ndarray], list[np.ndarray]]:
+    """Each pair of blocks' product and each block's right-hand side, as :func:`_block_product` and
+    :func:`_block_rhs` sum them (joint by joint, in joint order: the same bits), with one joint's scaled rows
+    held at a time instead of every joint's (a long log's copy of its blocks); and the blocks' scales."""
+    heads = [_block_scale(block, weights) for block in blocks]
+    products = [[np.zeros((heads[i][0].size, heads[k][0].size)) for k in range(len(blocks))] for i in range(len(blocks))]
+    rhs = [np.zeros(scale.size) for scale, _ in heads]
+    for j in range(target.shape[1]):
+        rows = []
+        for block, (scale, acting) in zip(blocks, heads, strict=True):
+            cols = np.flatnonzero(acting[j])
+            rows.append((cols, _joint_rows(block, weights, j, cols, scale)))
+        for i, (left_cols, left_rows) in enumerate(rows):
+            if left_cols.size:
+                rhs[i][left_cols] += left_rows.T @ target[:, j]
+            for k in range(i, len(rows)):
+                right_cols, right_rows = rows[k]
+                if left_cols.size and right_cols.size:
+                    products[i][k][np.ix_(left_cols, right_cols)] += left_rows.T @ right_rows
+    return products, rhs, [scale for scale, _ in heads]
 
 
 def _block_product(left: _ScaledBlock, right: _ScaledBlock) -> np.ndarray:
@@ -297,21 +332,26 @@ def _solve_blocks(blocks: Sequence[np.ndarray], target: np.ndarray, weights: np.
     if not blocks:
         return np.zeros(0)
     weighted_target = target if weights is None else target * weights[None, :]
-    scaled = [cache.scaled(i, block, weights) if cache is not None else _scaled_block(block, weights)
-              for i, block in enumerate(blocks)]
-    bounds = np.cumsum([0] + [b.scale.size for b in scaled])
+    if cache is None:
+        products, block_rhs, scales = _normal_equations_by_joint(blocks, weighted_target, weights)
+    else:
+        scaled = [cache.scaled(i, block, weights) for i, block in enumerate(blocks)]
+        scales = [b.scale for b in scaled]
+        block_rhs = [cache.rhs(i, left, weighted_target) for i, left in enumerate(scaled)]
+        products = [[cache.product(i, k, left, scaled[k]) if k >= i else None for k in range(len(scaled))]
+                    for i, left in enumerate(scaled)]
+    bounds = np.cumsum([0] + [scale.size for scale in scales])
     gram = np.empty((bounds[-1], bounds[-1]))
     rhs = np.empty(bounds[-1])
-    for i, left in enumerate(scaled):
+    for i in range(len(scales)):
         rows = slice(bounds[i], bounds[i + 1])
-        rhs[rows] = cache.rhs(i, left, weighted_target) if cache is not None else _block_rhs(left, weighted_target)
-        for j in range(i, len(scaled)):
-            cols = slice(bounds[j], bounds[j + 1])
-            product = cache.product(i, j, left, scaled[j]) if cache is not None else _block_product(left, scaled[j])
-            gram[rows, cols] = product
-            gram[cols, rows] = product.T
+        rhs[rows] = block_rhs[i]
+        for k in range(i, len(scales)):
+            cols = slice(bounds[k], bounds[k + 1])
+            gram[rows, cols] = products[i][k]
+            gram[cols, rows] = products[i][k].T
     coef = np.linalg.lstsq(gram, rhs, rcond=1e-12)[0]
-    return coef / np.concatenate([b.scale for b in scaled])
+    return coef / np.concatenate(scales)
 
 
 def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndarray], iterations: int = 3,
