@@ -77,7 +77,6 @@ import argparse
 import contextlib
 import dataclasses
 import io
-import os
 import statistics
 import sys
 import tempfile
@@ -99,7 +98,6 @@ from gap_fixtures import PANDA_JOINTS, build_dev_panda  # noqa: E402
 
 from sim2real import sysid  # noqa: E402
 from sim2real.fitting import subset_signals  # noqa: E402
-from sim2real.forked import map_forked  # noqa: E402
 from sim2real.lab import (  # noqa: E402
     arm_spec, load_lab_config, run_lab_scenario_run, scenario_runs, simulate_run, write_truth,
 )
@@ -124,8 +122,6 @@ FIT_RATE_HZ = 200.0  # our fit grid (the package default)
 SLIDING_SPEED = 0.1  # rad/s: friction case, our fit uses a joint's samples at least this fast (see _friction_ours)
 HELD_SMOOTHING_RAD_S = 1e-3  # coulomb_friction's smoothing velocity held at its lower bound on those samples
 BOOTSTRAP = {"replicates": 200, "block_s": 1.0, "confidence": 0.95, "seed": 0}  # the package defaults
-# mujoco.sysid rolls its chunks out on os.cpu_count() threads (residual._NUM_CPUS): ours gets as many processes.
-TOOLBOX_THREADS = os.cpu_count() or 1
 
 
 # ---------------------------------------------------------------------------------------------
@@ -239,8 +235,7 @@ def sliding_rows(data: sysid.TorqueData, joint: int, speed: float = SLIDING_SPEE
     return np.flatnonzero(np.abs(data.qd[:, joint]) >= speed)
 
 
-def _friction_ours(nominal, data, speed: float = SLIDING_SPEED, settings: dict[str, Any] | None = None,
-                   workers: int = TOOLBOX_THREADS):
+def _friction_ours(nominal, data, speed: float = SLIDING_SPEED, settings: dict[str, Any] | None = None):
     """Each joint's friction from ``sysid.fit`` on the rows where that joint slides, smoothing held.
 
     The lab's friction is MuJoCo's frictionloss, a soft constraint: below a joint-dependent speed
@@ -250,26 +245,18 @@ def _friction_ours(nominal, data, speed: float = SLIDING_SPEED, settings: dict[s
     joint's friction depends only on its own torque rows: joint j's value and interval come from a fit
     on its sliding rows. The smoothing velocity is held at its lower bound (1 mrad/s): on those rows
     tanh(|qd| / v_s) = 1, so the package's bootstrap, conditional on v_s, misses no uncertainty.
-    The joints' fits run side by side on ``workers`` forked processes (:func:`sim2real.forked.map_forked`,
-    the package's own way to use a rule's threads), as many as the toolbox's rollout has threads.
     """
     held = {"coulomb_friction": np.full(len(JOINTS), HELD_SMOOTHING_RAD_S)}
+    values, bounds = np.full(len(JOINTS), np.nan), np.full((len(JOINTS), 2), np.nan)
+    result = None
     signals = sysid.make_signals(nominal, data)  # the nominal model on the run once, each joint's rows taken of it
-    fits = map_forked(_friction_of_joint, range(len(JOINTS)), workers, {
-        "nominal": nominal, "data": data, "signals": signals, "speed": speed, "settings": settings, "held": held})
-    values = np.array([value for _, value, _ in fits])
-    bounds = np.array([interval for _, _, interval in fits])
-    return _friction_with(fits[-1][0], nominal, values), values, bounds
-
-
-def _friction_of_joint(index: int, nominal, data, signals, speed: float, settings, held):
-    """One joint's fit of :func:`_friction_ours`: (the fit, the joint's friction, its interval)."""
-    joint = JOINTS[index]
-    rows = sliding_rows(data, index, speed)
-    result = sysid.fit(["coulomb_friction"], nominal, data.subset(rows), settings,
-                       signals=subset_signals(signals, rows), nonlinear_fixed=held)
-    interval = result.intervals.get("coulomb_friction", {}).get("friction", {}).get(joint, [np.nan] * 2)
-    return result, float(result.values["coulomb_friction"]["friction"][joint]), np.asarray(interval, dtype=float)
+    for index, joint in enumerate(JOINTS):
+        rows = sliding_rows(data, index, speed)
+        result = sysid.fit(["coulomb_friction"], nominal, data.subset(rows), settings,
+                           signals=subset_signals(signals, rows), nonlinear_fixed=held)
+        values[index] = result.values["coulomb_friction"]["friction"][joint]
+        bounds[index] = result.intervals.get("coulomb_friction", {}).get("friction", {}).get(joint, [np.nan] * 2)
+    return _friction_with(result, nominal, values), values, bounds
 
 
 def _sliding_entries(data: sysid.TorqueData) -> np.ndarray:
