@@ -297,10 +297,18 @@ class DesignRows:
         self.weights = np.asarray(weights, dtype=float)
         self.samples, self.joints = self.blocks[0].shape[:2]
         self.shape = (self.samples * self.joints, sum(b.shape[2] for b in self.blocks))
+        self._whole: np.ndarray | None = None
 
     def __getitem__(self, rows: slice) -> np.ndarray:
         start, stop, step = rows.indices(self.shape[0])
         assert step == 1, "rows are taken as one contiguous range"
+        if self.shape[0] <= CHUNK_ROWS:  # a design of one chunk (the demo's) is put together once, then viewed
+            if self._whole is None:
+                self._whole = self._rows(0, self.shape[0])
+            return self._whole[start:stop]
+        return self._rows(start, stop)
+
+    def _rows(self, start: int, stop: int) -> np.ndarray:
         first, last = start // self.joints, -(-stop // self.joints)
         part = np.concatenate([b[first:last] for b in self.blocks], axis=2)
         part *= self.weights[None, :, None]
