@@ -359,8 +359,9 @@ def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndar
     """Linear parameters at fixed nonlinear ones; offsets (payload inertia) by fixed-point iteration.
     ``cache``: the blocks that stay put between calls (:func:`_refine_nonlinear`)."""
     # Without a time shift the effects' columns are solved as they are, never put together into one design (on a
-    # long log the largest array of a fit); the same values, so the same bits.
-    direct = problem.delay(nonlinear) == 0.0
+    # long log the largest array of a fit); the same values, so the same bits. The refinement's small problem
+    # keeps its one design, whose moving columns are rewritten in place at each step (reuse_design): faster.
+    direct = problem.delay(nonlinear) == 0.0 and not problem.reuse_design
     if direct:
         columns, sizes = problem._blocks(nonlinear)
         blocks = [b for b in columns if b.shape[2]]
