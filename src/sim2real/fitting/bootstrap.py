@@ -15,7 +15,7 @@ from sim2real.inertial import DesignRows, column_norms
 
 
 DELAY_STEP_S = 2e-4  # half-step of the central difference of the prediction in the delay (bootstrap)
-BOOTSTRAP_CHUNK_BYTES = 64 * 2**20  # the replicates' resampled Gram matrices held at once
+BOOTSTRAP_CHUNK_BYTES = 4 * 2**20  # the replicates' resampled Gram matrices held at once (kept within the CPU cache)
 
 
 def stacked_lstsq(a: np.ndarray, b: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
