@@ -116,6 +116,7 @@ def test_the_refinement_runs_on_windows_of_the_runs_at_their_own_step_beyond_its
 def test_a_long_logs_block_is_scaled_chunk_by_chunk_to_the_same_bits(samples, joints, columns, chunk, weighted, seed):
     """A long log's columns are weighted and their norms summed a chunk of samples at a time, never as one
     weighted copy: the same scale, rows and acting columns as the block taken whole (the demo's path)."""
+    from sim2real import inertial
     from sim2real.fitting import problem
 
     rng = np.random.default_rng(seed)
@@ -123,12 +124,12 @@ def test_a_long_logs_block_is_scaled_chunk_by_chunk_to_the_same_bits(samples, jo
     block[:, rng.integers(0, joints), rng.integers(0, columns)] = 0.0  # a column that does not act on a joint
     weights = rng.uniform(0.1, 10.0, size=joints) if weighted else None
     whole = problem._scaled_block(block, weights)
-    original = problem.SCALE_CHUNK_ROWS
+    original = inertial.CHUNK_ROWS
     try:
-        problem.SCALE_CHUNK_ROWS = chunk
+        inertial.CHUNK_ROWS = chunk
         chunked = problem._scaled_block(block, weights)
     finally:
-        problem.SCALE_CHUNK_ROWS = original
+        inertial.CHUNK_ROWS = original
     assert np.array_equal(whole.scale, chunked.scale)
     for (cols_a, rows_a), (cols_b, rows_b) in zip(whole.joints, chunked.joints, strict=True):
         assert np.array_equal(cols_a, cols_b) and np.array_equal(rows_a, rows_b)

@@ -15,11 +15,11 @@ from scipy import optimize
 
 from sim2real.effects import Effect, Signals
 from sim2real.effects.actuation_delay import MAX_DELAY, shift_prediction
+from sim2real import inertial
 from sim2real.fitting.data import kept_segments
 
 
 PREDICT_CHUNK_BYTES = 32 * 2**20  # the design's rows put together at once by _Problem.predict
-SCALE_CHUNK_ROWS = 1 << 16  # rows (samples x joints) of a block weighted at once to find its columns' norms
 
 
 @dataclass
@@ -202,7 +202,7 @@ class _ScaledBlock:
 def _block_scale(block: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """The weighted block's column norms (1 where a column is all zero) and which columns act on each joint (n, k)."""
     n_samples, n, k = block.shape
-    if k < 2 or n_samples * n <= SCALE_CHUNK_ROWS:
+    if k < 2 or n_samples * n <= inertial.CHUNK_ROWS:  # one chunk (the demo's): numpy's own norm
         weighted = block if weights is None else block * weights[None, :, None]
         scale = np.linalg.norm(weighted.reshape(-1, k), axis=0)
         acting = np.any(weighted != 0.0, axis=0)  # (n, k)
@@ -213,7 +213,7 @@ def _block_scale(block: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndar
         # the same bits as np.linalg.norm of the whole weighted block, which never exists.
         squares = np.zeros((0, k))
         acting = np.zeros((n, k), dtype=bool)
-        step = max(1, SCALE_CHUNK_ROWS // n)
+        step = max(1, inertial.CHUNK_ROWS // n)
         for start in range(0, n_samples, step):
             part = block[start : start + step] if weights is None else block[start : start + step] * weights[None, :, None]
             squares = np.add.reduce(np.concatenate([squares, (part * part).reshape(-1, k)]), axis=0, keepdims=True)
@@ -246,7 +246,8 @@ def _normal_equations_by_joint(blocks: Sequence[np.ndarray], target: np.ndarray,
     :func:`_block_rhs` sum them (joint by joint, in joint order: the same bits), with one joint's scaled rows
     held at a time instead of every joint's (a long log's copy of its blocks); and the blocks' scales."""
     heads = [_block_scale(block, weights) for block in blocks]
-    products = [[np.zeros((heads[i][0].size, heads[k][0].size)) for k in range(len(blocks))] for i in range(len(blocks))]
+    products = [[np.zeros((heads[i][0].size, heads[k][0].size)) if k >= i else None for k in range(len(blocks))]
+                for i in range(len(blocks))]  # the pairs k >= i: the Gram matrix is symmetric
     rhs = [np.zeros(scale.size) for scale, _ in heads]
     for j in range(target.shape[1]):
         rows = []
