@@ -84,6 +84,69 @@ def test_stacked_lstsq_is_each_replicates_own_solve_to_the_bit(replicates, size,
     assert stacked_lstsq(grams[:, :, :0], rhs).shape == (replicates, 0)
 
 
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**32 - 1), replicates=st.integers(1, 300), blocks=st.integers(1, 700))
+def test_the_bootstraps_one_draw_is_the_stream_of_one_draw_per_replicate(seed, replicates, blocks):
+    """The bootstrap draws every replicate's blocks at once; the replicates (and the intervals in gap.json)
+    are the ones drawn replicate by replicate, for odd numbers of blocks too (half a 64-bit word left over)."""
+    rng = np.random.default_rng(seed)
+    one_by_one = np.array([rng.integers(0, blocks, size=blocks) for _ in range(replicates)])
+    assert np.array_equal(np.random.default_rng(seed).integers(0, blocks, size=(replicates, blocks)), one_by_one)
+
+
+@settings(max_examples=25, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**16), replicates=st.integers(1, 60), with_gain=st.booleans(), forward=st.booleans())
+def test_intervals_from_stacked_replicates_are_each_replicates_own_values(seed, replicates, with_gain, forward):
+    """Every effect that takes its replicates stacked (values_stacked) gives the intervals that its values of
+    each replicate alone give, to the bit, beside a torque gain that rescales them too."""
+    from sim2real.effects import EFFECTS, Signals
+    from sim2real.fitting import _intervals, _values, replicate_intervals
+
+    rng = np.random.default_rng(seed)
+    joints = ["a", "b", "c"]
+    samples = 50
+    motion = [rng.normal(size=(samples, len(joints))) for _ in range(3)]
+    nominal = {key: rng.uniform(0.0, 2.0, len(joints)) for key in ("friction", "damping", "armature")}
+    signals = Signals(joints, np.arange(samples) * 5e-3, *motion, np.zeros((samples, len(joints))),
+                      [slice(0, samples)], tau=rng.normal(size=(samples, len(joints))), nominal=nominal, forward=forward)
+    stacked_effects = [e for e in EFFECTS.values() if e.values_stacked]
+    assert {e.name for e in stacked_effects} >= {"coulomb_friction", "viscous_friction", "rotor_inertia"}
+    for effect in stacked_effects:
+        effects = [effect, EFFECTS["torque_gain"]] if with_gain and effect.name != "torque_gain" else [effect]
+        states = {e.name: e.prepare(signals) for e in effects}
+        nonlinear = {e.name: np.asarray(e.nonlinear_init(signals), dtype=float) for e in effects}
+        theta = {e.name: rng.normal(scale=0.3, size=(replicates, len(e.columns(signals, states[e.name],
+                                                                                  nonlinear[e.name])[1])))
+                 for e in effects}
+        one_by_one = _intervals([_values(effects, {k: v[r] for k, v in theta.items()}, nonlinear, signals, states)
+                                 for r in range(replicates)], 0.95)
+        assert replicate_intervals(effects, theta, nonlinear, signals, states, 0.95) == one_by_one, effect.name
+
+
+@settings(max_examples=10, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**16), samples=st.integers(1, 300))
+def test_the_batched_inverse_dynamics_is_pinocchios_rnea_sample_by_sample(seed, samples):
+    """The nominal torque comes from Pinocchio's batched RNEA: each sample is pin.rnea's own, to the bit, in the
+    caller's joint order (reversed here), with the URDF's damping and friction on top."""
+    import pinocchio as pin
+
+    from sim2real.dynamics import RigidBodyModel
+
+    joints = list(reversed(PANDA_JOINTS))
+    model = RigidBodyModel(PANDA_URDF, joints)
+    rng = np.random.default_rng(seed)
+    q, qd, qdd = (rng.normal(size=(samples, len(joints))) for _ in range(3))
+    order = [model.model.joints[model.model.getJointId(j)].idx_v for j in joints]
+    expected = np.empty_like(q)
+    for k in range(samples):
+        state = [np.empty(len(joints)) for _ in range(3)]
+        for x, sample in zip(state, (q, qd, qdd)):
+            x[order] = sample[k]
+        expected[k] = pin.rnea(model.model, model.data, *state)[order]
+    expected += model.damping * qd + model.friction * np.sign(qd)
+    assert np.array_equal(model.inverse_dynamics(q, qd, qdd), expected)
+
+
 def test_the_refinement_runs_on_windows_of_the_runs_at_their_own_step_beyond_its_sample_cap():
     from sim2real.effects import Signals
     from sim2real.fitting.problem import refinement_rows

@@ -97,10 +97,11 @@ class RigidBodyModel:
         """Joint torques (N, n) of the nominal model: RNEA with armature, plus URDF damping and friction."""
         q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, qd, qdd))
         pq, pqd, pqdd = self._to_pin(q), self._to_pin(qd), self._to_pin(qdd)
-        tau = np.empty_like(q)
-        for k in range(q.shape[0]):
-            tau[k] = pin.rnea(self.model, self.data, pq[k], pqd[k], pqdd[k])
-        return tau[:, self._perm] + self.damping * qd + self.friction * np.sign(qd)
+        # Pinocchio's batched RNEA (one sample per column; the same bits as pin.rnea sample by sample, without a
+        # Python call per sample). One thread: the fits that call it already share the rule's cores.
+        tau = np.empty((q.shape[1], q.shape[0]), order="F")
+        pin.rneaInParallel(1, pin.ModelPool(self.model, 1), pq.T, pqd.T, pqdd.T, tau)
+        return tau.T[:, self._perm] + self.damping * qd + self.friction * np.sign(qd)
 
     def drive_torque(self, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """The drive's part of :meth:`inverse_dynamics` (N, n): armature * qdd + damping * qd + friction * sign(qd).

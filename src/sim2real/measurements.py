@@ -360,7 +360,7 @@ def prepare_run(
     raw_torque = run.tau if run.tau is not None else run.tau_cmd
     assert raw_torque is not None
     tau = resample(raw_torque, run.time)
-    tau_cmd = resample(run.tau_cmd, run.time)
+    tau_cmd = tau.copy() if run.tau is None else resample(run.tau_cmd, run.time)  # judged on the command: resampled once
     q_cmd = resample(run.q_cmd, run.time)
     qd_measured = resample(run.qd, run.time)
     contact = None

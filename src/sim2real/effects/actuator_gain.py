@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim2real.effects.base import per_joint_dict
 from sim2real.effects.torque_gain import TorqueGain
 
 
@@ -29,7 +30,7 @@ class ActuatorGain(TorqueGain):
             gain = ratio
         else:  # commanded / applied
             gain = np.divide(1.0, ratio, out=np.full_like(ratio, np.inf), where=np.abs(ratio) > 1e-9)
-        return {"gain": {j: round(float(g), 6) for j, g in zip(signals.joint_names, gain, strict=True)}}
+        return {"gain": per_joint_dict(signals.joint_names, gain, 6)}
 
     def apply_to_spec(self, spec, values, context):
         for joint, gain in values["gain"].items():

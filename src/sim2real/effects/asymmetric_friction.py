@@ -114,6 +114,8 @@ class AsymmetricFriction(Effect):
     def theta_lower(self, signals, size):
         return np.zeros(size)  # a friction opposes the motion: phi1 >= 0
 
+    values_stacked = True
+
     def values(self, theta, nonlinear, signals, state):
         slope, offset = self._split(signals, nonlinear)
         return {

@@ -129,7 +129,16 @@ def explained_per_joint(residual: np.ndarray, columns: np.ndarray) -> np.ndarray
     return out
 
 
-def per_joint_dict(joint_names: list[str], values: np.ndarray, digits: int = 4) -> dict[str, float]:
+class Replicates(list):
+    """A value of a value tree that has one number per bootstrap replicate (:attr:`Effect.values_stacked`)."""
+
+
+def per_joint_dict(joint_names: list[str], values: np.ndarray, digits: int = 4) -> dict[str, Any]:
+    """``{joint: value}`` rounded to ``digits``; ``values`` (replicates, n) gives ``{joint: Replicates}``."""
+    values = np.asarray(values)
+    if values.ndim == 2:
+        return {j: Replicates([round(v, digits) for v in column])
+                for j, column in zip(joint_names, values.T.tolist(), strict=True)}
     return {j: round(float(v), digits) for j, v in zip(joint_names, values, strict=True)}
 
 
@@ -148,6 +157,10 @@ class Effect:
     sensor_side: ClassVar[bool] = False  # an error of the torque sensor: meaningless on runs without one
     scales_judged: ClassVar[bool] = False  # its coefficient scales the whole judged torque (a gain)
     joint_local: ClassVar[bool] = True  # each parameter acts on its own joint only
+    # values() also takes theta stacked over the bootstrap's replicates (replicates, size) with nonlinear
+    # parameters shared by all of them, and gives Replicates where a value depends on theta, each number the one
+    # it gives the replicate alone (tests/test_sysid.py holds every such effect to it)
+    values_stacked: ClassVar[bool] = False
     in_urdf: ClassVar[bool] = False  # the calibrated URDF holds it (so the MJCF built from it does too)
 
     # --- inverse dynamics -------------------------------------------------------------------

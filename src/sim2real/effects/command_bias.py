@@ -25,6 +25,8 @@ class CommandBias(TorqueBias):
     needs_commands = True
     sensor_side = False
 
+    values_stacked = True
+
     def values(self, theta, nonlinear, signals, state):
         sign = 1.0 if signals.forward else -1.0
         return {"bias": per_joint_dict(signals.joint_names, sign * np.asarray(theta, dtype=float), 6)}

@@ -48,6 +48,8 @@ class CoulombFriction(Effect):
         # The total friction (nominal + fitted) is never negative.
         return -np.asarray(signals.nominal.get("friction", np.zeros(signals.n)), dtype=float)
 
+    values_stacked = True
+
     def values(self, theta, nonlinear, signals, state):
         total = np.asarray(signals.nominal.get("friction", np.zeros(signals.n))) + theta
         smoothing = nonlinear if len(nonlinear) else self.nonlinear_init(signals)

@@ -25,6 +25,8 @@ class RotorInertia(Effect):
         # The total armature (nominal + fitted) is never negative.
         return -np.asarray(signals.nominal.get("armature", np.zeros(signals.n)), dtype=float)
 
+    values_stacked = True
+
     def values(self, theta, nonlinear, signals, state):
         total = np.asarray(signals.nominal.get("armature", np.zeros(signals.n))) + theta
         return {"armature": per_joint_dict(signals.joint_names, total, 6)}

@@ -63,6 +63,8 @@ class StribeckFriction(Effect):
     def theta_lower(self, signals, size):
         return np.zeros(size)  # static friction is not below the Coulomb level
 
+    values_stacked = True
+
     def values(self, theta, nonlinear, signals, state):
         velocity = nonlinear if len(nonlinear) else self.nonlinear_init(signals)
         return {

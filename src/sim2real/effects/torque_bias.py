@@ -22,6 +22,8 @@ class TorqueBias(Effect):
     def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
         return diagonal_columns(np.ones_like(signals.q)), [ColumnLabel("bias", j) for j in signals.joint_names]
 
+    values_stacked = True
+
     def values(self, theta, nonlinear, signals, state):
         return {"bias": per_joint_dict(signals.joint_names, theta, 6)}
 

@@ -30,6 +30,8 @@ class TorqueGain(Effect):
     def theta_lower(self, signals, size):
         return np.full(size, self.parameters[0].lower - 1.0)  # gain >= its lower bound
 
+    values_stacked = True
+
     def values(self, theta, nonlinear, signals, state):
         return {"gain": per_joint_dict(signals.joint_names, 1.0 + theta, 6)}
 

@@ -26,6 +26,8 @@ class ViscousFriction(Effect):
         # The total damping (nominal + fitted) is never negative.
         return -np.asarray(signals.nominal.get("damping", np.zeros(signals.n)), dtype=float)
 
+    values_stacked = True
+
     def values(self, theta, nonlinear, signals, state):
         total = np.asarray(signals.nominal.get("damping", np.zeros(signals.n))) + theta
         return {"damping": per_joint_dict(signals.joint_names, total, 6)}

@@ -40,7 +40,7 @@ the effects' documentation reach ``_intervals`` and ``_values``).
 """
 
 from sim2real.fitting.bootstrap import (  # noqa: F401  (re-exported: the package's names)
-    DELAY_STEP_S, _block_bootstrap, _intervals, _prune, small_sample_stretch,
+    DELAY_STEP_S, _block_bootstrap, _intervals, _prune, replicate_intervals, small_sample_stretch,
 )
 from sim2real.fitting.data import (  # noqa: F401  (re-exported: the package's names)
     TorqueData, kept_segments, link_side, run_from_prepared, stack_runs,

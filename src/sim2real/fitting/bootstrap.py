@@ -4,13 +4,15 @@ intervals of every fitted value."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
+from sim2real.effects import Effect, Signals
 from sim2real.effects.actuation_delay import MAX_DELAY
-from sim2real.fitting.problem import _Problem, _flatten_theta, _split_theta
+from sim2real.effects.base import Replicates
+from sim2real.fitting.problem import _Problem, _applied, _flatten_theta
 from sim2real.inertial import DesignRows, column_norms
 
 
@@ -44,15 +46,16 @@ def _block_bootstrap(
     theta: dict[str, np.ndarray],
     sizes: list[int],
     settings: Mapping[str, Any],
-) -> list[tuple[dict[str, np.ndarray], dict[str, np.ndarray]]]:
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]] | None:
     """(linear, nonlinear) parameters of block-bootstrap replicates (blocks of time resampled, all joints
-    together). The linear ones are solved again on each resample; a delay moves by one Gauss-Newton step
-    of the prediction linearised about the estimate, from the same resampled blocks, so it has an
-    interval too. Other nonlinear parameters (friction smoothing) are held."""
+    together), each effect's stacked over the replicates: (replicates, size). The linear ones are solved again
+    on each resample; a delay moves by one Gauss-Newton step of the prediction linearised about the estimate,
+    from the same resampled blocks, so it has an interval too (its nonlinear parameters (replicates, 1)). Other
+    nonlinear parameters (friction smoothing) are held: the estimate's, as they are. None without replicates."""
     replicates = int(settings["bootstrap_replicates"])
     shift = next((e for e in problem.effects if e.time_shift), None)
     if replicates <= 0 or (sum(sizes) == 0 and shift is None):
-        return []
+        return None
     signals = problem.signals
     weights = problem.weights
     joints = signals.n
@@ -102,10 +105,9 @@ def _block_bootstrap(
                if settings.get("bootstrap_few_blocks_correction", True) else 1.0)
     # The delay's steps are centred like the linear solves: the refinement ran on a subset of the samples.
     full_step = delay_rhs_arr.sum() / delay_grams_arr.sum() if shift is not None and delay_grams_arr.sum() > 0 else 0.0
-    rng = np.random.default_rng(int(settings["seed"]))
-    picks = np.empty((replicates, len(grams)), dtype=np.int64)
-    for row in picks:  # one draw per replicate, as the replicates have always been drawn
-        row[:] = rng.integers(0, len(grams), size=len(grams))
+    # One draw for all replicates: the same stream as one draw per replicate, row after row (numpy's bit
+    # generator keeps the unused half of a 64-bit word between calls; tests/test_sysid.py holds it to that).
+    picks = np.random.default_rng(int(settings["seed"])).integers(0, len(grams), size=(replicates, len(grams)))
     # Each replicate's sums and solve as its own would be (the same bits), a few replicates at a time: the
     # stacked Gram matrices of a long log's hundreds of blocks are large.
     coefs = np.empty((replicates, p))
@@ -113,16 +115,54 @@ def _block_bootstrap(
     for start in range(0, replicates, chunk):
         rows = picks[start : start + chunk]
         coefs[start : start + chunk] = stacked_lstsq(grams_arr[rows].sum(axis=1), rhs_arr[rows].sum(axis=1)) / scale
+    thetas = estimate + stretch * (coefs - full)
+    bounds = np.cumsum([0, *sizes])
+    stacked = {e.name: thetas[:, bounds[k] : bounds[k + 1]] for k, e in enumerate(problem.effects)}
+    replicate_nonlinear = dict(nonlinear)
     if shift is not None:
         replicate_grams, replicate_rhs = delay_grams_arr[picks].sum(axis=1), delay_rhs_arr[picks].sum(axis=1)
-    out = []
-    for index, coef in enumerate(coefs):
-        replicate_nonlinear = dict(nonlinear)
-        if shift is not None and replicate_grams[index] > 0:
-            step = replicate_rhs[index] / replicate_grams[index] - full_step
-            replicate_nonlinear[shift.name] = np.array([float(np.clip(delay + stretch * step, 0.0, MAX_DELAY))])
-        out.append((_split_theta(problem.effects, estimate + stretch * (coef - full), sizes), replicate_nonlinear))
+        moved = replicate_grams > 0  # a resample without the delay's information keeps the estimate
+        with np.errstate(divide="ignore", invalid="ignore"):
+            steps = replicate_rhs / replicate_grams - full_step
+        delays = np.where(moved, np.clip(delay + stretch * steps, 0.0, MAX_DELAY), nonlinear[shift.name][0])
+        replicate_nonlinear[shift.name] = delays[:, None]
+    return stacked, replicate_nonlinear
+
+
+def replicate_intervals(
+    effects: list[Effect], theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray], signals: Signals,
+    states: Mapping[str, Any], confidence: float,
+) -> dict[str, Any]:
+    """Percentile intervals of every fitted value over the replicates (:func:`_block_bootstrap`'s stacks): the
+    values of each replicate as :func:`sim2real.fitting.problem._values` gives them, each effect's in one call
+    where it takes stacked parameters (:attr:`Effect.values_stacked`), else replicate by replicate."""
+    theta = _applied(effects, theta, signals)
+    count = len(next(iter(theta.values())))
+    out = {}
+    for effect in effects:
+        values, shared = theta[effect.name], nonlinear[effect.name]
+        state = states[effect.name]
+        if effect.values_stacked and shared.ndim == 1:
+            out[effect.name] = _tree_intervals(effect.values(values, shared, signals, state), count, confidence)
+        else:
+            samples = [effect.values(values[k], shared[k] if shared.ndim == 2 else shared, signals, state)
+                       for k in range(count)]
+            out[effect.name] = _intervals(samples, confidence)
     return out
+
+
+def _tree_intervals(tree: Any, count: int, confidence: float) -> Any:
+    """:func:`_intervals` of a value tree from stacked parameters: a :class:`Replicates` holds each replicate's
+    number, a plain number is every replicate's."""
+    if isinstance(tree, Replicates):
+        return _percentile_interval(tree, confidence)
+    if isinstance(tree, dict):
+        return {k: _tree_intervals(v, count, confidence) for k, v in tree.items()}
+    if isinstance(tree, list):
+        return [_tree_intervals(v, count, confidence) for v in tree]
+    if isinstance(tree, bool) or not isinstance(tree, (int, float)):
+        return None
+    return _percentile_interval([tree] * count, confidence)
 
 
 def small_sample_stretch(block_weights: np.ndarray, confidence: float) -> float:
@@ -157,6 +197,10 @@ def _intervals(samples: list[Any], confidence: float) -> Any:
         return [_intervals([s[i] for s in samples], confidence) for i in range(len(first))]
     if isinstance(first, bool) or not isinstance(first, (int, float)):
         return None
+    return _percentile_interval(samples, confidence)
+
+
+def _percentile_interval(samples: Sequence[float], confidence: float) -> list[float]:
     lo, hi = np.percentile(np.asarray(samples, dtype=float), [50 * (1 - confidence), 50 * (1 + confidence)])
     return [round(float(lo), 6), round(float(hi), 6)]
 

@@ -20,6 +20,10 @@ from sim2real.fitting.data import kept_segments
 
 
 PREDICT_CHUNK_BYTES = 32 * 2**20  # the design's rows put together at once by _Problem.predict
+# An effect's columns at its last nonlinear parameters are kept up to this size (the fit, its consistent variant,
+# the predictions and the bootstrap ask for them in turn); a long log's larger blocks are computed again instead
+# of staying alive beside the arrays of the next steps.
+KEPT_BLOCK_BYTES = 16 * 2**20
 
 
 @dataclass
@@ -56,6 +60,7 @@ class _Problem:
         # (the refinement asks for hundreds; a caller must be done with one design before it asks for the next)
         self._reused: tuple[np.ndarray, list[int], list[tuple[Effect, slice]]] | None = None
         self.reuse_design = reuse_design
+        self._kept: dict[str, tuple[bytes, np.ndarray]] = {}  # effect -> (its nonlinear parameters, its columns)
 
     def split_nonlinear(self, x: np.ndarray) -> dict[str, np.ndarray]:
         out, start = {}, 0
@@ -76,7 +81,14 @@ class _Problem:
         """One effect's columns (N, n, k) at the given nonlinear parameters (before the time shift)."""
         cols = self.static_columns.get(effect.name)
         if cols is None:
-            cols = effect.columns(self.signals, self.states[effect.name], nonlinear[effect.name])[0]
+            key = np.asarray(nonlinear[effect.name], dtype=float).tobytes()
+            kept = self._kept.get(effect.name)
+            if kept is not None and kept[0] == key:
+                cols = kept[1]
+            else:
+                cols = effect.columns(self.signals, self.states[effect.name], nonlinear[effect.name])[0]
+                if cols.nbytes <= KEPT_BLOCK_BYTES and not self.reuse_design:  # the refinement's move every step
+                    self._kept[effect.name] = (key, cols)
         if self.signals.forward and effect.drive:
             cols = -cols  # forward, the drive's terms are taken from the command before the link-side sensor
         return cols
@@ -142,22 +154,26 @@ class _Problem:
         return total
 
     def predict(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray],
-                shifted: tuple[np.ndarray, list[int]] | None = None) -> np.ndarray:
-        """The prediction; ``shifted``: :meth:`shifted_design` at ``nonlinear`` when the caller has it already.
+                shifted: tuple[np.ndarray, list[int]] | None = None, base: np.ndarray | None = None) -> np.ndarray:
+        """The prediction; ``shifted``: :meth:`shifted_design` at ``nonlinear`` when the caller has it already;
+        ``base``: :meth:`base` at ``theta`` and ``nonlinear``, likewise.
 
         Without a time shift the design is put together a few thousand samples at a time, never whole (on a
         long log the largest array of a fit): the same bits, as matmul multiplies sample by sample."""
         if shifted is None and self.delay(nonlinear) == 0.0:
-            return self.predict_from_blocks(theta, nonlinear, *self._blocks(nonlinear))
+            return self.predict_from_blocks(theta, nonlinear, *self._blocks(nonlinear), base=base)
         design, sizes = self.shifted_design(nonlinear) if shifted is None else shifted
-        return self.base(theta, nonlinear) + design @ _flatten_theta(self.effects, theta, sizes)
+        base = self.base(theta, nonlinear) if base is None else base
+        if design.shape[2] == 0:  # a delay alone: what the product of no columns adds, without forming it
+            return base + 0.0
+        return base + design @ _flatten_theta(self.effects, theta, sizes)
 
     def predict_from_blocks(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray],
-                            blocks: list[np.ndarray], sizes: list[int]) -> np.ndarray:
+                            blocks: list[np.ndarray], sizes: list[int], base: np.ndarray | None = None) -> np.ndarray:
         """:meth:`predict` without a time shift from the effects' columns (:meth:`_blocks`), the design put
         together a few thousand samples at a time."""
         flat = _flatten_theta(self.effects, theta, sizes)
-        base = self.base(theta, nonlinear)
+        base = self.base(theta, nonlinear) if base is None else base
         n_samples, n = self.signals.q.shape
         out = np.empty(base.shape, dtype=np.result_type(base, flat))
         step = max(1, PREDICT_CHUNK_BYTES // max(1, 8 * n * int(flat.size)))
@@ -374,10 +390,13 @@ def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndar
     for _ in range(iterations if has_offset else 1):
         if cache is not None:
             cache.static = [e.name in problem.static_columns for e, size in zip(problem.effects, sizes, strict=True) if size]
-        flat = _solve_blocks(blocks, tau - problem.base(theta, nonlinear), problem.weights, cache)
+        base = problem.base(theta, nonlinear)
+        flat = _solve_blocks(blocks, tau - base, problem.weights, cache)
         theta = _split_theta(problem.effects, flat, sizes)
-    predicted = (problem.predict_from_blocks(theta, nonlinear, columns, sizes) if direct
-                 else problem.predict(theta, nonlinear, (shifted, sizes)))
+    # Without offsets the base does not depend on the linear parameters: the prediction's is the one just used.
+    known = None if has_offset else base
+    predicted = (problem.predict_from_blocks(theta, nonlinear, columns, sizes, base=known) if direct
+                 else problem.predict(theta, nonlinear, (shifted, sizes), base=known))
     return theta, tau - predicted, sizes
 
 
@@ -517,14 +536,22 @@ def refinement_rows(signals: Signals, max_samples: int, window_s: float | None =
 
 
 def _values(effects: list[Effect], theta, nonlinear, signals: Signals, states) -> dict[str, Any]:
-    """Structured values; with a gain (judged / applied torque), joint-local effects are rescaled to
-    applied torque, except a sensor's own bias, which is added after its gain."""
+    """Structured values (:meth:`Effect.values`) of the linear parameters ``theta``."""
+    theta = _applied(effects, theta, signals)
+    return {e.name: e.values(theta[e.name], nonlinear[e.name], signals, states[e.name]) for e in effects}
+
+
+def _applied(effects: list[Effect], theta: Mapping[str, np.ndarray], signals: Signals) -> dict[str, np.ndarray]:
+    """``theta`` as the values give it: with a gain (judged / applied torque), joint-local effects rescaled to
+    applied torque, except a sensor's own bias, which is added after its gain. Each array may be stacked over
+    bootstrap replicates (replicates, size): the same numbers, row by row."""
     theta = dict(theta)
-    scaling = next((e for e in effects if e.scales_judged and len(theta.get(e.name, []))), None)
+    scaling = next((e for e in effects if e.scales_judged and np.shape(theta.get(e.name, ()))[-1]), None)
     if scaling is not None and not signals.forward:  # forward, every term is already applied torque
         gain = 1.0 + theta[scaling.name]
         for effect in effects:
-            if effect.joint_local and not effect.scales_judged and effect.name != "torque_bias" and len(theta[effect.name]):
+            if (effect.joint_local and not effect.scales_judged and effect.name != "torque_bias"
+                    and np.shape(theta[effect.name])[-1]):
                 theta[effect.name] = theta[effect.name] / np.where(np.abs(gain) > 1e-6, gain, 1.0)
-    return {e.name: e.values(theta[e.name], nonlinear[e.name], signals, states[e.name]) for e in effects}
+    return theta
 

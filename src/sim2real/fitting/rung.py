@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.effects import Effect, Signals, get_effect
-from sim2real.fitting.bootstrap import _block_bootstrap, _intervals, _prune
+from sim2real.fitting.bootstrap import _block_bootstrap, _prune, replicate_intervals
 from sim2real.fitting.data import TorqueData, link_side
 from sim2real.fitting.metrics import holdout_metrics, joint_weights
 from sim2real.fitting.nominal import NominalModel, make_signals
@@ -88,15 +88,14 @@ def fit(
     )
     record: dict[str, Any] = {}
     if consistency:
-        theta, residual, record = _consistent_fit(problem, data, nonlinear, theta, settings)
+        theta, residual, record = _consistent_fit(problem, data, nonlinear, theta, settings, residual)
         notes.extend(record.pop("notes"))
     values = _values(effects, theta, nonlinear, signals, states)
     intervals: dict[str, Any] = {}
     if uncertainty:
         replicates = _block_bootstrap(problem, data.tau, nonlinear, theta, sizes, settings)
-        if replicates:
-            samples = [_values(effects, rep, rep_nonlinear, signals, states) for rep, rep_nonlinear in replicates]
-            intervals = _prune(_intervals(samples, float(settings["confidence"])))
+        if replicates is not None:
+            intervals = _prune(replicate_intervals(effects, *replicates, signals, states, float(settings["confidence"])))
     return FitResult(
         effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=states, values=values,
         intervals=intervals, fit_rmse=rmse(residual, data.joint_names), notes=notes, consistency=record,
@@ -210,9 +209,10 @@ def _fit_way(way: Mapping[str, Any], holdout_data: TorqueData, holdout_signals: 
 
 def _consistent_fit(
     problem: _Problem, data: TorqueData, nonlinear: dict[str, np.ndarray], theta_free: dict[str, np.ndarray],
-    settings: Mapping[str, Any],
+    settings: Mapping[str, Any], free_residual: np.ndarray | None = None,
 ) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, Any]]:
-    """The rung's linear coefficients under the physical constraints; (theta, fit residual, record).
+    """The rung's linear coefficients under the physical constraints; (theta, fit residual, record);
+    ``free_residual``: the residual of ``theta_free``, when the caller has it.
 
     Link inertias enter as full per-body corrections (the regressor's columns), every other effect
     with its own columns and lower bounds. Offsets that are not linear (a payload's own inertia) are
@@ -223,7 +223,8 @@ def _consistent_fit(
 
     signals = problem.signals
     blocks, lower, inertial = _consistent_blocks(problem, nonlinear)
-    free_residual = data.tau - problem.predict(theta_free, nonlinear)
+    if free_residual is None:
+        free_residual = data.tau - problem.predict(theta_free, nonlinear)
     record: dict[str, Any] = {"notes": []}
     if not blocks:
         return theta_free, free_residual, record
