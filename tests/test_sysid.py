@@ -54,7 +54,10 @@ def test_bootstrap_intervals_widen_for_few_blocks_and_uneven_ones():
 
     # 20 equal blocks: the bootstrap variance is short by 19/20 and the t quantile with 19 dof replaces z.
     expected = np.sqrt(20 / 19) * stats.t.ppf(0.975, 19) / stats.norm.ppf(0.975)
-    assert small_sample_stretch(np.ones(20), 0.95) == pytest.approx(expected)
+    assert small_sample_stretch(np.ones(20), 0.95) == expected  # to the bit: scipy.stats' own quantiles
+    kish = 1.1**2 / (1 + 0.01)  # two blocks, one a tenth of the other: 1.198 effective blocks
+    assert small_sample_stretch(np.array([1.0, 0.1]), 0.9) == float(
+        np.sqrt(kish / (kish - 1)) * stats.t.ppf(0.95, kish - 1) / stats.norm.ppf(0.95))
     assert small_sample_stretch(np.ones(5), 0.95) > small_sample_stretch(np.ones(20), 0.95) > \
         small_sample_stretch(np.ones(2000), 0.95) > 1.0
     assert small_sample_stretch(np.ones(2000), 0.95) == pytest.approx(1.0, abs=2e-3)

@@ -298,6 +298,7 @@ class DesignRows:
         self.samples, self.joints = self.blocks[0].shape[:2]
         self.shape = (self.samples * self.joints, sum(b.shape[2] for b in self.blocks))
         self._whole: np.ndarray | None = None
+        self._norms: np.ndarray | None = None  # column_norms over all rows, once
 
     def __getitem__(self, rows: slice) -> np.ndarray:
         start, stop, step = rows.indices(self.shape[0])
@@ -348,7 +349,16 @@ def _rows_of(a: np.ndarray | DesignRows, group: Sequence[slice]) -> np.ndarray:
 def column_norms(a: np.ndarray | DesignRows, rows: Sequence[slice] | None = None) -> np.ndarray:
     """The Euclidean norm of each column of ``a`` (rows x columns) over ``rows`` (default: all), summed chunk
     by chunk (CHUNK_ROWS); numpy's own norm when the rows fit in one chunk."""
-    groups = _chunks([slice(0, a.shape[0])] if rows is None else rows)
+    every_row = [slice(0, a.shape[0])]
+    if isinstance(a, DesignRows) and (rows is None or list(rows) == every_row):
+        if a._norms is None:  # the consistent fit and the bootstrap both scale the same rows
+            a._norms = _column_norms(a, every_row)
+        return a._norms.copy()
+    return _column_norms(a, every_row if rows is None else rows)
+
+
+def _column_norms(a: np.ndarray | DesignRows, rows: Sequence[slice]) -> np.ndarray:
+    groups = _chunks(rows)
     if len(groups) == 1:
         return np.linalg.norm(_rows_of(a, groups[0]), axis=0)
     return np.sqrt(sum(np.sum(_rows_of(a, group) ** 2, axis=0) for group in groups))

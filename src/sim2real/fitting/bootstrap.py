@@ -64,7 +64,7 @@ def _block_bootstrap(
     design: np.ndarray | DesignRows
     if problem.delay(nonlinear) == 0.0:
         columns = [b for b in problem._blocks(nonlinear)[0] if b.shape[2]]
-        design = DesignRows(columns, weights) if columns else np.zeros((len(signals.time) * joints, 0))
+        design = problem.weighted_rows(columns) if columns else np.zeros((len(signals.time) * joints, 0))
     else:
         shifted, _ = problem.shifted_design(nonlinear)  # a new array (the effects' columns put together)
         shifted *= weights[None, :, None]
@@ -153,16 +153,40 @@ def replicate_intervals(
 
 def _tree_intervals(tree: Any, count: int, confidence: float) -> Any:
     """:func:`_intervals` of a value tree from stacked parameters: a :class:`Replicates` holds each replicate's
-    number, a plain number is every replicate's."""
-    if isinstance(tree, Replicates):
-        return _percentile_interval(tree, confidence)
-    if isinstance(tree, dict):
-        return {k: _tree_intervals(v, count, confidence) for k, v in tree.items()}
-    if isinstance(tree, list):
-        return [_tree_intervals(v, count, confidence) for v in tree]
-    if isinstance(tree, bool) or not isinstance(tree, (int, float)):
+    number, a plain number is every replicate's. The percentiles of all of them in one call (column by column:
+    the same numbers as one call each)."""
+    columns: list[Sequence[float]] = []
+
+    def gather(node: Any) -> None:
+        if isinstance(node, Replicates):
+            columns.append(node)
+        elif isinstance(node, dict):
+            for value in node.values():
+                gather(value)
+        elif isinstance(node, list):
+            for value in node:
+                gather(value)
+        elif not isinstance(node, bool) and isinstance(node, (int, float)):
+            columns.append([node] * count)
+
+    gather(tree)
+    if not columns:
+        return _intervals([tree], confidence)  # no number in it: what the replicates' own walk gives
+    lows, highs = np.percentile(np.asarray(columns, dtype=float).T, [50 * (1 - confidence), 50 * (1 + confidence)],
+                                axis=0)
+    bounds = iter(zip(lows.tolist(), highs.tolist(), strict=True))
+
+    def build(node: Any) -> Any:
+        if isinstance(node, Replicates) or (not isinstance(node, bool) and isinstance(node, (int, float))):
+            low, high = next(bounds)
+            return [round(low, 6), round(high, 6)]
+        if isinstance(node, dict):
+            return {k: build(v) for k, v in node.items()}
+        if isinstance(node, list):
+            return [build(v) for v in node]
         return None
-    return _percentile_interval([tree] * count, confidence)
+
+    return build(tree)
 
 
 def small_sample_stretch(block_weights: np.ndarray, confidence: float) -> float:
@@ -182,10 +206,12 @@ def small_sample_stretch(block_weights: np.ndarray, confidence: float) -> float:
     effective = float(weights.sum() ** 2 / np.sum(weights**2))
     if effective <= 1.0:
         return 1.0
-    from scipy import stats  # here: importing scipy.stats costs a rule ~0.3 s, and a round read back needs none
+    # The quantiles scipy.stats' t.ppf and norm.ppf return, from the special functions they call (importing
+    # scipy.stats would cost the rule ~0.3 s)
+    from scipy import special
 
     level = 0.5 + 0.5 * confidence
-    return float(np.sqrt(effective / (effective - 1.0)) * stats.t.ppf(level, effective - 1.0) / stats.norm.ppf(level))
+    return float(np.sqrt(effective / (effective - 1.0)) * special.stdtrit(effective - 1.0, level) / special.ndtri(level))
 
 
 def _intervals(samples: list[Any], confidence: float) -> Any:

@@ -61,6 +61,7 @@ class _Problem:
         self._reused: tuple[np.ndarray, list[int], list[tuple[Effect, slice]]] | None = None
         self.reuse_design = reuse_design
         self._kept: dict[str, tuple[bytes, np.ndarray]] = {}  # effect -> (its nonlinear parameters, its columns)
+        self._weighted: tuple[list[np.ndarray], inertial.DesignRows] | None = None
 
     def split_nonlinear(self, x: np.ndarray) -> dict[str, np.ndarray]:
         out, start = {}, 0
@@ -131,6 +132,16 @@ class _Problem:
                       if sizes[k] and effect.name not in self.static_columns]
             self._reused = (design, list(sizes), moving)
         return design, sizes
+
+    def weighted_rows(self, blocks: list[np.ndarray]) -> inertial.DesignRows:
+        """The weighted design of these columns as rows (:class:`sim2real.inertial.DesignRows`); the last one is
+        kept when it fits in one chunk (the consistent fit and the bootstrap put the same one together)."""
+        if self._weighted is not None and len(self._weighted[0]) == len(blocks) and all(
+                a is b for a, b in zip(self._weighted[0], blocks, strict=True)):
+            return self._weighted[1]
+        rows = inertial.DesignRows(blocks, self.weights)
+        self._weighted = (list(blocks), rows) if rows.shape[0] <= inertial.CHUNK_ROWS else None
+        return rows
 
     def _blocks(self, nonlinear: dict[str, np.ndarray]) -> tuple[list[np.ndarray], list[int]]:
         """Each effect's columns (before the time shift; a time shift has none) and their sizes."""

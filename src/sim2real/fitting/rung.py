@@ -232,7 +232,7 @@ def _consistent_fit(
     # time shift its rows are put together a chunk at a time (DesignRows), never whole; the same bits.
     weighted: np.ndarray | DesignRows
     if problem.delay(nonlinear) == 0.0:
-        weighted = DesignRows([b[2] for b in blocks], problem.weights)
+        weighted = problem.weighted_rows([b[2] for b in blocks])
     else:
         weighted = problem.shift(np.concatenate([b[2] for b in blocks], axis=2), [b[0] for b in blocks],
                                  [b[2].shape[2] for b in blocks], nonlinear)  # a new array: weighted in place
