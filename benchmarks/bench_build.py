@@ -11,29 +11,15 @@ Targets (issue 2): no-op < 1.5 s, inertial rebuild < 15 s, cold < 60 s for both 
 
 from __future__ import annotations
 
-import re
-import shutil
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-SNAKEMAKE = Path(sys.executable).with_name("snakemake")
+from harness import ROOT, jobs_run, snakemake
 
-
-def copy_project(dest: Path) -> Path:
-    listed = subprocess.run(
-        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT, check=True, capture_output=True
-    ).stdout.decode().split("\0")
-    for rel in filter(None, listed):
-        if (ROOT / rel).is_file() and not rel.startswith("results/"):
-            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(ROOT / rel, dest / rel)
-    return dest
+from buildtree import copy_repo  # noqa: E402  (the tests' copy of a clean clone)
 
 
 def asset_targets(tree: Path) -> list[str]:
@@ -42,13 +28,8 @@ def asset_targets(tree: Path) -> list[str]:
 
 
 def timed_run(tree: Path, targets: list[str]) -> tuple[float, int]:
-    start = time.perf_counter()
-    done = subprocess.run([str(SNAKEMAKE), *targets], cwd=tree, capture_output=True, text=True)
-    seconds = time.perf_counter() - start
-    if done.returncode != 0:
-        sys.exit(done.stderr[-3000:])
-    jobs = len(re.findall(r"^\s*(?:local)?(?:rule|checkpoint) \w+:", done.stdout + done.stderr, flags=re.MULTILINE))
-    return seconds, jobs
+    seconds, log = snakemake(tree, *targets)
+    return seconds, jobs_run(log)
 
 
 def use_fast_collision(tree: Path) -> None:
@@ -61,7 +42,7 @@ def use_fast_collision(tree: Path) -> None:
 
 def main() -> None:
     with tempfile.TemporaryDirectory(prefix="sim2real-bench-") as tmp:
-        tree = copy_project(Path(tmp) / "project")
+        tree = copy_repo(ROOT, Path(tmp) / "project")
         if "--default-collision" not in sys.argv:
             use_fast_collision(tree)
         targets = asset_targets(tree)

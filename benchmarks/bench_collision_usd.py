@@ -12,24 +12,12 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-SNAKEMAKE = Path(sys.executable).with_name("snakemake")
-sys.path.insert(0, str(ROOT / "tests"))
+from harness import ROOT, snakemake, timed
+
 from buildtree import copy_repo  # noqa: E402
-
-
-def snakemake(tree: Path, *args: str) -> float:
-    start = time.perf_counter()
-    done = subprocess.run([str(SNAKEMAKE), *args], cwd=tree, capture_output=True, text=True)
-    if done.returncode != 0:
-        sys.exit(done.stdout[-2000:] + done.stderr[-3000:])
-    return time.perf_counter() - start
 
 
 def mesh_seconds(tree: Path, robot: str) -> dict[str, float]:
@@ -39,7 +27,6 @@ def mesh_seconds(tree: Path, robot: str) -> dict[str, float]:
 
 def mesh_targets(tree: Path, robot: str) -> list[str]:
     """The converted visual and collision meshes (the decomposition's inputs) of the built URDF."""
-    sys.path.insert(0, str(ROOT / "src"))
     from sim2real.urdf import mesh_names
 
     names = mesh_names(tree / "results" / robot / f"{robot}.urdf")
@@ -51,12 +38,11 @@ def mesh_targets(tree: Path, robot: str) -> list[str]:
 def decompose_all(tree: Path, robot: str, cores: int) -> float:
     """Wall time of every coacd job of ``robot`` (forced) on ``cores`` cores, nothing else rerun."""
     shutil.rmtree(tree / "results" / robot / "collision", ignore_errors=True)
-    return snakemake(tree, "--cores", str(cores), f"results/{robot}/collision/report.json")
+    return snakemake(tree, "--cores", str(cores), f"results/{robot}/collision/report.json")[0]
 
 
 def usd_seconds(tree: Path, robot: str) -> tuple[float, float]:
     """(build_usd call in-process, the Snakemake rule's job incl. interpreter start) in seconds."""
-    sys.path.insert(0, str(ROOT / "src"))
     from sim2real.collision import part_files
     from sim2real.urdf import mesh_names
     from sim2real.usd import build_usd
@@ -66,10 +52,8 @@ def usd_seconds(tree: Path, robot: str) -> tuple[float, float]:
     visual = [results / "meshes" / "visual" / n for n in names["visual"]]
     collision = {uri: part_files(results / "collision" / n) for n, uri in names["collision"].items()}
     with tempfile.TemporaryDirectory() as out:
-        start = time.perf_counter()
-        build_usd(results / f"{robot}.urdf", tree / "configs" / robot / "robot.yaml", visual, collision,
-                  Path(out) / f"{robot}.usda", Path(out) / f"{robot}_geometry.usda")
-        in_process = time.perf_counter() - start
+        _, in_process = timed(build_usd, results / f"{robot}.urdf", tree / "configs" / robot / "robot.yaml", visual,
+                              collision, Path(out) / f"{robot}.usda", Path(out) / f"{robot}_geometry.usda")
     snakemake(tree, "--cores", "1", f"results/{robot}/usd/{robot}.usda")
     benchmark = (results / "benchmarks" / "usd.tsv").read_text().splitlines()
     return in_process, float(benchmark[-1].split("\t")[0])

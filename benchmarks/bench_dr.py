@@ -11,14 +11,13 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from sim2real.dr import DomainRandomizer, load_model, resolve_files
+from harness import ROOT
 
-REPO = Path(__file__).resolve().parents[1]
+from sim2real.dr import DomainRandomizer, load_model, resolve_files  # noqa: E402
 
 
 def per_call(function: Callable[[], object], repeats: int) -> float:
@@ -33,10 +32,10 @@ def per_call(function: Callable[[], object], repeats: int) -> float:
 
 
 def bench(robot: str) -> None:
-    mjcf = REPO / f"results/{robot}/mjcf/{robot}.xml"
-    config = REPO / f"configs/{robot}/dr.yaml"
+    mjcf = ROOT / f"results/{robot}/mjcf/{robot}.xml"
+    config = ROOT / f"configs/{robot}/dr.yaml"
     if not mjcf.exists():
-        print(f"{robot}: {mjcf.relative_to(REPO)} missing; build it with snakemake first")
+        print(f"{robot}: {mjcf.relative_to(ROOT)} missing; build it with snakemake first")
         return
     resolved = resolve_files(config, mjcf, robot=robot)
     print(f"{robot}: resolve dr.yaml against MJCF      {per_call(lambda: resolve_files(config, mjcf), 3) * 1e3:9.1f} ms")

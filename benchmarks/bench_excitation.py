@@ -17,15 +17,13 @@ from __future__ import annotations
 
 import argparse
 import csv
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+from harness import ROOT
 
 from buildtree import copy_repo, edit_yaml, make_fast, run_snakemake  # noqa: E402
 

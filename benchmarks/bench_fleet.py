@@ -16,27 +16,16 @@ from __future__ import annotations
 import argparse
 import re
 import shutil
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+from harness import ROOT, snakemake
+
 from buildtree import copy_repo, edit_yaml  # noqa: E402  (the tests' copy of a clean clone)
+
 BASE_FRICTION = [0.8, 0.8, 0.6, 0.6, 0.4, 0.4, 0.3]
-
-
-def snakemake(tree: Path, *args: str) -> tuple[float, str]:
-    start = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=tree, capture_output=True, text=True)
-    seconds = time.perf_counter() - start
-    if done.returncode != 0:
-        sys.exit(done.stdout[-3000:] + done.stderr[-3000:])
-    return seconds, done.stdout + done.stderr
 
 
 def campaign_name(arm: int, month: int) -> tuple[str, str]:

@@ -34,8 +34,7 @@ from pathlib import Path
 
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+from harness import ROOT
 
 from buildtree import copy_repo, edit_yaml, make_fast, rules_run, run_snakemake  # noqa: E402
 

@@ -15,12 +15,11 @@ where it does not, so the next change can be judged joint by joint. The diagnosi
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import harness  # noqa: F401  (the tests' helpers on the path)
 
 from sysid_lab import Lab  # noqa: E402  (the tests' lab helper: a dev Panda and short lab runs)
 

@@ -13,9 +13,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from sim2real.resources import declared_resources, exceeded, measured_resources, resource_table, undeclared
+from harness import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
+from sim2real.resources import declared_resources, exceeded, measured_resources, resource_table, undeclared  # noqa: E402
 
 
 def main() -> int:
