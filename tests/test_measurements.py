@@ -170,6 +170,23 @@ def test_the_actuator_links_noise_floor_is_prepared_with_the_run_and_read_back(t
     assert only_commands.command_torque_sigma.size == 0
 
 
+def test_a_long_logs_actuator_floor_is_summed_chunk_by_chunk(monkeypatch):
+    """Beyond a chunk of rows the lagged regression's products are summed a chunk at a time (never the whole lagged
+    design, which numpy would copy twice: 1 GB on a 10-minute log): the same floor but for round-off."""
+    from sim2real import inertial
+    from sim2real.measurements import command_white_noise
+
+    rng = np.random.default_rng(8)
+    t = np.arange(6000) * 0.001
+    tau_cmd = 2.0 * motion(t)[2] + rng.normal(scale=0.3, size=(len(t), len(JOINTS)))
+    tau = 0.9 * np.roll(tau_cmd, 4, axis=0) + rng.normal(scale=0.05, size=tau_cmd.shape)
+    whole = command_white_noise(tau, tau_cmd, 0.001)
+    monkeypatch.setattr(inertial, "CHUNK_ROWS", 1000)  # six chunks and a part
+    chunked = command_white_noise(tau, tau_cmd, 0.001)
+    assert np.allclose(chunked, whole, rtol=1e-9, atol=0.0)  # the sums' order differs, not the floor
+    assert np.all((whole > 0.02) & (whole < 0.2))
+
+
 def test_noise_floor_matches_white_torque_noise(tmp_path):
     rng = np.random.default_rng(3)
     t = np.arange(8000) * 0.001
