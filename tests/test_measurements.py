@@ -187,6 +187,23 @@ def test_a_long_logs_actuator_floor_is_summed_chunk_by_chunk(monkeypatch):
     assert np.all((whole > 0.02) & (whole < 0.2))
 
 
+def test_the_actuator_floor_is_the_same_bytes_whatever_the_callers_blas_threads():
+    """The rule prepares runs with BLAS on one thread; a caller with more gets the same floor to the bit (the
+    lagged regression's products split among threads would move its last digits)."""
+    from threadpoolctl import threadpool_limits
+
+    from sim2real.measurements import command_white_noise
+
+    rng = np.random.default_rng(8)
+    tau_cmd = np.cumsum(rng.normal(size=(20000, 3)), axis=0) * 0.01 + rng.normal(scale=0.3, size=(20000, 3))
+    tau = 0.9 * np.roll(tau_cmd, 4, axis=0) + rng.normal(scale=0.05, size=tau_cmd.shape)
+    floors = []
+    for threads in (1, 2):
+        with threadpool_limits(limits=threads, user_api="blas"):
+            floors.append(command_white_noise(tau, tau_cmd, 0.001))
+    assert np.array_equal(floors[0], floors[1])
+
+
 def test_noise_floor_matches_white_torque_noise(tmp_path):
     rng = np.random.default_rng(3)
     t = np.arange(8000) * 0.001

@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from sim2real.blas import one_blas_thread
 from sim2real.errors import InputError
 from sim2real.io import read_validated_yaml
 
@@ -407,6 +408,7 @@ def with_command_floor(run: PreparedRun) -> PreparedRun:
     return dataclasses.replace(run, command_torque_sigma=command_white_noise(run.tau, run.tau_cmd, run.dt))
 
 
+@one_blas_thread  # its products' last digits: the same from the rule and from any caller
 def command_white_noise(tau: np.ndarray, tau_cmd: np.ndarray, dt: float) -> np.ndarray:
     """Per joint, the RMS of the measured torque ``tau`` that no actuator model can explain from ``tau_cmd``.
 

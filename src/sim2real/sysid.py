@@ -14,9 +14,9 @@ The fitting core's names are re-exported here (``sysid.fit``, ``sysid.TorqueData
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, ParamSpec, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -31,13 +31,11 @@ from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of 
     joint_weights,
     kept_segments, load_nominal, make_signals, predict, resolve_armature, run_from_prepared, stack_runs,
 )
+from sim2real.blas import one_blas_thread
 from sim2real.cache import FitCache
 from sim2real.inertial import program_store
 from sim2real.measurements import PreparedRun, estimate_noise_floor
 from sim2real.metrics import rmse
-
-P = ParamSpec("P")
-R = TypeVar("R")
 
 
 def round_floats(tree: Any, digits: int = 6) -> Any:
@@ -366,20 +364,7 @@ def load_model_config(path: str | Path) -> dict[str, Any]:
     return {"effects": effects, "fit": dict(data.get("fit") or {}), "diagnosis": dict(data.get("diagnosis") or {})}
 
 
-def _one_blas_thread(function: Callable[P, R]) -> Callable[P, R]:
-    """Run ``function`` with BLAS on one thread whatever the environment says: the fit's last digits depend on
-    how its sums are split among threads, and ladder.json is byte-identical on any machine only if they never are."""
-    @functools.wraps(function)
-    def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
-        from threadpoolctl import threadpool_limits
-
-        with threadpool_limits(limits=1, user_api="blas"):
-            return function(*args, **kwargs)
-
-    return wrapper
-
-
-@_one_blas_thread
+@one_blas_thread
 def run_sysid(
     robot: str,
     urdf_path: str | Path,
