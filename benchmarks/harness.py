@@ -9,7 +9,6 @@ on the path).
 from __future__ import annotations
 
 import re
-import statistics
 import subprocess
 import sys
 import time
@@ -29,11 +28,6 @@ def timed(function: Callable[..., Result], *args: object, **kwargs: object) -> t
     start = time.perf_counter()
     result = function(*args, **kwargs)
     return result, time.perf_counter() - start
-
-
-def median_seconds(function: Callable[[], object], repeats: int) -> float:
-    """The median wall time of ``repeats`` calls of ``function``."""
-    return statistics.median(timed(function)[1] for _ in range(max(1, repeats)))
 
 
 def snakemake(tree: Path, *args: str) -> tuple[float, str]:
