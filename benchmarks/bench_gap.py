@@ -14,6 +14,7 @@ import yaml
 
 from sim2real.gap import build_gap_report, compute_gap
 from sim2real.lab import run_lab_scenario_run, scenario_runs
+from sim2real.report import FIGURES
 
 
 def main(robot: str = "panda") -> None:
@@ -32,7 +33,7 @@ def main(robot: str = "panda") -> None:
         start = time.perf_counter()
         gap, _ = compute_gap(robot, urdf, mjcf, listing)
         compute_s = time.perf_counter() - start
-        figures = {k: Path(tmp) / f"{k}.png" for k in ("torque", "residual_velocity", "regimes", "ladder")}
+        figures = {k: Path(tmp) / f"{k}.png" for k in FIGURES}
         start = time.perf_counter()
         build_gap_report(robot, urdf, mjcf, listing, Path(tmp) / "gap.json", Path(tmp) / "gap.md", figures)
         report_s = time.perf_counter() - start

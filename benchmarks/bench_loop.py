@@ -75,6 +75,7 @@ def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiproc
     the peak resident set of the process and of the workers it forked."""
     from sim2real.gap import build_gap_report
     from sim2real.measurements import prepare_for_model, write_prepared_runs
+    from sim2real.report import FIGURES
     from sim2real.sysid import run_sysid
 
     t = Path(tree)
@@ -88,12 +89,11 @@ def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiproc
     elif rule == "sysid":
         run_sysid("panda", t / "results/panda/panda.urdf", t / "configs/panda/robot.yaml",
                   t / "configs/panda/model.yaml", prepared, o / "ladder.json", o / "params.yaml",
-                  o / "calibration.yaml", root=t)
+                  o / "calibration.yaml", root=t, residuals_npz=o / "residuals.npz")
     else:
         build_gap_report("panda", t / "results/panda/panda.urdf", t / "results/panda/mjcf/panda.xml", prepared,
-                         o / "gap.json", o / "gap.md", {k: o / f"{k}.png" for k in ("torque", "residual_velocity",
-                                                                                   "regimes", "ladder")},
-                         precomputed_path=o / "ladder.json", root=t)
+                         o / "gap.json", o / "gap.md", {k: o / f"{k}.png" for k in FIGURES},
+                         precomputed_path=o / "ladder.json", root=t, residuals_path=o / "residuals.npz")
     profiler.disable()
     seconds = time.perf_counter() - started
     peak_mib = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)) / 1024.0

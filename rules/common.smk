@@ -253,9 +253,13 @@ def identified_params_if_any(wildcards):
 
 
 def sysid_ladder(wildcards):
-    """The campaign's ladder and diagnosis section of the gap report, where the robot has a model ladder."""
+    """The campaign's ladder and diagnosis section of the gap report and the last rung's residuals, where the
+    robot has a model ladder."""
     return (
-        [f"results/{wildcards.robot}/{wildcards.campaign}sysid/ladder.json"]
+        [
+            f"results/{wildcards.robot}/{wildcards.campaign}sysid/ladder.json",
+            f"results/{wildcards.robot}/{wildcards.campaign}sysid/residuals.npz",
+        ]
         if os.path.exists(model_ladder(wildcards.robot))
         else []
     )

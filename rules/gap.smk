@@ -69,6 +69,12 @@ rule gap_report:
             category="Gap report",
             subcategory="{robot}",
         ),
+        residual_time=report(
+            "results/{robot}/{campaign}gap/residual_time.png",
+            caption="../report/gap_residual_time.rst",
+            category="Gap report",
+            subcategory="{robot}",
+        ),
         regimes=report(
             "results/{robot}/{campaign}gap/regimes.png",
             caption="../report/gap_regimes.rst",

@@ -16,6 +16,8 @@ rule sysid:
         ladder="results/{robot}/{campaign}sysid/ladder.json",
         params="results/{robot}/{campaign}sysid/params.yaml",
         calibration="results/{robot}/{campaign}sysid/calibration.yaml",
+        # the last rung's residual on every run: the gap report describes the model being calibrated
+        residuals="results/{robot}/{campaign}sysid/residuals.npz",
     log:
         "results/{robot}/logs/{campaign}sysid.log",
     benchmark:

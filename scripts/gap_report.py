@@ -12,8 +12,10 @@ with rule_entry(snakemake):
         snakemake.output.json,
         snakemake.output.md,
         {"torque": snakemake.output.torque, "residual_velocity": snakemake.output.residual_velocity,
+         "residual_time": snakemake.output.residual_time,
          "regimes": snakemake.output.regimes, "ladder": snakemake.output.ladder},
         precomputed_path=snakemake.input.ladder[0] if snakemake.input.ladder else None,
         threads=snakemake.threads,
         cache_dir=snakemake.params.kept,
+        residuals_path=snakemake.input.ladder[1] if len(snakemake.input.ladder) > 1 else None,
     )

@@ -17,5 +17,6 @@ with rule_entry(snakemake):
         snakemake.output.calibration,
         threads=snakemake.threads,
         cache_dir=snakemake.params.fits,
+        residuals_npz=snakemake.output.residuals,
     )
     logging.info("diagnosis: %s", document.get("diagnosis", {}).get("verdict"))

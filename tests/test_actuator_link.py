@@ -12,6 +12,8 @@ import pytest
 
 from sysid_lab import FAST_FIT, Lab, overall
 
+from sim2real.report import FIGURES
+
 ACTUATOR_SCENARIOS = {
     "sensor_actuation_delay": "actuation_delay",
     "actuator_gain": "actuator_gain",
@@ -172,7 +174,7 @@ def test_behind_a_link_side_sensor_the_drive_is_found_on_the_actuator_link(lab, 
     out = tmp_path / "gap"
     out.mkdir()
     (out / "ladder.json").write_text(json.dumps(last), encoding="utf-8")
-    figures = {k: out / f"{k}.png" for k in ("torque", "residual_velocity", "regimes", "ladder")}
+    figures = {k: out / f"{k}.png" for k in FIGURES}
     gap = build_gap_report("panda", lab.urdf, lab.mjcf, listing, out / "gap.json", out / "gap.md", figures,
                            out / "ladder.json", "/")
     assert gap["links"]["torque_sensor"] == "link"
@@ -197,7 +199,7 @@ def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added
         out = tmp_path / name
         out.mkdir()
         (out / "ladder.json").write_text(json.dumps(document), encoding="utf-8")
-        figures = {k: out / f"{k}.png" for k in ("torque", "residual_velocity", "regimes", "ladder")}
+        figures = {k: out / f"{k}.png" for k in FIGURES}
         gap = build_gap_report("panda", lab.urdf, lab.mjcf, listing, out / "gap.json", out / "gap.md", figures,
                                out / "ladder.json", "/")
         return gap, (out / "gap.md").read_text(encoding="utf-8")

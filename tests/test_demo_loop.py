@@ -49,6 +49,27 @@ def _kept_promise(before: dict, after: dict) -> None:
     assert now - delivered >= 0.9 * (now - promised), f"{top['effect']}: {now} -> promised {promised}, got {delivered}"
 
 
+def _describes_the_current_model(tree: Path, nominal: dict, report: dict) -> None:
+    """The report's headline, where it fails, its worst windows and residual figures are the last rung's (issue
+    30): the model the user is calibrating, with the nominal URDF's beside it for reference."""
+    last = report["ladder"][-1]
+    assert report["metrics"]["model"]["effects"] == last["effects"] == ["link_inertia"]
+    for joint, value in last["metrics"]["torque_rmse"]["per_joint"].items():
+        assert report["metrics"]["torque_rmse"]["per_joint"][joint] == pytest.approx(value, rel=1e-5), joint
+    # the nominal's metrics and where it fails, as the nominal model's report had them, move under "nominal"
+    assert report["nominal"]["metrics"]["torque_rmse"] == nominal["metrics"]["torque_rmse"]
+    assert report["nominal"]["where"]["worst_windows"] == nominal["where"]["worst_windows"]
+    # the worst windows are the current model's, on the holdout runs: a fraction of the nominal's error
+    windows = report["where"]["worst_windows"]
+    assert {w["run"] for w in windows} <= {r["name"] for r in report["runs"] if r["role"] == "holdout"}
+    assert max(w["rmse"] for w in windows) < 0.5 * max(w["rmse"] for w in nominal["where"]["worst_windows"])
+    md = (tree / "results/panda/gap.md").read_text()
+    headline = md.split("## Torque domain", 1)[1].split("##", 1)[0]
+    assert "rung 1: the URDF + link_inertia" in headline and "For reference, the nominal URDF" in headline
+    assert f"**{report['metrics']['torque_rmse']['overall']:.3g} N m**" in headline
+    assert "![Residual vs time](gap/residual_time.png)" in md
+
+
 def test_diagnose_add_one_line_refit_and_calibrate(tmp_path: Path) -> None:
     tree = copy_repo(ROOT, tmp_path / "repo")
     make_fast(tree)
@@ -67,6 +88,7 @@ def test_diagnose_add_one_line_refit_and_calibrate(tmp_path: Path) -> None:
     inertias, log = _follow(tree, ["link_inertia"])
     assert "lab_run" not in rules_run(log), "editing the model does not rebuild the measurements"
     _kept_promise(nominal, inertias)
+    _describes_the_current_model(tree, nominal, inertias)
     friction = inertias["diagnosis"]["candidates"][0]["effect"]
     # The lab hides Gaz et al.'s sigmoid (a velocity offset) with Stribeck humps: a friction effect comes next.
     assert friction in {"coulomb_friction", "asymmetric_friction"}, inertias["diagnosis"]["verdict"]

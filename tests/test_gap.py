@@ -14,6 +14,7 @@ from sim2real.errors import InputError
 from sim2real.gap import build_gap_report, compute_gap, reality_gap
 from sim2real.io import validate
 from sim2real.lab import run_lab_scenario_run
+from sim2real.report import FIGURES
 from sim2real.measurements import load_run, write_run
 
 
@@ -40,7 +41,7 @@ def lab(tmp_path_factory):
 def test_demo_report_points_at_friction_in_slow_motion_and_reversals(lab):
     listing = lab["scenario"]("demo")
     out = lab["dir"] / "demo_report"
-    figures = {k: out / "gap" / f"{k}.png" for k in ("torque", "residual_velocity", "regimes", "ladder")}
+    figures = {k: out / "gap" / f"{k}.png" for k in FIGURES}
     gap = build_gap_report("panda", lab["urdf"], lab["mjcf"], listing, out / "gap.json", out / "gap.md", figures)
     findings = gap["where"]["findings"]
     assert findings, "friction must show up somewhere"
@@ -172,7 +173,7 @@ def test_a_report_kept_replays_and_figures_are_read_back_and_a_changed_rung_repl
     def build(ladder_document, out, kept):
         (out / "ladder.json").parent.mkdir(parents=True, exist_ok=True)
         (out / "ladder.json").write_text(json.dumps(ladder_document))
-        figures = {k: out / "gap" / f"{k}.png" for k in ("torque", "residual_velocity", "regimes", "ladder")}
+        figures = {k: out / "gap" / f"{k}.png" for k in FIGURES}
         build_gap_report("panda", lab["urdf"], lab["mjcf"], listing, out / "gap.json", out / "gap.md", figures,
                          precomputed_path=out / "ladder.json", cache_dir=kept)
         return {p.name: p.read_bytes() for p in [out / "gap.json", out / "gap.md", *figures.values()]}
@@ -180,7 +181,7 @@ def test_a_report_kept_replays_and_figures_are_read_back_and_a_changed_rung_repl
     kept = tmp_path / "kept"
     first = build(ladder, tmp_path / "first", kept)
     # the nominal model on both runs (its rung's replay is that one), the second rung on the holdout run
-    assert replays == ["demo_fit", "demo_holdout", "demo_holdout"] and len(drawn) == 4
+    assert replays == ["demo_fit", "demo_holdout", "demo_holdout"] and len(drawn) == len(FIGURES)
     replays.clear(), drawn.clear()
     assert build(ladder, tmp_path / "again", kept) == first and replays == [] and drawn == []
     changed = json.loads(json.dumps(ladder))

@@ -40,6 +40,7 @@ from mujoco import rollout
 
 from sim2real.dynamics import RigidBodyModel
 from sim2real.cache import FitCache
+from sim2real.errors import InputError
 from sim2real.io import validate, write_json
 from sim2real.measurements import PreparedRun, estimate_noise_floor, runs_for_model
 from sim2real.metrics import rmse
@@ -273,8 +274,10 @@ def fidelity_grade(mean_abs_position_error: float) -> str:
 
 
 def state_domain(mjcf_path: str | Path, runs: Sequence[TorqueComparison], horizon_s: float,
-                 tau_rmse: float, models: ReplayModels | None = None) -> dict[str, Any]:
-    """State-domain metrics over all runs with commands, or a plain 'skipped' with the reason."""
+                 tau_rmse: float, models: ReplayModels | None = None,
+                 identified: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """State-domain metrics over all runs with commands, or a plain 'skipped' with the reason; ``identified``:
+    fitted effects written into the model first (:func:`replay`; None: the MJCF as built)."""
     usable = [c for c in runs if c.run.tau_cmd is not None]
     if not usable:
         return {"status": "skipped",
@@ -283,7 +286,7 @@ def state_domain(mjcf_path: str | Path, runs: Sequence[TorqueComparison], horizo
     sims, reals, simv, realv, contacts = [], [], [], [], []
     for c in usable:
         try:
-            q_sim, qd_sim, idx = replay(mjcf_path, c.run, horizon_s, models=models)
+            q_sim, qd_sim, idx = replay(mjcf_path, c.run, horizon_s, identified, models=models)
         except ValueError as exc:
             return {"status": "skipped", "reason": f"run '{c.run.name}': {exc} (horizon {horizon_s} s)"}
         sims.append(q_sim)
@@ -460,10 +463,48 @@ def model_armature(mjcf_path: str | Path, joints: Sequence[str], models: ReplayM
     return {j: float(model.dof_armature[d]) for j, d in zip(joints, dadr)}
 
 
+def read_model_residuals(path: str | Path, model: RigidBodyModel) -> list[TorqueComparison]:
+    """The last rung's holdout comparisons from the sysid rule's residuals (:func:`sim2real.sysid.write_model_residuals`):
+    each holdout run at the fit's rate, its judged torque, the current model's prediction and residual."""
+    import zipfile
+
+    from sim2real.io import read_array_archive
+
+    try:
+        header, arrays = read_array_archive(path, lambda name: name.startswith("holdout/"))
+        joints = list(header["joints"])
+        out = []
+        for run in header["roles"]["holdout"]["runs"]:
+            rows = slice(int(run["start"]), int(run["stop"]))
+            part = {name: arrays[f"holdout/{name}"][rows] for name in ("time", "q", "qd", "qdd", "tau", "residual")}
+            dt = float(np.median(np.diff(part["time"]))) if part["time"].size > 1 else 0.0
+            prepared = PreparedRun(name=run["name"], joint_names=joints, time=part["time"], dt=dt, q=part["q"],
+                                   qd=part["qd"], qdd=part["qdd"], tau=part["tau"], torque_source=header["torque_source"],
+                                   tau_cmd=None, q_cmd=None, filter={}, torque_sensor=header["torque_sensor"])
+            out.append(TorqueComparison(run=prepared, role="holdout", model_tau=part["tau"] - part["residual"],
+                                        residual=part["residual"], gravity=model.gravity(part["q"])))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
+        raise InputError(path, None, f"not a file of the model's residuals ({exc})",
+                         "rebuild it: snakemake --forcerun sysid") from exc
+    return out
+
+
+def current_model(precomputed: Mapping[str, Any]) -> dict[str, Any]:
+    """What the report judges: the last rung of the body link's ladder (and of the actuator link's, which the
+    replay drives), as ``identified`` for :func:`replay`, and its name."""
+    body = precomputed["ladder"][-1]
+    params = dict(body.get("params") or {})
+    if precomputed.get("actuator"):
+        params.update(precomputed["actuator"]["ladder"][-1].get("params") or {})
+    return {"effects": list(body["effects"]), "rung": len(precomputed["ladder"]) - 1,
+            "identified": {"effects": params, "torque_source": precomputed.get("torque_source")}}
+
+
 def compute_gap(
     robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
     root: str | Path = ".", precomputed: Mapping[str, Any] | None = None, cache: FitCache | None = None,
     progress: Callable[[dict[str, Any], list[TorqueComparison] | None], Any] | None = None,
+    residuals_path: str | Path | None = None,
 ) -> tuple[dict[str, Any], list[TorqueComparison]]:
     """The gap.json content (validated) and the per-run comparisons (for figures).
 
@@ -471,7 +512,12 @@ def compute_gap(
     an earlier report kept there (:class:`ReplayModels`); ``progress``: called with the part of the content
     known so far, twice: the joints, the noise floor and the precomputed sections (no comparisons yet), then
     with the torque domain (the runs, the torque metrics, where it fails) and the comparisons, before the
-    commands are replayed (the report draws each figure as soon as what it shows is known)."""
+    commands are replayed (the report draws each figure as soon as what it shows is known).
+
+    With a ladder (``precomputed``) and its residuals (``residuals_path``, the sysid rule's), the report
+    describes the model being calibrated, the ladder's last rung: the top-level ``metrics`` (on the holdout
+    runs, as the ladder judges) and ``where`` are its, and the returned comparisons too; the nominal URDF's
+    (every run, at the log's rate) move under ``nominal``, for reference."""
     # joints come from the first run, the model locks everything else
     entries, prepared, settings = runs_for_model(measurement_list, urdf_path, root)
     models = ReplayModels(mjcf_path, cache) if mjcf_path is not None else None
@@ -516,18 +562,34 @@ def compute_gap(
                                            float(np.sqrt(np.mean(estimate_noise_floor(p) ** 2)))),
         })
 
-    gap.update({"runs": runs_out, "metrics": metrics, "where": where_it_fails(comparisons, model.lower, model.upper, floor)})
-    if progress is not None:
-        progress(gap, comparisons)
-
-    if mjcf_path is None:
-        metrics["state_domain"] = {"status": "skipped", "reason": "no MJCF given to replay the commands in"}
+    nominal = {"metrics": metrics, "where": where_it_fails(comparisons, model.lower, model.upper, floor)}
+    current = current_model(precomputed) if precomputed and "ladder" in gap and residuals_path is not None else None
+    judged = comparisons
+    if current is None:
+        gap.update({"runs": runs_out, "metrics": metrics, "where": nominal["where"]})
     else:
-        metrics["state_domain"] = state_domain(mjcf_path, comparisons, settings["horizon_s"],
-                                               metrics["torque_rmse"]["overall"], models)
-    if metrics["state_domain"]["status"] == "computed":
-        metrics["position_rmse"] = metrics["state_domain"]["position_rmse"]
-        metrics["velocity_rmse"] = metrics["state_domain"]["velocity_rmse"]
+        judged = read_model_residuals(residuals_path, model)
+        last = torque_metrics(np.concatenate([c.run.tau for c in judged]),
+                              np.concatenate([c.residual for c in judged]), joints)
+        last["model"] = {
+            "rung": current["rung"], "effects": current["effects"],
+            "judged_on": "the holdout runs at the fit's rate, as the ladder judges each rung (the nominal URDF's "
+            "metrics under nominal: every run at the log's rate)"}
+        gap.update({"runs": runs_out, "metrics": last, "where": where_it_fails(judged, model.lower, model.upper, floor),
+                    "nominal": nominal})
+    if progress is not None:
+        progress(gap, judged)
+
+    sections = [(metrics, None)] if current is None else [(metrics, None), (gap["metrics"], current["identified"])]
+    for section, identified in sections:
+        if mjcf_path is None:
+            section["state_domain"] = {"status": "skipped", "reason": "no MJCF given to replay the commands in"}
+        else:
+            section["state_domain"] = state_domain(mjcf_path, comparisons, settings["horizon_s"],
+                                                   section["torque_rmse"]["overall"], models, identified)
+        if section["state_domain"]["status"] == "computed":
+            section["position_rmse"] = section["state_domain"]["position_rmse"]
+            section["velocity_rmse"] = section["state_domain"]["velocity_rmse"]
     if precomputed and "ladder" in gap and mjcf_path is not None and metrics["state_domain"]["status"] == "computed":
         # Each rung replayed with its fitted effects written into the MJCF: the state-domain view of the ladder.
         positions = ladder_position_rmse(mjcf_path, comparisons, settings["horizon_s"], gap["ladder"],
@@ -546,16 +608,16 @@ def compute_gap(
                     rung["metrics"]["position_rmse"] = position
     gap = json.loads(json.dumps(gap))  # plain JSON types only
     validate(gap, "gap.schema.json", "gap.json")
-    return gap, comparisons
+    return gap, judged
 
 
 def build_gap_report(
     robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
     gap_json: str | Path, gap_md: str | Path, figures: Mapping[str, str | Path],
     precomputed_path: str | Path | None = None, root: str | Path = ".", threads: int = 1,
-    cache_dir: str | Path | None = None,
+    cache_dir: str | Path | None = None, residuals_path: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Write gap.json, gap.md and the figures (keys: torque, residual_velocity, regimes, ladder); the figures
+    """Write gap.json, gap.md and the figures (keys: :data:`sim2real.report.FIGURES`); the figures
     are drawn on up to ``threads`` processes. ``cache_dir``: where the replays and figures are kept for the
     next report (:class:`sim2real.cache.FitCache`; None: not kept): a round of the loop that adds a
     rung replays that rung and redraws what shows the ladder, and reads the rest back, the same bytes."""
@@ -566,8 +628,10 @@ def build_gap_report(
         precomputed = json.loads(Path(precomputed_path).read_text(encoding="utf-8"))
     cache = FitCache(cache_dir)
     drawing = GapFigures(figures, threads, cache)  # each figure drawn as soon as what it shows is known
+    if precomputed is None or residuals_path is None or not Path(residuals_path).exists():
+        residuals_path = None
     gap, comparisons = compute_gap(robot, urdf_path, mjcf_path, measurement_list, root, precomputed, cache,
-                                   drawing.show)
+                                   drawing.show, residuals_path)
     drawing.finish()
     md_dir = Path(gap_md).parent
     rel = {k: Path(os_relpath(v, md_dir)).as_posix() for k, v in figures.items()}

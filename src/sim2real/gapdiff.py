@@ -78,13 +78,16 @@ def gap_diff_markdown(base: GapReport | None, head: GapReport) -> str:
     base_by_label = {_rung_label(r): r for r in base_ladder}
     if head_ladder:
         lines += _rung_rows(head_ladder, base_ladder) + [""]
+        # The model each branch ends with: its last rung, whatever effects either added.
         last = head_ladder[-1]
-        base_last = base_by_label.get(_rung_label(last))
+        base_last = base_ladder[-1] if base_ladder else None
         head_joints = _torque_rmse(last).get("per_joint", {})
         base_joints = _torque_rmse(base_last).get("per_joint", {})
         floor = (head.get("noise_floor") or {}).get("torque_rmse", {}).get("per_joint", {})
+        models = (f"base {_rung_label(base_last)}, this branch {_rung_label(last)}" if base_last is not None
+                  and _rung_label(base_last) != _rung_label(last) else _rung_label(last))
         lines += [
-            f"Per joint, last rung ({_rung_label(last)}):",
+            f"Per joint, the last rung of each branch, the model it calibrates ({models}):",
             "",
             "| joint | base | this branch | change | noise floor |",
             "|---|---|---|---|---|",

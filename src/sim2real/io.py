@@ -12,7 +12,7 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Collection, Iterator, Mapping
+from collections.abc import Collection, Iterable, Iterator, Mapping
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -72,6 +72,43 @@ def write_text(target: str | Path, text: str) -> None:
 def write_bytes(target: str | Path, data: bytes) -> None:
     with atomic_path(target) as tmp:
         tmp.write_bytes(data)
+
+
+ARCHIVE_TIME = (1980, 1, 1, 0, 0, 0)  # every member of an archive: the same arrays give the same bytes
+
+
+def write_array_archive(target: str | Path, arrays: Iterable[tuple[str, Any]] | Mapping[str, Any],
+                        header: Mapping[str, Any]) -> None:
+    """A zip of ``.npy`` members (in the order given) and ``header.json`` last, with fixed member times: the
+    same arrays and header give the same bytes. :func:`read_array_archive` reads it back."""
+    import io as _io
+    import zipfile
+
+    import numpy as np
+
+    items = arrays.items() if isinstance(arrays, Mapping) else arrays
+    with atomic_path(target) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as archive:
+        for name, value in items:
+            buffer = _io.BytesIO()
+            np.lib.format.write_array(buffer, np.asarray(value), allow_pickle=False)
+            archive.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=ARCHIVE_TIME), buffer.getvalue())
+        archive.writestr(zipfile.ZipInfo("header.json", date_time=ARCHIVE_TIME),
+                         json.dumps(header, sort_keys=True, indent=1))
+
+
+def read_array_archive(path: str | Path, wanted: Any = None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(header, arrays) of a file of :func:`write_array_archive`; ``wanted(name)`` says which arrays to read
+    (default: all). Raises OSError, KeyError, ValueError or zipfile.BadZipFile on a file of another kind."""
+    import zipfile
+
+    import numpy as np
+
+    with zipfile.ZipFile(path) as archive:
+        header = json.loads(archive.read("header.json"))
+        arrays = {member[:-4]: np.lib.format.read_array(archive.open(member), allow_pickle=False)
+                  for member in archive.namelist()
+                  if member.endswith(".npy") and (wanted is None or wanted(member[:-4]))}
+    return header, arrays
 
 
 def write_json(target: str | Path, data: Any) -> None:

@@ -565,27 +565,19 @@ def write_prepared_runs(
     path: str | Path, entries: Sequence[MeasurementEntry], prepared: Sequence[PreparedRun], settings: Mapping[str, Any],
 ) -> None:
     """Prepared runs (:func:`prepare_for_model`) in one file that :func:`read_prepared_runs` reads back exactly."""
-    import io as _io
-    import json
-    import zipfile
+    from sim2real.io import write_array_archive
 
-    from sim2real.io import atomic_path
-
-    header = {"settings": dict(settings), "runs": []}
-    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as archive:
-        for i, (entry, run) in enumerate(zip(entries, prepared, strict=True)):
-            header["runs"].append({
-                "entry": {"name": entry.name, "path": Path(entry.path).as_posix(), "role": entry.role},
-                "name": run.name, "joint_names": list(run.joint_names), "dt": float(run.dt),
-                "torque_source": run.torque_source, "torque_sensor": run.torque_sensor, "filter": run.filter,
-                "arrays": [a for a in _PREPARED_ARRAYS if getattr(run, a) is not None],
-            })
-            for name in header["runs"][-1]["arrays"]:
-                buffer = _io.BytesIO()
-                np.lib.format.write_array(buffer, np.asarray(getattr(run, name)), allow_pickle=False)
-                archive.writestr(zipfile.ZipInfo(f"{i}/{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)), buffer.getvalue())
-        archive.writestr(zipfile.ZipInfo("header.json", date_time=(1980, 1, 1, 0, 0, 0)),
-                         json.dumps(header, sort_keys=True, indent=1))
+    header: dict[str, Any] = {"settings": dict(settings), "runs": []}
+    members = []
+    for i, (entry, run) in enumerate(zip(entries, prepared, strict=True)):
+        header["runs"].append({
+            "entry": {"name": entry.name, "path": Path(entry.path).as_posix(), "role": entry.role},
+            "name": run.name, "joint_names": list(run.joint_names), "dt": float(run.dt),
+            "torque_source": run.torque_source, "torque_sensor": run.torque_sensor, "filter": run.filter,
+            "arrays": [a for a in _PREPARED_ARRAYS if getattr(run, a) is not None],
+        })
+        members += [(f"{i}/{name}", getattr(run, name)) for name in header["runs"][-1]["arrays"]]
+    write_array_archive(path, members, header)
 
 
 def read_prepared_runs(path: str | Path, arrays: Collection[str] | None = None,
@@ -593,23 +585,22 @@ def read_prepared_runs(path: str | Path, arrays: Collection[str] | None = None,
     """The file of :func:`write_prepared_runs`: (entries, prepared runs, settings), as they were written.
     ``arrays``: read only these of the runs' arrays (the others None; default: all): a 10-minute log at 1 kHz
     holds 32 MB per signal and run, and the fit never reads the commanded positions or the logged velocity."""
-    import json
     import zipfile
 
+    from sim2real.io import read_array_archive
+
     try:
-        with zipfile.ZipFile(path) as archive:
-            header = json.loads(archive.read("header.json"))
-            entries, runs = [], []
-            for i, item in enumerate(header["runs"]):
-                read = {name: np.lib.format.read_array(archive.open(f"{i}/{name}.npy"), allow_pickle=False)
-                        for name in item["arrays"] if arrays is None or name in arrays}
-                entries.append(MeasurementEntry(item["entry"]["name"], Path(item["entry"]["path"]), item["entry"]["role"]))
-                runs.append(PreparedRun(
-                    name=item["name"], joint_names=list(item["joint_names"]), dt=float(item["dt"]),
-                    torque_source=item["torque_source"], torque_sensor=item["torque_sensor"], filter=item["filter"],
-                    **{name: read.get(name) for name in _PREPARED_ARRAYS if name not in _SIGMAS},
-                    **{name: read.get(name, np.zeros(0)) for name in _SIGMAS},
-                ))
+        header, read = read_array_archive(path, None if arrays is None else lambda member: member.split("/")[-1] in arrays)
+        entries, runs = [], []
+        for i, item in enumerate(header["runs"]):
+            own = {name: read[f"{i}/{name}"] for name in item["arrays"] if f"{i}/{name}" in read}
+            entries.append(MeasurementEntry(item["entry"]["name"], Path(item["entry"]["path"]), item["entry"]["role"]))
+            runs.append(PreparedRun(
+                name=item["name"], joint_names=list(item["joint_names"]), dt=float(item["dt"]),
+                torque_source=item["torque_source"], torque_sensor=item["torque_sensor"], filter=item["filter"],
+                **{name: own.get(name) for name in _PREPARED_ARRAYS if name not in _SIGMAS},
+                **{name: own.get(name, np.zeros(0)) for name in _SIGMAS},
+            ))
     except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
         raise InputError(path, None, f"not a file of prepared runs ({exc})",
                          "rebuild it: snakemake --forcerun prepare_runs") from exc

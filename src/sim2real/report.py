@@ -24,8 +24,8 @@ SENSOR_TEXT = {
     "`tau` is the torque the drive applies, so the rotor inertia and joint friction are the body link's. "
     "If `tau` is measured after the gearbox (the Panda's tau_J), set `torque_sensor: link`.",
     "link": "The torque sensor is link-side (run metadata `torque_sensor: link`): `tau` is measured after the "
-    "gearbox, so the rotor inertia and joint friction lie between the command and `tau`, on the actuator link, "
-    "and the body link is the rigid body alone.",
+    "gearbox, so the rotor inertia and joint friction are expected between the command and `tau`, on the actuator "
+    "link, and the body link to be the rigid body alone.",
 }
 
 
@@ -100,6 +100,37 @@ def figure_residual_velocity(comparisons: Sequence[Any], target: str | Path) -> 
     _save(fig, target)
 
 
+SMOOTH_S = 1.0  # the residual against time is drawn with its moving mean over this window: a drift shows
+
+
+def figure_residual_time(comparisons: Sequence[Any], target: str | Path) -> None:
+    """Torque residual against time within each run, with its moving mean: a warm-up or a drifting offset shows
+    as a slow trend, an offset between runs as lines at different heights."""
+    joints = comparisons[0].run.joint_names
+    fig, axes = _grid(len(joints))
+    for k, c in enumerate(comparisons):
+        t = c.run.time - c.run.time[0]
+        window = max(1, int(round(SMOOTH_S / c.run.dt))) if c.run.dt > 0 else 1
+        stride = max(1, t.size // 1000)
+        kernel = np.ones(window) / window
+        for j, ax in enumerate(axes[: len(joints)]):
+            ax.plot(t[::stride], c.residual[::stride, j], lw=0.4, alpha=0.35, color=f"C{k % 10}")
+            if t.size >= window:
+                mean = np.convolve(c.residual[:, j], kernel, mode="valid")
+                ax.plot(t[window // 2: window // 2 + mean.size][::stride], mean[::stride], lw=1.4, color=f"C{k % 10}",
+                        label=f"{c.run.name} ({c.role})")
+    for ax, joint in zip(axes, joints):
+        ax.axhline(0, color="0.5", lw=0.5)
+        ax.set_title(joint, fontsize=9)
+        ax.set_xlabel("time in run [s]", fontsize=8)
+        ax.set_ylabel("residual [N m]", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0].legend(fontsize=6)
+    fig.suptitle(f"Torque residual (measured - model) against time, {SMOOTH_S:g} s moving mean", fontsize=10)
+    fig.tight_layout()
+    _save(fig, target)
+
+
 def figure_regimes(gap: Mapping[str, Any], target: str | Path) -> None:
     """Per joint and regime: the residual step between the regime's two sides, against the noise floor."""
     joints = gap["joints"]
@@ -156,6 +187,8 @@ def _draw(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any], figures
         figure_torque(comparisons, figures[name])
     elif name == "residual_velocity":
         figure_residual_velocity(comparisons, figures[name])
+    elif name == "residual_time":
+        figure_residual_time(comparisons, figures[name])
     elif name == "regimes":
         figure_regimes(gap, figures[name])
     else:
@@ -163,15 +196,17 @@ def _draw(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any], figures
     return Path(figures[name]).read_bytes()
 
 
-FIGURES = ("torque", "residual_velocity", "regimes", "ladder")
+FIGURES = ("torque", "residual_velocity", "residual_time", "regimes", "ladder")
 
 
 def _figure_inputs(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any] | None) -> Any:
     """What the figure ``name`` is drawn from (:func:`_draw`): the same inputs draw the same bytes; None while
     part of it is not known yet (:meth:`GapFigures.show`)."""
-    if name in ("torque", "residual_velocity"):
+    if name in ("torque", "residual_velocity", "residual_time"):
         if comparisons is None:
             return None
+        if name == "residual_time":
+            return [(c.run.name, c.role, c.run.time, c.run.dt, c.residual, c.run.joint_names) for c in comparisons]
         return (_pick_run(comparisons) if name == "torque"
                 else [(c.run.qd, c.residual, c.run.joint_names) for c in comparisons])
     if name == "regimes":
@@ -346,14 +381,55 @@ def _diagnosis_markdown(diagnosis: Mapping[str, Any]) -> list[str]:
     for skip in diagnosis.get("skipped", []):
         lines.append(f"- `{skip['effect']}` not tried: {skip['reason']}")
     per_joint = diagnosis.get("per_joint")
-    if per_joint and diagnosis.get("status") != "at_noise_floor":
-        # Joint by joint: how far above its own floor each joint sits, and what comes closest there.
-        lines += ["", "| joint | x its noise floor | closest candidate there | share of its excess removed | x floor after |",
-                  "|---|---|---|---|---|"]
+    ceiling = diagnosis.get("model_free")
+    if per_joint and (diagnosis.get("status") != "at_noise_floor" or ceiling):
+        # Joint by joint: how far above its own floor each joint sits, what comes closest there, and how far any
+        # function of the motion would go (the model-free ceiling).
+        head = "| joint | x its noise floor | closest candidate there | share of its excess removed | x floor after |"
+        rule = "|---|---|---|---|---|"
+        if ceiling:
+            head += " model-free ceiling [N m] (x floor) | what is left |"
+            rule += "---|---|"
+        lines += ["", head, rule]
         for joint, row in per_joint.items():
-            lines.append(f"| {joint} | {row['x_floor']:.2f} | {row['closest'] or 'none'} | "
-                         f"{100 * row['closest_explained_beyond_noise']:.0f}% | {row['closest_x_floor_after']:.2f} |")
+            line = (f"| {joint} | {row['x_floor']:.2f} | {row['closest'] or 'none'} | "
+                    f"{100 * row['closest_explained_beyond_noise']:.0f}% | {row['closest_x_floor_after']:.2f} |")
+            if ceiling:
+                c = ceiling["per_joint"][joint]
+                line += f" {c['ceiling_rmse']:.3g} ({_fmt(c.get('ceiling_x_floor'))}) | {_left_text(c)} |"
+            lines.append(line)
+        if ceiling:
+            lines += ["", f"Model-free ceiling: {ceiling['learner']}. " + (ceiling["text"] or
+                      "Nothing is left above the floors that a function of the motion, the time or the history explains.")]
     return lines
+
+
+LEFT_TEXT = {"at_floor": "at its floor", "motion": "a function of the motion the library lacks"}
+FOLLOWS_TEXT = {"time": "not the motion: drifts with time", "run": "not the motion: an offset per run",
+                "history": "not the motion: follows the history since a reversal", None: "not the motion, nor time"}
+
+
+def _left_text(row: Mapping[str, Any]) -> str:
+    """What kind of thing is left on a joint (the ceiling's ``kind`` and ``follows``), in a few words."""
+    if row["kind"] == "motion":
+        with_ = row.get("gains_most_with") or []
+        return LEFT_TEXT["motion"] + (f" ({', '.join(with_)})" if with_ else "")
+    return LEFT_TEXT.get(row["kind"]) or FOLLOWS_TEXT[row.get("follows")]
+
+
+def _model_name(model: Mapping[str, Any]) -> str:
+    """The current model as gap.md names it (gap.json ``metrics.model``)."""
+    if not model["effects"]:
+        return "the nominal URDF, no effect added yet"
+    return f"rung {model['rung']}: the URDF + {', '.join(model['effects'])}"
+
+
+def _where_nominal_text(where: Mapping[str, Any]) -> str:
+    """One line on where the nominal URDF failed, for reference beside the current model."""
+    if not where["findings"]:
+        return "The nominal URDF's error stood out in no regime."
+    return (f"For reference, the nominal URDF's error concentrated in "
+            f"{', '.join(REGIME_LABELS[r] for r in where['summary']['regimes'])} on {', '.join(where['summary']['joints'])}.")
 
 
 def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> str:
@@ -374,23 +450,43 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
               f"order {f['order']}, cutoff {f['cutoff_hz']:g} Hz; velocity: {f['velocity']}; "
               f"acceleration: {f['acceleration']}; {f['applied_to']}; "
               f"{f['trimmed_s_each_end']:g} s trimmed at each end.", ""]
-    lines += ["## Torque domain (inverse dynamics on measured motion)", "",
-              f"Overall RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
-              f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
-              f"R^2 {m['torque_r2']['overall']:.4g}.", "",
-              "Each joint is judged in its own units, x its own noise floor: a wrist residual 8x its floor weighs "
+    model = m.get("model")
+    nominal_rung = gap["ladder"][0]["metrics"]["torque_rmse"] if model and gap.get("ladder") else None
+    lines += ["## Torque domain (inverse dynamics on measured motion)", ""]
+    if model:
+        lines += [f"The model of configs/{gap['robot']}/model.yaml ({_model_name(model)}), judged on the holdout runs "
+                  f"as the ladder judges it: RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
+                  f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
+                  f"R^2 {m['torque_r2']['overall']:.4g}.", "",
+                  f"For reference, the nominal URDF: {nominal_rung['overall']:.3g} N m on the same runs "
+                  f"({gap['nominal']['metrics']['torque_rmse']['overall']:.3g} N m over every run at the log's rate).", ""]
+    else:
+        lines += [f"Overall RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
+                  f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
+                  f"R^2 {m['torque_r2']['overall']:.4g}.", ""]
+    lines += ["Each joint is judged in its own units, x its own noise floor: a wrist residual 8x its floor weighs "
               "what a shoulder residual 8x its floor weighs, although its N m are ten times smaller.", "",
-              "| joint | RMSE [N m] | noise floor [N m] | x floor | relative RMSE | R^2 |", "|---|---|---|---|---|---|"]
+              "| joint | RMSE [N m] | noise floor [N m] | x floor | relative RMSE | R^2 |"
+              + (" nominal URDF [N m] |" if nominal_rung else ""),
+              "|---|---|---|---|---|---|" + ("---|" if nominal_rung else "")]
     for j in joints:
         value, noise = m["torque_rmse"]["per_joint"][j], floor["per_joint"][j]
         lines.append(f"| {j} | {value:.3g} | {noise:.3g} | {_fmt(value / noise if noise > 0 else None)} | "
-                     f"{m['torque_relative_rmse']['per_joint'][j]:.3g} | {m['torque_r2']['per_joint'][j]:.4g} |")
+                     f"{m['torque_relative_rmse']['per_joint'][j]:.3g} | {m['torque_r2']['per_joint'][j]:.4g} |"
+                     + (f" {nominal_rung['per_joint'][j]:.3g} |" if nominal_rung else ""))
     sd = m["state_domain"]
     lines += ["", "## State domain (replay of the commanded torques)", ""]
     if sd["status"] == "skipped":
         lines.append(f"Skipped: {sd['reason']}.")
     else:
         g = sd["reality_gap"]
+        if model:
+            lines += [f"The commands replayed on {_model_name(model)}, its fitted effects written into the MJCF."]
+            nominal_sd = gap["nominal"]["metrics"]["state_domain"]
+            if nominal_sd.get("status") == "computed":
+                lines[-1] += (f" The nominal MJCF, for reference: position RMSE {nominal_sd['position_rmse']['overall']:.3g}"
+                              f" rad, reality-gap score {nominal_sd['reality_gap']['score']:.3f}.")
+            lines.append("")
         lines += [f"Multiple shooting, reset to the measured state every {sd['horizon_s']:g} s. "
                   f"Position RMSE {sd['position_rmse']['overall']:.3g} rad, velocity RMSE "
                   f"{sd['velocity_rmse']['overall']:.3g} rad/s, correlation {sd['correlation']['overall']:.4g}, "
@@ -404,6 +500,9 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
                          f"{sd['velocity_rmse']['per_joint'][j]:.3g} | {sd['correlation']['per_joint'][j]:.4g} |")
     w = gap["where"]
     lines += ["", "## Where the model fails", ""]
+    if model:
+        lines += [f"The model of model.yaml ({_model_name(model)}) on the holdout runs. "
+                  + _where_nominal_text(gap["nominal"]["where"]), ""]
     if w["findings"]:
         lines.append(f"The error concentrates in **{', '.join(REGIME_LABELS[r] for r in w['summary']['regimes'])}** "
                      f"on **{', '.join(w['summary']['joints'])}**:")
@@ -449,12 +548,17 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
         lines += ["", "## What these runs can tell apart", "", f"{links['text'][0].upper()}{links['text'][1:]}.", ""]
         if links["mode"] != "commands_only":
             lines += [SENSOR_TEXT[links.get("torque_sensor", "motor")], ""]
+        if links.get("metadata_note"):
+            lines += [f"**The data contradict the metadata:** {links['metadata_note']}", ""]
         for fact in links["can_tell"]:
             lines.append(f"- Told apart: {', '.join(f'`{e}`' for e in fact['effects'])}: {fact['why']}.")
         for fact in links["cannot_tell"]:
             lines.append(f"- **Not told apart:** {', '.join(f'`{e}`' for e in fact['effects'])}: {fact['why']}.")
-    lines += ["", "## Figures", "",
-              f"![Measured vs model torque]({figures['torque']})", "",
+    lines += ["", "## Figures", ""]
+    if model:
+        lines += [f"The model of model.yaml ({_model_name(model)}) on the holdout runs.", ""]
+    lines += [f"![Measured vs model torque]({figures['torque']})", "",
               f"![Residual vs velocity]({figures['residual_velocity']})", "",
+              f"![Residual vs time]({figures['residual_time']})", "",
               f"![Error by regime]({figures['regimes']})", ""]
     return "\n".join(lines)

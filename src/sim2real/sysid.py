@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from sim2real import actuator
-from sim2real.diagnosis import candidates_to_try
+from sim2real.diagnosis import DEFAULT_DIAGNOSIS, candidates_to_try, model_free_ceiling
 from sim2real.diagnosis import diagnose as run_diagnosis
 from sim2real.effects import Signals, get_effect
 from sim2real.errors import InputError
@@ -84,6 +84,7 @@ def fit_ladder(
     candidates: Sequence[str] | None = None,
     workers: int = 1,
     cache: FitCache | None = None,
+    residuals_out: dict[str, np.ndarray] | None = None,
 ) -> tuple[dict[str, Any], FitResult]:
     """Every rung (nominal, then each effect added in turn) fitted and judged; diagnosis of the last.
 
@@ -93,7 +94,9 @@ def fit_ladder(
     signals (default: the nominal model's on the data) say what the judged torque is predicted from;
     ``workers``: processes the rungs' two ways (:func:`sim2real.fitting.fit_on_the_previous`) and the
     diagnosis's candidates are fitted on; ``cache``: rungs and diagnoses of earlier rounds with the same
-    inputs are read back from it (:class:`sim2real.cache.FitCache`), the same to the last bit.
+    inputs are read back from it (:class:`sim2real.cache.FitCache`), the same to the last bit;
+    ``residuals_out``: filled with the last rung's residual on the fit and the holdout data (keys ``fit``,
+    ``holdout``: judged minus predicted torque), what the gap report judges the current model by.
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
@@ -159,6 +162,11 @@ def fit_ladder(
         "state_domain": state_domain_status(holdout_data),
         "settings": {"fit": fit_settings},
     }
+    # the model-free ceiling learns from the fit runs' residual (a link judged against the motion only)
+    fit_residual = fit_data.tau - predict(result, nominal, fit_data, fit_signals) if (
+        (diagnose and link != "actuator") or residuals_out is not None) else None
+    if residuals_out is not None:
+        residuals_out.update({"fit": fit_residual, "holdout": residual})
     if diagnose:
         prior = (result.consistency or {}).get("inertia_prior")
         # Every candidate is fitted with the prior weight the current rung chose: a candidate that merely let the
@@ -168,11 +176,31 @@ def fit_ladder(
         diagnosis_settings = {"fit": diagnosis_fit, "diagnosis": settings.get("diagnosis", {})}
         key = cache.key(inputs, list(effect_names), residual, result.nonlinear, diagnosis_settings, robot, candidates)
         document["diagnosis"] = cache.get_or_compute("diagnosis", key, functools.partial(
-            run_diagnosis, effect_names, nominal, fit_data, holdout_data, residual, diagnosis_settings,
+            _diagnose_link, effect_names, nominal, fit_data, holdout_data, residual, fit_residual, diagnosis_settings,
             fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot, nonlinear_fixed=result.nonlinear,
-            candidates=candidates, link=link, workers=workers,
+            candidates=candidates, link=link, workers=workers, current=result,
         ))
     return round_floats(document), result
+
+
+def _diagnose_link(effect_names: Sequence[str], nominal: NominalModel, fit_data: TorqueData,
+                   holdout_data: TorqueData, holdout_residual: np.ndarray, fit_residual: np.ndarray,
+                   settings: Mapping[str, Any], *, link: str, **options: Any) -> dict[str, Any]:
+    """The diagnosis of one link (:func:`sim2real.diagnosis.diagnose`) and, on a link judged against the motion,
+    its model-free ceiling (:func:`sim2real.diagnosis.model_free_ceiling`): when no effect is named, the
+    verdict says what kind of thing is left."""
+    diagnosis = run_diagnosis(effect_names, nominal, fit_data, holdout_data, holdout_residual, settings, link=link,
+                              **options)
+    if link == "actuator":
+        return diagnosis  # predicted forward from the command: the motion is not what it is a function of
+    limits = {**DEFAULT_DIAGNOSIS, **settings.get("diagnosis", {})}
+    ceiling = model_free_ceiling(fit_data, fit_residual, holdout_data, holdout_residual,
+                                 float(limits["noise_floor_factor"]))
+    diagnosis["model_free"] = ceiling
+    if diagnosis["status"] == "unexplained" and ceiling["text"]:
+        diagnosis["verdict"] = diagnosis["verdict"].replace(" Look at the worst windows in the gap report.", "")
+        diagnosis["verdict"] += " " + ceiling["text"] + " The gap report's worst windows and residual figures show it."
+    return diagnosis
 
 
 def _rung(
@@ -199,6 +227,7 @@ def fit_model(
     workers: int = 1,
     cache: FitCache | None = None,
     release_runs: bool = False,
+    current_out: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], list[FitResult]]:
     """Both links of the model (:mod:`sim2real.actuator`) on prepared runs by role (``fit``, ``holdout``).
 
@@ -208,7 +237,8 @@ def fit_model(
     ``ladder.json`` content and the last rung's fit of each link fitted. ``workers``: processes the
     diagnoses fit their candidates on; ``cache``: fits of earlier rounds (:func:`fit_ladder`);
     ``release_runs``: empty the lists of ``runs`` once both links have what they need of them (the caller
-    holds no other reference: a 10-minute log's runs at 1 kHz are hundreds of MB the body link does not need).
+    holds no other reference: a 10-minute log's runs at 1 kHz are hundreds of MB the body link does not need);
+    ``current_out``: filled with the body link's data and last rung's residual by role (:func:`model_residuals`).
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
@@ -232,11 +262,15 @@ def fit_model(
         for listed in runs.values():
             if isinstance(listed, list):
                 listed.clear()
+    residuals: dict[str, np.ndarray] = {}
     document, result = fit_ladder(
         body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
         candidates=actuator.candidates_of_link("body", sensor) if mode == "separate" or sensor == "link" else None,
-        workers=workers, cache=cache,
+        workers=workers, cache=cache, residuals_out=residuals,
     )
+    if current_out is not None:
+        current_out.update({"link": body_link, "effects": list(body_effects),
+                            **{role: (body_data[role], residuals[role]) for role in ("fit", "holdout")}})
     results = [result]
     if body_link == "body":
         _note_drive(document.get("diagnosis"), "body", sensor)
@@ -253,6 +287,15 @@ def fit_model(
         confounded += section.get("diagnosis", {}).get("confounded", [])
         results.append(link_result)
     document["links"] = round_floats(actuator.separability(mode, effect_names, confounded, sensor))
+    contradicted = [name for name in body_effects if get_effect(name).drive] if body_link == "body" else []
+    if sensor == "link" and contradicted:
+        # The metadata put the drive before the sensor; the model the user follows fits it after: say what that means.
+        document["links"]["metadata_note"] = (
+            f"The runs say the torque sensor is link-side (torque_sensor: link), so the body link was expected to be "
+            f"the rigid body alone; yet the model fits {', '.join(contradicted)} on it, against the motion, after "
+            "the sensor. The data say part of the joint's friction or inertia acts after the sensor (output "
+            "bearings, seals) or that the sensor sits before part of the drive; the calibrated model adds it to "
+            "the joint's value.")
     return document, results
 
 
@@ -349,6 +392,28 @@ def params_document(
     })
 
 
+def write_model_residuals(path: str | Path, current: Mapping[str, Any]) -> None:
+    """The body link's last rung on every run, at the fit's rate (:func:`fit_model`'s ``current_out``): time,
+    motion, judged torque and residual by role and run, what the gap report judges the current model by
+    (:func:`sim2real.gap.read_model_residuals`)."""
+    from sim2real.io import write_array_archive
+
+    header: dict[str, Any] = {"link": current["link"], "effects": current["effects"], "roles": {}}
+    members = []
+    for role in ("fit", "holdout"):
+        data, residual = current[role]
+        header.update({"joints": list(data.joint_names), "torque_source": data.torque_source,
+                       "torque_sensor": data.torque_sensor})
+        header["roles"][role] = {
+            "noise_floor": [float(v) for v in data.noise_floor],
+            "runs": [{"name": name, "start": seg.start, "stop": seg.stop}
+                     for name, seg in zip(data.run_names, data.segments, strict=True)]}
+        members += [(f"{role}/{name}", value) for name, value in (
+            ("time", data.time), ("q", data.q), ("qd", data.qd), ("qdd", data.qdd), ("tau", data.tau),
+            ("residual", residual))]
+    write_array_archive(path, members, header)
+
+
 def load_model_config(path: str | Path) -> dict[str, Any]:
     """configs/{robot}/model.yaml, validated; ``effects`` as a list (empty = nominal model)."""
     from sim2real.io import read_validated_yaml
@@ -377,8 +442,10 @@ def run_sysid(
     root: str | Path = ".",
     threads: int = 1,
     cache_dir: str | Path | None = None,
+    residuals_npz: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration.
+    """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration; the last
+    rung's residuals (``residuals_npz``, :func:`write_model_residuals`) for the gap report.
 
     ``measurement_list``: the measurement list, or the runs prepared from it (``prepare_runs``, ``.npz``);
     ``threads``: the diagnosis fits its candidates on that many processes (BLAS on one thread each);
@@ -403,11 +470,14 @@ def run_sysid(
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
     with program_store(cache_dir):  # the consistent fit's canonicalised programs, kept beside the fits
+        current: dict[str, Any] = {}
         document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot,
-                                      workers=threads, cache=cache, release_runs=True)
+                                      workers=threads, cache=cache, release_runs=True, current_out=current)
     params = params_document(results, nominal, document["torque_source"], robot)
     write_json(ladder_json, document)
     write_yaml(params_yaml, params)
     write_yaml(calibration_yaml, round_floats(calibration_from_params(params)))
+    if residuals_npz is not None:
+        write_model_residuals(residuals_npz, current)
     cache.prune()
     return document

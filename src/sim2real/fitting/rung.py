@@ -247,11 +247,17 @@ def _consistent_fit(
                 choice = choose_prior_weight(weighted, (data.tau - problem.base({}, nonlinear)) * problem.weights,
                                              bounds, inertial, max(floor, 1e-12))
                 relative = choice.weight
+                bound = {"weakest": "; at the weakest pull searched: the held-out error still fell as the pull "
+                         "weakened, so the data ask for inertias freer than the search allows",
+                         "strongest": "; at the strongest pull searched: the held-out data see no cost in holding "
+                         "the inertias at CAD"}.get(choice.bound or "", "")
                 record["inertia_prior"] = {
                     "weight": choice.weight, "grid": choice.grid, "scores": choice.scores,
+                    "inside_searched_range": choice.bound is None,
                     "chosen_by": f"cross-validation on {choice.blocks} held-out blocks of the fit runs (the strongest "
-                    "pull towards CAD within 1% of the best held-out error; weights are fractions of the noise "
-                    "floor's variance, scores held-out RMS in N*m, each joint weighted by its floor)"}
+                    "pull towards CAD within 1% of the best held-out error, the search going on past its first "
+                    "grid while the scores say so; weights are fractions of the noise floor's variance, scores "
+                    f"held-out RMS in N*m, each joint weighted by its floor){bound}"}
             except InfeasibleFit:
                 pass  # the rung's own solve below says what failed
     elif inertial is not None:

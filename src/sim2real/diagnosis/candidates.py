@@ -71,6 +71,15 @@ CONFOUNDED_NOISE_FRACTION = 0.1  # two candidates whose predictions differ by le
 HARM_TOLERANCE = 0.1
 # A joint is named for an effect when the effect's own fitted term there is at least this (RMS, x its floor).
 OWN_TERM_MIN = 0.5
+# Ties: the holdout is cut into this many blocks of time (at most; 50 samples each at least); two candidates whose
+# summed squared residuals differ by less than TIE_SPREAD standard errors of that difference over the blocks (paired,
+# block by block) are not told apart on these runs.
+TIE_BLOCKS = 20
+TIE_SPREAD = 2.0
+# A candidate trades with an effect already in the model when the fit moves that effect's term against the
+# candidate's own: by at least this share of the own term (RMS) and with at least this negative correlation.
+TRADE_SIZE = 0.5
+TRADE_CORRELATION = -0.5
 
 
 def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: fitting.TorqueData,
@@ -85,6 +94,64 @@ def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: 
     without = dataclasses.replace(result, theta={**result.theta, name: np.zeros_like(coefficients)})
     term = fitting.predict(result, nominal, data, signals) - fitting.predict(without, nominal, data, signals)
     return np.sqrt(np.mean((term / unit) ** 2, axis=0))
+
+
+def _term(result: fitting.FitResult, name: str, nominal: Any, data: fitting.TorqueData, signals: Signals,
+          ) -> np.ndarray | None:
+    """What the effect ``name`` adds to ``result``'s prediction on ``data`` (None: no linear coefficients)."""
+    import dataclasses
+
+    coefficients = np.asarray(result.theta.get(name, []), dtype=float)
+    if not coefficients.size:
+        return None
+    without = dataclasses.replace(result, theta={**result.theta, name: np.zeros_like(coefficients)})
+    return fitting.predict(result, nominal, data, signals) - fitting.predict(without, nominal, data, signals)
+
+
+def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name: str, nominal: Any,
+                      data: fitting.TorqueData, signals: Signals, unit: np.ndarray) -> list[dict[str, Any]]:
+    """Effects already in the model that the candidate ``name`` trades places with: adding it, the fit moves their
+    term against the candidate's own (a torque gain against the link inertias' scale). On these runs the two are
+    confounded: the candidate's fall is partly the model's effect given back. Each with the size of the move
+    (x the own term's RMS) and its correlation with the own term, in floor units on the holdout."""
+    own = _term(trial, name, nominal, data, signals)
+    if own is None:
+        return []
+    own = own / unit
+    size = float(np.sqrt(np.mean(own**2)))
+    out = []
+    for effect in current.effects:
+        after, before = _term(trial, effect, nominal, data, signals), _term(current, effect, nominal, data, signals)
+        if after is None or before is None or size <= 0:
+            continue
+        change = (after - before) / unit
+        moved = float(np.sqrt(np.mean(change**2))) / size
+        denominator = float(np.linalg.norm(change) * np.linalg.norm(own))
+        correlation = float(np.sum(change * own) / denominator) if denominator > 0 else 0.0
+        if moved >= TRADE_SIZE and correlation <= TRADE_CORRELATION:
+            out.append({"effect": effect, "moved_x_own_term": round(moved, 3), "correlation": round(correlation, 3)})
+    return out
+
+
+def _block_sse(scaled: np.ndarray, blocks: int) -> np.ndarray:
+    """Squared residual (floor units) summed over joints and over each of ``blocks`` contiguous blocks of rows."""
+    return np.array([float(np.sum(part**2)) for part in np.array_split(scaled, blocks)])
+
+
+def tied(a: np.ndarray, b: np.ndarray) -> tuple[bool, float, float]:
+    """Whether two candidates' block scores (:func:`_block_sse`) differ by less than :data:`TIE_SPREAD` standard
+    errors of their paired difference; (tie, difference, standard error), in floor units squared."""
+    difference = a - b
+    spread = float(np.sqrt(difference.size) * np.std(difference, ddof=1)) if difference.size > 1 else 0.0
+    total = float(difference.sum())
+    return abs(total) <= TIE_SPREAD * spread, total, spread
+
+
+def implausible_bodies(result: fitting.FitResult) -> list[str]:
+    """The bodies a fit leaves beyond plausible (:mod:`sim2real.effects.link_inertia`), each with why."""
+    link = (result.values or {}).get("link_inertia") or {}
+    return [f"{name} ({', '.join(body['implausible'])})" for name, body in (link.get("bodies") or {}).items()
+            if body.get("implausible")]
 
 
 def add_line(effect: str) -> str:
@@ -113,7 +180,9 @@ def _rank(candidates: list[dict[str, Any]], tolerance: float) -> list[dict[str, 
         return ranked  # nothing is named: the order is only what comes closest
     limit = best["evidence"]["x_floor_after"] + tolerance
     close = [c for c in ranked if c["decisive"] == best["decisive"] and c["evidence"]["x_floor_after"] <= limit]
-    simplest = min(close, key=lambda c: (c["evidence"]["parameters"], -c["explained"], c["effect"]))
+    # Among those that do as well, one that keeps every inertia plausible first, then the simplest.
+    simplest = min(close, key=lambda c: (bool(c["evidence"]["implausible_bodies"]), c["evidence"]["parameters"],
+                                         -c["explained"], c["effect"]))
     return [simplest] + [c for c in ranked if c is not simplest]
 
 
@@ -134,6 +203,91 @@ def _confounded(
 
 def _joint_text(joints: Sequence[str], before: Mapping[str, float], after: Mapping[str, float]) -> str:
     return ", ".join(f"{j} {before[j]:.2g}x -> {after[j]:.2g}x" for j in joints)
+
+
+def _ties(candidates: list[dict[str, Any]], residuals: Mapping[str, np.ndarray], rows: int) -> list[dict[str, Any]]:
+    """The decisive candidates the best one is not told apart from on these runs: each removes about the same
+    residual (:func:`tied`, over blocks of the holdout) on joints the best one is named on. Each gets its test's
+    numbers in its evidence (``tie_with_best``)."""
+    if not candidates or not candidates[0]["decisive"]:
+        return []
+    best = candidates[0]
+    blocks = max(2, min(TIE_BLOCKS, rows // 50))
+    best_blocks = _block_sse(residuals[best["effect"]], blocks)
+    out = []
+    for c in candidates[1:]:
+        if not c["decisive"] or (best["joints"] and c["joints"] and not set(best["joints"]) & set(c["joints"])):
+            continue
+        same, difference, spread = tied(_block_sse(residuals[c["effect"]], blocks), best_blocks)
+        if same:
+            c["evidence"]["tie_with_best"] = {"difference": round(difference, 3), "spread": round(spread, 3),
+                                              "blocks": blocks}
+            out.append(c)
+    return out
+
+
+def _trouble(candidate: Mapping[str, Any]) -> list[str]:
+    """Why a candidate would leave the model less trustworthy: inertias bent beyond plausible, or a trade with an
+    effect already in the model."""
+    evidence = candidate["evidence"]
+    reasons = []
+    if evidence.get("implausible_bodies"):
+        reasons.append(f"it leaves link inertias implausible ({'; '.join(evidence['implausible_bodies'])})")
+    for trade in evidence.get("trades_with", []):
+        reasons.append(f"it trades places with {trade['effect']} already in the model (the fit moves that effect's "
+                       f"term against its own: {trade['moved_x_own_term']:.2g}x its size, correlation "
+                       f"{trade['correlation']:.2f})")
+    return reasons
+
+
+def _recommend(candidates: list[dict[str, Any]], ties: list[dict[str, Any]],
+               ) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
+    """The candidate to add among the best and those tied with it: the physically plausible one (no inertia bent
+    beyond plausible, no trade with the model), then the simplest; None when the best is tied and none of the tied
+    is plausible. A best candidate that nothing ties is recommended, its trouble said beside it (:func:`_caveats`):
+    early in the loop bent inertias are the symptom of what is still missing. The recommended one goes first."""
+    if not candidates or not candidates[0]["decisive"]:
+        return candidates, None
+    if not ties:
+        return candidates, candidates[0]
+    plausible = [c for c in [candidates[0], *ties] if not _trouble(c)]
+    if not plausible:
+        return candidates, None
+    chosen = min(plausible, key=lambda c: (c["evidence"]["parameters"], -c["explained"], c["effect"]))
+    return [chosen] + [c for c in candidates if c is not chosen], chosen
+
+
+def _separating_runs(first: str, others: Sequence[str], robot: str) -> str:
+    return "; ".join(f"`snakemake results/{robot}/excitation/{separation_name(first, other)}.csv`" for other in others)
+
+
+def _caveats(best: Mapping[str, Any], group: Sequence[Mapping[str, Any]], robot: str) -> str:
+    """What the verdict must add when its candidate is not a clean decision: ties with other candidates (and the run
+    that would separate them), inertias it leaves implausible, effects of the model it trades with."""
+    text = ""
+    others = [c["effect"] for c in group if c["effect"] != best["effect"]]
+    if others:
+        text += (f" On these runs it is not told apart from {', '.join(others)}: each removes about the same residual "
+                 f"(within {TIE_SPREAD:g} standard errors of their difference over blocks of the holdout). "
+                 f"{best['effect']} is recommended as the physically plausible, simpler one. The run that would tell "
+                 f"them apart: {_separating_runs(best['effect'], others, robot)} designs it; record it and add it to "
+                 "the fit runs.")
+    reasons = _trouble(best)
+    if reasons:
+        text += f" Caution: {'; '.join(reasons)}."
+    return text
+
+
+def _not_told_apart_verdict(group: Sequence[Mapping[str, Any]], where: str, robot: str) -> str:
+    """The verdict when the best candidates are not told apart and none keeps the model plausible: no line to add."""
+    names = [c["effect"] for c in group]
+    reasons = "; ".join(f"{c['effect']}: {', '.join(_trouble(c))}" for c in group)
+    runs = (f" The run that would tell them apart: {_separating_runs(names[0], names[1:], robot)} designs it; "
+            "record it and add it to the fit runs." if len(names) > 1 else
+            f" Record a run designed for the model (`snakemake results/{robot}/excitation/identification.csv`) "
+            "and add it to the fit runs.")
+    return (f"On {where}, {' and '.join(names)} {'each remove' if len(names) > 1 else 'removes'} part of the residual, "
+            f"but no line is recommended: {reasons}. What these runs show is not yet a trustworthy effect." + runs)
 
 
 def candidates_to_try(model_effects: Sequence[str], torque_source: str, forward: bool,
@@ -220,9 +374,12 @@ def diagnose(
     candidates: Sequence[str] | None = None,
     link: str = "body",
     workers: int = 1,
+    current: fitting.FitResult | None = None,
 ) -> dict[str, Any]:
     """Rank every effect of ``candidates`` (default: the library) not in ``model_effects`` by the
-    holdout residual it removes; ``link`` names the link of the model judged (:data:`LINK_TEXT`).
+    holdout residual it removes; ``link`` names the link of the model judged (:data:`LINK_TEXT`);
+    ``current``: the current rung's fit, against which a candidate that trades places with an effect already
+    in the model is found (:func:`trades_with_model`).
 
     ``nominal``, ``fit_data``, ``holdout_data`` are :mod:`sim2real.fitting` objects; the residual is the
     current model's holdout residual (judged minus predicted torque). Each candidate is fitted exactly
@@ -298,6 +455,7 @@ def diagnose(
         evidence["coefficients"] = {"linear": [float(v) for v in result.theta.get(name, [])],
                                     "nonlinear": [float(v) for v in result.nonlinear.get(name, [])]}
         evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
+        evidence["implausible_bodies"] = implausible_bodies(result)
         residuals_after[name] = scaled
         ranked_candidates.append({
             "effect": name,
@@ -312,6 +470,13 @@ def diagnose(
         })
     candidates = _rank(ranked_candidates, float(limits["parsimony_noise_fraction"]))
     confounded = _confounded(candidates, residuals_after, CONFOUNDED_NOISE_FRACTION, float(limits["min_gain"]))
+    ties = _ties(candidates, residuals_after, rows)
+    group = [candidates[0], *ties] if ties else []  # the best and those it is not told apart from
+    if current is not None:
+        for c in (group or candidates[:1]) if candidates and candidates[0]["decisive"] else []:
+            c["evidence"]["trades_with"] = trades_with_model(trials[c["effect"]][0], current, c["effect"], nominal,
+                                                             holdout_data, holdout_signals, unit)
+    candidates, recommended = _recommend(candidates, ties)
     best = candidates[0] if candidates else None
     where = LINK_TEXT.get(link, link)
     x_now_map = per_joint_dict(joints, x_now, 3)
@@ -326,10 +491,14 @@ def diagnose(
             "closest_explained_beyond_noise": closest["evidence"]["per_joint_explained_beyond_noise"][j] if closest else 0.0,
             "closest_x_floor_after": closest["evidence"]["per_joint_x_floor_after"][j] if closest else round(float(x), 3),
         }
-    if best is not None and best["decisive"]:
+    if best is not None and best["decisive"] and recommended is None:
+        status = "not_told_apart"
+        verdict = _not_told_apart_verdict(group, where, robot)
+    elif best is not None and best["decisive"]:
         status = "add_effect"
         after = best["evidence"]["per_joint_x_floor_after"]
         twins = [b for a, b in confounded if a == best["effect"]] + [a for a, b in confounded if b == best["effect"]]
+        twins = [t for t in twins if t not in {c["effect"] for c in group}]  # the ties' sentence names those
         twin_text = (f" These data cannot tell it apart from {', '.join(twins)} (the same prediction to within "
                      f"{CONFOUNDED_NOISE_FRACTION:g}x the noise floor). The run that would: "
                      + "; ".join(f"`snakemake results/{robot}/excitation/{separation_name(best['effect'], twin)}.csv`"
@@ -349,6 +518,7 @@ def diagnose(
         verdict = (
             f"On {where}, the model is missing {best['effect']}{joint_text}: {reach}. "
             f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml.{twin_text}"
+            + _caveats(best, group, robot)
         )
     elif not above:
         status = "at_noise_floor"
@@ -377,6 +547,7 @@ def diagnose(
         "verdict": verdict,
         "status": status,
         "confounded": [list(pair) for pair in confounded],
+        "tied": [c["effect"] for c in group],
         "residual_rmse": round(rmse_now, 6),
         "noise_floor_ratio": round(ratio, 4) if np.isfinite(ratio) else None,
         "per_joint": per_joint_status,

@@ -1,0 +1,214 @@
+"""The model-free ceiling: how much of the last rung's residual any function of the motion explains.
+
+When no effect of the library is decisive, the user needs to know what kind of thing is left. A flexible
+learner (scikit-learn's ``HistGradientBoostingRegressor``, one per joint) is fitted on the motion (q, qd,
+qdd of every joint) to the last rung's residual on the fit runs and judged on the holdout runs, like every
+rung. Per joint, above its floor:
+
+* **ceiling well below the rung** (the learner's holdout RMSE under :data:`CLOSE_TO_RUNG` x the rung's):
+  something that is a function of the motion is missing from the library. Which motion it follows is
+  read off the learner (permutation importance on the holdout runs), so the user knows what to model.
+* **ceiling close to the rung**: nothing of the motion explains the rest. What it does follow is tested,
+  each as the share of the joint's excess above its floor it removes (every run, fit and holdout):
+  ``time`` (a smooth function of time within each run: a warm-up, a drifting sensor offset), ``run``
+  (one offset per run) and ``history`` (the displacement since the last velocity reversal and the direction
+  of motion, fitted on the fit runs and judged on the holdout: hysteresis, presliding friction).
+
+The learner runs on one OpenMP thread with a fixed seed: the same numbers on every machine's core count.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+# The learner's holdout RMSE at or above this fraction of the rung's: what is left is not a function of the
+# motion ("within about 15 %"); below it, the library lacks an effect the motion explains.
+CLOSE_TO_RUNG = 0.85
+# A test of what the rest follows names it when it removes at least this share of the joint's excess.
+MIN_SHARE = 0.3
+# One offset per run explains a time drift when it removes this much of what a smooth function of time does.
+OFFSET_OF_DRIFT = 0.8
+TIME_DEGREE = 3  # a cubic in time within each run: a warm-up, a slow drift; not the motion's faster periods
+LEARNER = ("HistGradientBoostingRegressor on q, qd, qdd of every joint, one per joint, fitted on the fit runs' "
+           "residual of the last rung and judged on the holdout runs")
+KIND_TEXT = {
+    "time": "drifts with time within each run (a warm-up, a sensor offset that wanders)",
+    "run": "is an offset that differs from run to run",
+    "history": "follows the history of the motion: the displacement since the last velocity reversal "
+    "(hysteresis, presliding friction)",
+}
+
+
+def _learner(seed: int = 0) -> Any:
+    from sklearn.ensemble import HistGradientBoostingRegressor
+
+    # Moderate trees, no early stopping (a random validation split of time-correlated samples would reward
+    # fitting the noise); judged on runs it never saw, so overfitting only makes the ceiling conservative.
+    return HistGradientBoostingRegressor(max_iter=150, learning_rate=0.1, max_leaf_nodes=15, min_samples_leaf=40,
+                                         l2_regularization=1.0, early_stopping=False, random_state=seed)
+
+
+def motion_features(data: Any) -> tuple[np.ndarray, list[str]]:
+    """(N, 3n) q, qd, qdd of every joint, and their names."""
+    joints = list(data.joint_names)
+    names = [f"{kind} of {joint}" for kind in ("position", "velocity", "acceleration") for joint in joints]
+    return np.hstack([data.q, data.qd, data.qdd]), names
+
+
+def since_reversal(q: np.ndarray, qd: np.ndarray, segments: Sequence[slice]) -> np.ndarray:
+    """(N, n) displacement since the last change of the velocity's sign (per run, from its first sample)."""
+    out = np.zeros_like(q)
+    for seg in segments:
+        qs, vs = q[seg], np.sign(qd[seg])
+        rows = np.arange(qs.shape[0])[:, None]
+        changed = np.vstack([np.ones((1, qs.shape[1]), dtype=bool), (vs[1:] != vs[:-1]) & (vs[1:] != 0)])
+        last = np.maximum.accumulate(np.where(changed, rows, 0), axis=0)
+        out[seg] = qs - np.take_along_axis(qs, last, axis=0)
+    return out
+
+
+def _excess_share(before: np.ndarray, after: np.ndarray, floor: float) -> float:
+    """Share of ``before``'s energy above white noise at ``floor`` that ``after`` no longer has (0..1)."""
+    sse_before, sse_after = float(np.sum(before**2)), float(np.sum(after**2))
+    excess = sse_before - before.size * floor**2
+    return float(np.clip((sse_before - sse_after) / excess, 0.0, 1.0)) if excess > 0 else 0.0
+
+
+def _per_run_fit(residual: np.ndarray, time: np.ndarray, segments: Sequence[slice], degree: int) -> np.ndarray:
+    """``residual`` less its least-squares polynomial of ``degree`` in time within each run (0: the run's mean)."""
+    out = np.array(residual, dtype=float)
+    for seg in segments:
+        t = time[seg]
+        span = max(float(t[-1] - t[0]), 1e-12)
+        basis = np.polynomial.legendre.legvander(2.0 * (t - t[0]) / span - 1.0, degree)
+        coefficients, *_ = np.linalg.lstsq(basis, out[seg], rcond=None)
+        out[seg] -= basis @ coefficients
+    return out
+
+
+def _stacked(first: Any, second: Any, name: str) -> np.ndarray:
+    return np.concatenate([getattr(first, name), getattr(second, name)])
+
+
+def _beyond_motion(j: int, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
+                   floor: float) -> dict[str, float]:
+    """Shares of joint ``j``'s excess that time within a run, the run and the history since a reversal explain."""
+    residual = np.concatenate([fit_residual[:, j], holdout_residual[:, j]])
+    time = _stacked(fit_data, holdout_data, "time")
+    offset = fit_data.n_samples
+    segments = [*fit_data.segments, *(slice(s.start + offset, s.stop + offset) for s in holdout_data.segments)]
+    shares = {
+        "time": _excess_share(residual, _per_run_fit(residual, time, segments, TIME_DEGREE), floor),
+        "run": _excess_share(residual, _per_run_fit(residual, time, segments, 0), floor),
+    }
+
+    def history(data: Any) -> np.ndarray:
+        return np.column_stack([since_reversal(data.q, data.qd, data.segments)[:, j], data.qd[:, j]])
+
+    learner = _learner().fit(history(fit_data), fit_residual[:, j])
+    after = holdout_residual[:, j] - learner.predict(history(holdout_data))
+    shares["history"] = _excess_share(holdout_residual[:, j], after, floor)
+    return {k: round(v, 4) for k, v in shares.items()}
+
+
+def _named(shares: dict[str, float]) -> str | None:
+    """What the rest of a joint follows, from :func:`_beyond_motion`'s shares (None: none of them)."""
+    if shares["history"] >= MIN_SHARE and shares["history"] > shares["time"]:
+        return "history"
+    if shares["time"] >= MIN_SHARE:
+        return "run" if shares["run"] >= OFFSET_OF_DRIFT * shares["time"] else "time"
+    return None
+
+
+def _gains_most(learner: Any, features: np.ndarray, target: np.ndarray, names: Sequence[str]) -> list[str]:
+    """The motion the learner's gain follows: the features whose permutation on the holdout costs it most."""
+    from sklearn.inspection import permutation_importance
+
+    importance = permutation_importance(learner, features, target, n_repeats=3, random_state=0,
+                                        scoring="neg_mean_squared_error").importances_mean
+    order = np.argsort(-importance, kind="stable")
+    top = float(importance[order[0]])
+    return [names[i] for i in order[:3] if top > 0 and importance[i] >= 0.5 * top]
+
+
+def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
+                       noise_floor_factor: float = 1.5) -> dict[str, Any]:
+    """The ceiling of ``diagnosis.model_free`` in gap.json (see the module docstring).
+
+    ``fit_data``/``holdout_data``: :class:`sim2real.fitting.TorqueData`; the residuals are the last rung's
+    (judged minus predicted torque) on them. Joints within ``noise_floor_factor`` of their floor are
+    ``at_floor``: nothing to explain.
+    """
+    from threadpoolctl import threadpool_limits
+
+    joints = list(holdout_data.joint_names)
+    floor = np.asarray(holdout_data.noise_floor, dtype=float)
+    x_fit, names = motion_features(fit_data)
+    x_holdout, _ = motion_features(holdout_data)
+    after = np.array(holdout_residual, dtype=float)
+    per_joint: dict[str, Any] = {}
+    with threadpool_limits(limits=1, user_api="openmp"):
+        for j, joint in enumerate(joints):
+            learner = _learner().fit(x_fit, fit_residual[:, j])
+            after[:, j] = holdout_residual[:, j] - learner.predict(x_holdout)
+            rung = float(np.sqrt(np.mean(holdout_residual[:, j] ** 2)))
+            ceiling = float(np.sqrt(np.mean(after[:, j] ** 2)))
+            row: dict[str, Any] = {
+                "rung_rmse": round(rung, 6), "ceiling_rmse": round(ceiling, 6),
+                "rung_x_floor": round(rung / floor[j], 3) if floor[j] > 0 else None,
+                "ceiling_x_floor": round(ceiling / floor[j], 3) if floor[j] > 0 else None,
+                "ratio": round(ceiling / rung, 4) if rung > 0 else 1.0,
+                "explained_beyond_noise": round(_excess_share(holdout_residual[:, j], after[:, j], floor[j]), 4),
+            }
+            if floor[j] > 0 and rung <= noise_floor_factor * floor[j]:
+                row["kind"] = "at_floor"
+            elif ceiling < CLOSE_TO_RUNG * rung:
+                row["kind"] = "motion"
+                row["gains_most_with"] = _gains_most(learner, x_holdout, holdout_residual[:, j], names)
+            else:
+                row["kind"] = "not_motion"
+                shares = _beyond_motion(j, fit_data, fit_residual, holdout_data, holdout_residual, floor[j])
+                row["beyond_motion"] = shares
+                row["follows"] = _named(shares)
+            per_joint[joint] = row
+    overall = float(np.sqrt(np.mean(after**2)))
+    return {
+        "learner": LEARNER,
+        "torque_rmse": {"overall": round(overall, 6),
+                        "per_joint": {j: per_joint[j]["ceiling_rmse"] for j in joints}},
+        "close_to_rung": CLOSE_TO_RUNG,
+        "per_joint": per_joint,
+        "text": ceiling_text(per_joint),
+    }
+
+
+def ceiling_text(per_joint: dict[str, Any]) -> str:
+    """What the ceiling says, in sentences: joints where the library lacks a function of the motion, and
+    joints where nothing of the motion explains the rest, with what it follows."""
+    sentences = []
+    motion = [j for j, r in per_joint.items() if r["kind"] == "motion"]
+    if motion:
+        parts = []
+        for j in motion:
+            r = per_joint[j]
+            follows = f", mostly as a function of {' and '.join(r['gains_most_with'])}" if r["gains_most_with"] else ""
+            parts.append(f"{j} {r['rung_x_floor']:.2g}x -> {r['ceiling_x_floor']:.2g}x its floor{follows}")
+        sentences.append(
+            "A flexible learner on the motion explains much of what is left, so the library lacks an effect that is "
+            f"a function of the motion: {'; '.join(parts)}. Model that dependence (an effect of the library's "
+            "shape, or a cogging or position-dependent term) before trusting the rest.")
+    still = [j for j, r in per_joint.items() if r["kind"] == "not_motion"]
+    if still:
+        parts = []
+        for j in still:
+            r = per_joint[j]
+            what = KIND_TEXT[r["follows"]] if r["follows"] else "follows none of time within a run, the run or the " \
+                "history since a reversal (a sensor's own dynamics, noise the floor misses)"
+            parts.append(f"{j} ({r['rung_x_floor']:.2g}x its floor; the learner {r['ceiling_x_floor']:.2g}x): it {what}")
+        sentences.append(
+            f"No function of the motion explains the rest: a flexible learner on the motion comes within "
+            f"{1 - CLOSE_TO_RUNG:.0%} of the last rung on {', '.join(still)}. " + "; ".join(parts) + ".")
+    return " ".join(sentences)
