@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import tempfile
-import time
 from pathlib import Path
 
 import harness  # noqa: F401  (the tests' helpers on the path)
@@ -25,25 +24,6 @@ from sysid_lab import Lab  # noqa: E402  (the tests' lab helper: a dev Panda and
 
 FACTOR = 1.5
 SCENARIOS = ("real_arm_like", "link_side_sensor", "link_side_tau_only", "wrist_friction")
-
-
-def follow(lab: Lab, scenario: str, rounds: int = 7) -> list[dict]:
-    """Each round adds what each link's verdict asks (the top candidate where the status is add_effect)."""
-    effects: list[str] = []
-    documents = [lab.model(scenario, effects)]
-    report(documents[-1], 0)
-    for k in range(rounds):
-        sections = [documents[-1], documents[-1].get("actuator") or {}]
-        wanted = [s["diagnosis"]["candidates"][0]["effect"] for s in sections
-                  if s and s["diagnosis"]["status"] == "add_effect"]
-        wanted = [w for w in dict.fromkeys(wanted) if w not in effects]
-        if not wanted:
-            break
-        effects += wanted
-        started = time.perf_counter()
-        documents.append(lab.model(scenario, effects))
-        report(documents[-1], k + 1, time.perf_counter() - started)
-    return documents
 
 
 def report(document: dict, round_: int, seconds: float | None = None) -> None:
@@ -58,6 +38,16 @@ def report(document: dict, round_: int, seconds: float | None = None) -> None:
         print("   x floor: " + " ".join(f"{x:5.2f}" for x in x_floor.values())
               + (f"   above {FACTOR}x: {', '.join(above)}" if above else "   every joint within its floor"))
         print(f"   {section['diagnosis']['status']}: {section['diagnosis']['verdict']}")
+        link = (rung.get("params") or {}).get("link_inertia") or {}
+        prior = (rung.get("consistency") or {}).get("inertia_prior") or {}
+        if link:
+            print(f"   implausible bodies: {', '.join(link.get('implausible_bodies') or []) or 'none'}; prior weight "
+                  f"{prior.get('weight')} ({'inside' if prior.get('inside_searched_range') else 'AT A BOUND of'} "
+                  f"the searched {min(prior.get('grid') or [0]):g}..{max(prior.get('grid') or [0]):g})")
+        ceiling = (section["diagnosis"].get("model_free") or {}).get("per_joint")
+        if ceiling:
+            print("   model-free ceiling x floor: " + " ".join(
+                f"{row.get('ceiling_x_floor') or 0:5.2f}" for row in ceiling.values()))
 
 
 def main() -> None:
@@ -72,7 +62,7 @@ def main() -> None:
         lab = Lab(Path(tmp))
         for scenario in args.scenario or SCENARIOS:
             print(f"== {scenario}")
-            follow(lab, scenario)
+            lab.follow(scenario, report=report)
 
 
 if __name__ == "__main__":

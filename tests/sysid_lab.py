@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import os
 import shutil
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +19,7 @@ from threadpoolctl import threadpool_limits
 
 from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
 from sim2real import sysid
+from sim2real.cache import FitCache
 from sim2real.lab import run_lab_scenario_run, scenario_runs
 from sim2real.measurements import estimate_noise_floor, load_prepared_runs
 
@@ -73,13 +76,38 @@ class Lab:
         return {role: [run for entry, run in zip(entries, prepared, strict=True) if entry.role == role]
                 for role in ("fit", "holdout")}
 
-    def model(self, scenario: str, effects: list[str], with_sensor: bool = True) -> dict[str, Any]:
-        """ladder.json content of both links (``sysid.fit_model``); ``with_sensor=False`` drops tau."""
+    def model(self, scenario: str, effects: list[str], with_sensor: bool = True,
+              cache: FitCache | None = None) -> dict[str, Any]:
+        """ladder.json content of both links (``sysid.fit_model``); ``with_sensor=False`` drops tau; ``cache``:
+        rungs and diagnoses of earlier rounds read back, as the sysid rule does."""
         listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
         with threadpool_limits(limits=1, user_api="blas"):  # one BLAS thread per worker, as in run_sysid
             document, _ = sysid.fit_model(effects, self.nominal, self.prepared(listing), {"fit": FAST_FIT}, "panda",
-                                          workers=WORKERS)
+                                          workers=WORKERS, cache=cache)
         return document
+
+    def follow(self, scenario: str, rounds: int = 7,
+               report: Callable[[dict[str, Any], int, float], None] | None = None) -> list[dict[str, Any]]:
+        """The user's loop from an empty ``effects:``: each round adds what each link's verdict asks (the top
+        candidate where the status is add_effect), until no verdict asks for more; every round's document.
+        Rounds read earlier rungs back from a fit cache, as the sysid rule does; ``report(document, round,
+        seconds)`` is called after each round."""
+        cache = FitCache(self.dir / f"{scenario}_fits")
+        effects: list[str] = []
+        documents: list[dict[str, Any]] = []
+        for k in range(rounds + 1):
+            started = time.perf_counter()
+            documents.append(self.model(scenario, effects, cache=cache))
+            if report is not None:
+                report(documents[-1], k, time.perf_counter() - started)
+            sections = [documents[-1], documents[-1].get("actuator") or {}]
+            wanted = [s["diagnosis"]["candidates"][0]["effect"] for s in sections
+                      if s and s["diagnosis"]["status"] == "add_effect"]
+            wanted = [w for w in dict.fromkeys(wanted) if w not in effects]
+            if not wanted:
+                break
+            effects = effects + wanted
+        return documents
 
     def data(self, scenario: str) -> tuple[sysid.TorqueData, sysid.TorqueData]:
         if scenario not in self._data:

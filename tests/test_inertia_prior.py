@@ -13,7 +13,8 @@ import pytest
 from gap_fixtures import PANDA_JOINTS, build_dev_panda
 from sim2real import fitting
 from sim2real.effects.link_inertia import correction_anchors
-from sim2real.inertial import PRIOR_GRID, PRIOR_TOLERANCE, InertialBlock, choose_prior_weight, solve_consistent
+from sim2real.inertial import (PRIOR_BOUNDS, PRIOR_GRID, PRIOR_TOLERANCE, InertialBlock, choose_prior_weight,
+                               solve_consistent)
 
 NOISE = 0.05  # N*m
 
@@ -44,7 +45,8 @@ def choose(anchor: np.ndarray, correction: np.ndarray, rows: int):
 def test_the_rule_keeps_the_strongest_pull_within_tolerance_of_the_best(anchor):
     heavier = 0.3 * anchor  # the body 30% heavier, inertia and first moments with it
     choice, *_ = choose(anchor, heavier, rows=400)
-    assert choice.grid == list(PRIOR_GRID) and len(choice.scores) == len(PRIOR_GRID) and choice.blocks == 4
+    assert set(PRIOR_GRID) <= set(choice.grid) and choice.grid == sorted(choice.grid)
+    assert len(choice.scores) == len(choice.grid) and choice.blocks == 4
     best = min(choice.scores)
     within = [g for g, s in zip(choice.grid, choice.scores, strict=True) if s <= best * (1 + PRIOR_TOLERANCE)]
     assert choice.weight == max(within)
@@ -57,8 +59,27 @@ def test_the_chosen_weight_lets_a_seen_body_move_and_holds_an_unseen_one_at_cad(
     assert fitted[0] == pytest.approx(0.3 * anchor[0], rel=0.15), "the chosen weight lets the mass move"
     # ... a body at its CAD values: the pull costs nothing the held-out blocks can see, the strongest wins.
     still, *_ = choose(anchor, np.zeros(10), rows=400)
-    assert still.weight == PRIOR_GRID[-1], still.scores
-    assert still.scores[-1] == min(still.scores)
+    # ... and the search goes on past the first grid while the held-out data pay nothing, to its bound, and says so
+    assert still.weight == PRIOR_BOUNDS[1] and still.bound == "strongest", (still.grid, still.scores)
+    assert still.grid[-1] > PRIOR_GRID[-1]
+
+
+def test_the_search_goes_past_the_grid_until_the_score_turns(anchor):
+    """Issue 30: a weight at the grid's edge while the score still improves is no choice. A body far from CAD and
+    seen sharply (low noise, many rows): the weakest pull of the first grid still scores best, so the search goes
+    weaker until the held-out error stops falling, and the weight chosen lies inside the searched range."""
+    design, target = regression(anchor, 2.0 * anchor, rows=2000)  # three times the CAD body
+    target = design @ (2.0 * anchor) + 0.01 * (target - design @ (2.0 * anchor))  # the noise a hundred times lower
+    block = InertialBlock(slice(0, 10), anchor[None, :], [None])
+    first = choose_prior_weight(design, target, np.full(10, -np.inf), block, NOISE**2, bounds=(min(PRIOR_GRID),
+                                                                                                 max(PRIOR_GRID)))
+    assert first.bound == "weakest" and first.weight == min(PRIOR_GRID), "the first grid alone ends at its edge"
+    searched = choose_prior_weight(design, target, np.full(10, -np.inf), block, NOISE**2)
+    assert min(searched.grid) < min(PRIOR_GRID), searched.grid
+    assert searched.bound is None and min(searched.grid) < searched.weight <= max(searched.grid)
+    assert min(searched.scores) <= min(first.scores)
+    weaker = [s for g, s in zip(searched.grid, searched.scores, strict=True) if g < searched.weight]
+    assert weaker and min(weaker) >= min(searched.scores), "a weaker pull than the one chosen scored no better"
 
 
 @pytest.mark.parametrize("chunk_rows", [None, 97])

@@ -76,10 +76,13 @@ OWN_TERM_MIN = 0.5
 # block by block) are not told apart on these runs.
 TIE_BLOCKS = 20
 TIE_SPREAD = 2.0
-# A candidate trades with an effect already in the model when the fit moves that effect's term against the
-# candidate's own: by at least this share of the own term (RMS) and with at least this negative correlation.
-TRADE_SIZE = 0.5
+# A candidate trades places with the model when the fit gives back, through the terms of the effects already in
+# the model, so much of the candidate's own term that the prediction moves by at most TRADE_NET of it (RMS); the
+# effects named are those whose term moved against it (correlation at most TRADE_CORRELATION).
+TRADE_NET = 0.5
 TRADE_CORRELATION = -0.5
+# Two candidates act "on the same joints" when the joints each is named on overlap by this share (Jaccard).
+TIE_JOINT_OVERLAP = 0.5
 
 
 def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: fitting.TorqueData,
@@ -111,25 +114,32 @@ def _term(result: fitting.FitResult, name: str, nominal: Any, data: fitting.Torq
 def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name: str, nominal: Any,
                       data: fitting.TorqueData, signals: Signals, unit: np.ndarray) -> list[dict[str, Any]]:
     """Effects already in the model that the candidate ``name`` trades places with: adding it, the fit moves their
-    term against the candidate's own (a torque gain against the link inertias' scale). On these runs the two are
-    confounded: the candidate's fall is partly the model's effect given back. Each with the size of the move
-    (x the own term's RMS) and its correlation with the own term, in floor units on the holdout."""
+    terms against the candidate's own (a torque gain against the link inertias' scale) until the prediction moves
+    by at most :data:`TRADE_NET` of the own term. On these runs they are confounded: the candidate's fall is the
+    model's effect relabelled. Each with the size of its move (x the own term's RMS) and its correlation with the
+    own term, in floor units on the holdout; empty when the candidate adds a term of its own."""
     own = _term(trial, name, nominal, data, signals)
     if own is None:
         return []
     own = own / unit
     size = float(np.sqrt(np.mean(own**2)))
-    out = []
+    if size <= 0:
+        return []
+    moves = {}
     for effect in current.effects:
         after, before = _term(trial, effect, nominal, data, signals), _term(current, effect, nominal, data, signals)
-        if after is None or before is None or size <= 0:
-            continue
-        change = (after - before) / unit
-        moved = float(np.sqrt(np.mean(change**2))) / size
+        if after is not None and before is not None:
+            moves[effect] = (after - before) / unit
+    net = own + sum(moves.values(), np.zeros_like(own))
+    if float(np.sqrt(np.mean(net**2))) > TRADE_NET * size:
+        return []
+    out = []
+    for effect, change in moves.items():
         denominator = float(np.linalg.norm(change) * np.linalg.norm(own))
         correlation = float(np.sum(change * own) / denominator) if denominator > 0 else 0.0
-        if moved >= TRADE_SIZE and correlation <= TRADE_CORRELATION:
-            out.append({"effect": effect, "moved_x_own_term": round(moved, 3), "correlation": round(correlation, 3)})
+        if correlation <= TRADE_CORRELATION:
+            out.append({"effect": effect, "moved_x_own_term": round(float(np.sqrt(np.mean(change**2))) / size, 3),
+                        "correlation": round(correlation, 3)})
     return out
 
 
@@ -205,6 +215,17 @@ def _joint_text(joints: Sequence[str], before: Mapping[str, float], after: Mappi
     return ", ".join(f"{j} {before[j]:.2g}x -> {after[j]:.2g}x" for j in joints)
 
 
+def nested_pair(a: str, b: str) -> bool:
+    """Whether one of two effects is a special case of the other (:data:`NESTED_IN`)."""
+    return b in NESTED_IN.get(a, ()) or a in NESTED_IN.get(b, ())
+
+
+def _overlap(first: Sequence[str], second: Sequence[str]) -> float:
+    """Jaccard overlap of two joint lists (1 when both name none: arm-wide)."""
+    a, b = set(first), set(second)
+    return len(a & b) / len(a | b) if a | b else 1.0
+
+
 def _ties(candidates: list[dict[str, Any]], residuals: Mapping[str, np.ndarray], rows: int) -> list[dict[str, Any]]:
     """The decisive candidates the best one is not told apart from on these runs: each removes about the same
     residual (:func:`tied`, over blocks of the holdout) on joints the best one is named on. Each gets its test's
@@ -216,7 +237,9 @@ def _ties(candidates: list[dict[str, Any]], residuals: Mapping[str, np.ndarray],
     best_blocks = _block_sse(residuals[best["effect"]], blocks)
     out = []
     for c in candidates[1:]:
-        if not c["decisive"] or (best["joints"] and c["joints"] and not set(best["joints"]) & set(c["joints"])):
+        # A nested pair is parsimony's to decide (_rank); on other joints it is another effect, not a rival.
+        if (not c["decisive"] or nested_pair(best["effect"], c["effect"])
+                or _overlap(best["joints"], c["joints"]) < TIE_JOINT_OVERLAP):
             continue
         same, difference, spread = tied(_block_sse(residuals[c["effect"]], blocks), best_blocks)
         if same:
@@ -235,8 +258,8 @@ def _trouble(candidate: Mapping[str, Any]) -> list[str]:
         reasons.append(f"it leaves link inertias implausible ({'; '.join(evidence['implausible_bodies'])})")
     for trade in evidence.get("trades_with", []):
         reasons.append(f"it trades places with {trade['effect']} already in the model (the fit moves that effect's "
-                       f"term against its own: {trade['moved_x_own_term']:.2g}x its size, correlation "
-                       f"{trade['correlation']:.2f})")
+                       f"term against its own, {trade['moved_x_own_term']:.2g}x its size, correlation "
+                       f"{trade['correlation']:.2f}: the prediction hardly changes, the fall is relabelled)")
     return reasons
 
 

@@ -95,17 +95,18 @@ def hull_distance(point: np.ndarray, equations: np.ndarray) -> float:
     return float(np.max(equations[:, :3] @ np.asarray(point, dtype=float) + equations[:, 3]))
 
 
-def plausibility(before: dict[str, Any], after: dict[str, Any], divergence: float, hull: np.ndarray | None
-                 ) -> dict[str, Any]:
+def plausibility(before: dict[str, Any], after: dict[str, Any], divergence: float, hull: np.ndarray | None,
+                 carries_tools: bool = False) -> dict[str, Any]:
     """Whether one identified body is still a plausible link: its mass near the CAD mass, its centre of
     mass inside its collision meshes' convex hull, its divergence from CAD moderate; the reasons if not.
 
     The hull is skipped (``com_inside_hull`` null) where there is none (the last body carries tools) or where
-    the CAD COM itself lies outside it (then the meshes do not say where this link's mass is).
+    the CAD COM itself lies outside it (then the meshes do not say where this link's mass is). The body that
+    ``carries_tools`` (the last) may gain any mass: a tool, a camera, a payload the URDF does not hold.
     """
     reasons = []
     m0, m1 = before["mass"], after["mass"]
-    if m0 > 0 and abs(m1 - m0) > IMPLAUSIBLE_MASS_FRACTION * m0:
+    if m0 > 0 and abs(m1 - m0) > IMPLAUSIBLE_MASS_FRACTION * m0 and not (carries_tools and m1 > m0):
         reasons.append(f"mass changed by {100 * (m1 - m0) / m0:+.0f}% ({m0:.3g} -> {m1:.3g} kg)")
     inside, outside_mm = None, None
     if hull is not None and hull_distance(before["com"], hull) <= HULL_TOLERANCE_M:
@@ -139,7 +140,7 @@ def body_changes(delta: np.ndarray, nominal: dict[str, Any]) -> dict[str, dict[s
         out[link] = {
             "moved": moved, "mass_change_kg": round(dm, 4), "com_shift_mm": round(1000.0 * dc, 2),
             "divergence": round(float(divergence[b]), 6) if np.isfinite(divergence[b]) else None,
-            **plausibility(before, after, float(divergence[b]), hulls[b]),
+            **plausibility(before, after, float(divergence[b]), hulls[b], carries_tools=b == len(anchors) - 1),
         }
     return out
 

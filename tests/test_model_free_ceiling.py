@@ -1,0 +1,113 @@
+"""The model-free ceiling says what kind of thing is left (issue 30 item 4), on residuals whose cause is known.
+
+Each case builds the last rung's residual on a fit run and a holdout run of a smooth multi-joint motion: white
+noise at the floor plus one kind of unexplained torque, which :func:`model_free_ceiling` must classify from the
+runs alone: a function of the motion the library lacks (a cogging ripple in one joint's position), a drift with
+time within each run (a warm-up), an offset per run, hysteresis (a torque that follows the displacement since
+the last reversal), or nothing above the floor.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim2real.diagnosis import model_free_ceiling
+from sim2real.diagnosis.ceiling import since_reversal
+from sim2real.fitting import TorqueData
+
+JOINTS = ["j1", "j2", "j3"]
+FLOOR = 0.05
+RATE = 100.0
+
+
+def motion(seed: int, duration: float = 20.0) -> tuple[np.ndarray, ...]:
+    """A few incommensurate sinusoids per joint: positions, velocities, accelerations."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, duration, 1.0 / RATE)
+    q, qd, qdd = (np.zeros((t.size, len(JOINTS))) for _ in range(3))
+    for j in range(len(JOINTS)):
+        for w in 2 * np.pi * rng.uniform(0.08, 0.6, size=3):
+            a, phase = rng.uniform(0.2, 0.6), rng.uniform(0, 2 * np.pi)
+            q[:, j] += a * np.sin(w * t + phase)
+            qd[:, j] += a * w * np.cos(w * t + phase)
+            qdd[:, j] -= a * w**2 * np.sin(w * t + phase)
+    return t, q, qd, qdd
+
+
+def data(name: str, seed: int, residual_of) -> tuple[TorqueData, np.ndarray]:
+    t, q, qd, qdd = motion(seed)
+    noise = FLOOR * np.random.default_rng(seed + 100).normal(size=q.shape)
+    residual = noise + residual_of(t, q, qd, seed)
+    torque = TorqueData(JOINTS, t, q, qd, qdd, residual, [slice(0, t.size)], [name], "tau", False,
+                        np.full(len(JOINTS), FLOOR))
+    return torque, residual
+
+
+def ceiling(residual_of) -> dict:
+    fit, fit_residual = data("fit", 1, residual_of)
+    holdout, holdout_residual = data("holdout", 2, residual_of)
+    return model_free_ceiling(fit, fit_residual, holdout, holdout_residual)
+
+
+def on_joint(j: int, values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    out = np.zeros(shape)
+    out[:, j] = values
+    return out
+
+
+def test_a_cogging_ripple_is_a_function_of_the_motion_the_library_lacks():
+    result = ceiling(lambda t, q, qd, seed: on_joint(1, 0.4 * np.sin(2 * np.pi * q[:, 1] / 0.5), q.shape))
+    row = result["per_joint"]["j2"]
+    assert row["kind"] == "motion", row
+    assert row["ceiling_rmse"] < 0.6 * row["rung_rmse"], "the learner explains most of the ripple on the holdout"
+    assert row["gains_most_with"][0] == "position of j2", row["gains_most_with"]
+    assert result["per_joint"]["j1"]["kind"] == result["per_joint"]["j3"]["kind"] == "at_floor"
+    assert "lacks an effect that is a function of the motion" in result["text"] and "j2" in result["text"]
+    assert result["torque_rmse"]["per_joint"]["j2"] == row["ceiling_rmse"]
+
+
+def test_a_warm_up_drift_is_not_the_motion_but_time_within_each_run():
+    def warm_up(t, q, qd, seed):
+        level = 0.3 if seed == 1 else -0.25  # each run warms up towards its own offset
+        return on_joint(0, level * (1 - np.exp(-t / 6.0)), q.shape)
+
+    result = ceiling(warm_up)
+    row = result["per_joint"]["j1"]
+    assert row["kind"] == "not_motion", row
+    assert row["follows"] == "time", row["beyond_motion"]
+    assert row["beyond_motion"]["time"] > 0.8 and row["beyond_motion"]["time"] > row["beyond_motion"]["run"]
+    assert "No function of the motion explains the rest" in result["text"] and "drifts with time" in result["text"]
+
+
+def test_an_offset_per_run_is_named_as_such():
+    result = ceiling(lambda t, q, qd, seed: on_joint(2, np.full(t.size, 0.2 if seed == 1 else -0.2), q.shape))
+    row = result["per_joint"]["j3"]
+    assert row["kind"] == "not_motion" and row["follows"] == "run", row
+
+
+def test_hysteresis_follows_the_displacement_since_the_last_reversal():
+    def dahl(t, q, qd, seed):
+        displacement = since_reversal(q, qd, [slice(0, t.size)])[:, 0]
+        return on_joint(0, 0.3 * np.sign(qd[:, 0]) * (1 - np.exp(-np.abs(displacement) / 0.05)), q.shape)
+
+    row = ceiling(dahl)["per_joint"]["j1"]
+    # a function of the history, which the motion now only partly reveals: either the learner gets most of it
+    # (the sign of the velocity), or what is left follows the history since the reversal
+    assert row["kind"] in ("motion", "not_motion") and row["kind"] != "at_floor"
+    if row["kind"] == "not_motion":
+        assert row["follows"] == "history", row["beyond_motion"]
+
+
+def test_white_noise_at_the_floor_leaves_nothing_to_explain():
+    result = ceiling(lambda t, q, qd, seed: np.zeros_like(q))
+    assert {row["kind"] for row in result["per_joint"].values()} == {"at_floor"}
+    assert result["text"] == ""
+    for row in result["per_joint"].values():
+        assert row["ceiling_rmse"] == pytest.approx(FLOOR, rel=0.15), "the learner finds nothing beyond the noise"
+
+
+def test_since_reversal_restarts_at_every_change_of_direction():
+    q = np.array([[0.0], [1.0], [2.0], [1.5], [0.5], [1.0]])
+    qd = np.array([[1.0], [1.0], [1.0], [-1.0], [-1.0], [1.0]])
+    assert since_reversal(q, qd, [slice(0, 6)])[:, 0].tolist() == [0.0, 1.0, 2.0, 0.0, -1.0, 0.0]
