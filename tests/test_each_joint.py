@@ -32,7 +32,10 @@ def test_a_friction_hidden_on_joint_7_alone_is_named_on_joint_7(lab):
     assert top["joints"] == ["panda_joint7"], diagnosis["verdict"]
     assert f"missing {top['effect']} on panda_joint7:" in diagnosis["verdict"]
     own = top["evidence"]["per_joint_own_term_x_floor"]
-    assert own["panda_joint7"] > 3 and all(v < 0.5 for j, v in own.items() if j != "panda_joint7"), own
+    # (below its floor elsewhere: a tenth of what it is on joint 7, with the inertias held as stiff as the held-out
+    # blocks ask, which leaves a little of joint 7's coupling to the inner joints)
+    assert own["panda_joint7"] > 3 and all(v < min(1.0, 0.1 * own["panda_joint7"])
+                                           for j, v in own.items() if j != "panda_joint7"), own
 
 
 def test_friction_in_a_link_side_torque_is_named_and_the_metadata_get_a_sentence(lab):

@@ -41,7 +41,9 @@ def test_diff_shows_each_rung_joint_and_the_new_rung() -> None:
     text = gap_diff_markdown(base, head)
     assert "| nominal | 1.5 N·m | 1.5 N·m | ⚪ +0 (+0.0%) |" in text
     assert "| + coulomb_friction | – | 0.15 N·m | new |" in text
-    assert "| j2 | – | 0.2 | new | 0.06 |" in text
+    # per joint, the model each branch ends with: the base's nominal against this branch's new last rung
+    assert "the model it calibrates (base nominal, this branch + coulomb_friction)" in text
+    assert "| j2 | 2 | 0.2 | 🟢 -1.8 (-90.0%) | 0.06 |" in text
     assert "base: `coulomb_friction` on j2 (explains 80%)" in text
     assert "this branch: residual at the noise floor" in text
 

@@ -20,6 +20,18 @@ The diagnosis runs per link of the model (:mod:`sim2real.actuator`): ``candidate
 of that link, and the verdict names the link. Candidates whose holdout predictions agree to within a
 tenth of the noise floor are listed as ``confounded``: these data cannot tell them apart.
 
+A verdict the user can trust says when it is not a clean decision:
+
+* **ties** (``tied``): a decisive candidate named on the same joints as the best whose holdout residual is
+  the best one's within the spread of their paired difference over blocks of the holdout (:func:`tied`) is
+  not told apart from it on these runs; the verdict says so, recommends the physically plausible, simpler one
+  (or none: status ``not_told_apart``) and names the separating run the experiment design builds;
+* **inertias**: each candidate is fitted with the link inertias it needs; the bodies it leaves beyond
+  plausible are in its evidence, the ranking prefers, among those that do as well, one that keeps them
+  plausible, and the verdict says when the named one does not;
+* **trades with the model**: a candidate whose own term the fit gives back through the effects already in
+  the model (a torque gain against the link inertias' scale) is said to trade places with them.
+
 A candidate is decisive arm-wide (it removes ``min_explained`` of the excess above the floors), or
 on joints: a joint above ``noise_floor_factor`` x its floor whose excess it mostly removes
 (``joint_decisive``) names it on that joint, however small that joint's share of the arm.
@@ -265,18 +277,18 @@ def _trouble(candidate: Mapping[str, Any]) -> list[str]:
 
 def _recommend(candidates: list[dict[str, Any]], ties: list[dict[str, Any]],
                ) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
-    """The candidate to add among the best and those tied with it: the physically plausible one (no inertia bent
-    beyond plausible, no trade with the model), then the simplest; None when the best is tied and none of the tied
-    is plausible. A best candidate that nothing ties is recommended, its trouble said beside it (:func:`_caveats`):
-    early in the loop bent inertias are the symptom of what is still missing. The recommended one goes first."""
+    """The candidate to add among the best and those tied with it: the first in the ranking (:func:`_rank`: the
+    best holdout residual, nested effects by parsimony) that is physically plausible (no inertia bent beyond
+    plausible, no trade with the model); None when the best is tied and none of the tied is plausible. A best
+    candidate that nothing ties is recommended, its trouble said beside it (:func:`_caveats`): early in the loop
+    bent inertias are the symptom of what is still missing. The recommended one goes first."""
     if not candidates or not candidates[0]["decisive"]:
         return candidates, None
     if not ties:
         return candidates, candidates[0]
-    plausible = [c for c in [candidates[0], *ties] if not _trouble(c)]
-    if not plausible:
+    chosen = next((c for c in [candidates[0], *ties] if not _trouble(c)), None)
+    if chosen is None:
         return candidates, None
-    chosen = min(plausible, key=lambda c: (c["evidence"]["parameters"], -c["explained"], c["effect"]))
     return [chosen] + [c for c in candidates if c is not chosen], chosen
 
 
@@ -292,9 +304,12 @@ def _caveats(best: Mapping[str, Any], group: Sequence[Mapping[str, Any]], robot:
     if others:
         text += (f" On these runs it is not told apart from {', '.join(others)}: each removes about the same residual "
                  f"(within {TIE_SPREAD:g} standard errors of their difference over blocks of the holdout). "
-                 f"{best['effect']} is recommended as the physically plausible, simpler one. The run that would tell "
-                 f"them apart: {_separating_runs(best['effect'], others, robot)} designs it; record it and add it to "
-                 "the fit runs.")
+                 + (f"{best['effect']} is recommended: it scores best of them and keeps the model plausible. "
+                    if best is group[0] else
+                    f"{best['effect']} is recommended: it keeps the model plausible, which {group[0]['effect']} does "
+                    "not. ")
+                 + f"The run that would tell them apart: {_separating_runs(best['effect'], others, robot)} designs "
+                 "it; record it and add it to the fit runs.")
     reasons = _trouble(best)
     if reasons:
         text += f" Caution: {'; '.join(reasons)}."

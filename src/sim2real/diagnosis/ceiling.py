@@ -151,6 +151,31 @@ def _gains_most(learner: Any, features: np.ndarray, target: np.ndarray, names: S
     return [names[i] for i in order[:3] if top > 0 and importance[i] >= 0.5 * top]
 
 
+# Regimes of the joint's own motion where a learner's gain can concentrate (sim2real.regimes defines the same two
+# for the gap report; these need no model): slow motion and reversals, hard accelerations.
+GAIN_REGIMES = {
+    "slow_reversal": ("slow motion and velocity reversals",
+                      lambda qd, qdd: np.abs(qd) < 0.15 * np.percentile(np.abs(qd), 99)),
+    "hard_acceleration": ("hard accelerations",
+                          lambda qd, qdd: np.abs(qdd) > np.percentile(np.abs(qdd), 80)),
+}
+CONCENTRATED = 1.5  # a regime holds the gain when its gain per sample is this many times the joint's average
+
+
+def _gain_regime(before: np.ndarray, after: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> str | None:
+    """The regime of the joint's motion where the learner's gain (fall of the squared residual) concentrates."""
+    gain = before**2 - after**2
+    average = float(np.mean(gain))
+    if average <= 0:
+        return None
+    best, density = None, CONCENTRATED * average
+    for name, (_, inside) in GAIN_REGIMES.items():
+        mask = inside(qd, qdd)
+        if 20 <= int(mask.sum()) < mask.size and float(np.mean(gain[mask])) >= density:
+            best, density = name, float(np.mean(gain[mask]))
+    return best
+
+
 def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
                        noise_floor_factor: float = 1.5) -> dict[str, Any]:
     """The ceiling of ``diagnosis.model_free`` in gap.json (see the module docstring).
@@ -186,6 +211,8 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
             elif ceiling < CLOSE_TO_RUNG * rung:
                 row["kind"] = "motion"
                 row["gains_most_with"] = _gains_most(learner, x_holdout, holdout_residual[:, j], names)
+                row["gains_most_in"] = _gain_regime(holdout_residual[:, j], after[:, j], holdout_data.qd[:, j],
+                                                    holdout_data.qdd[:, j])
             else:
                 row["kind"] = "not_motion"
                 shares = _beyond_motion(j, fit_data, fit_residual, holdout_data, holdout_residual, floor[j])
@@ -213,6 +240,8 @@ def ceiling_text(per_joint: dict[str, Any]) -> str:
         for j in motion:
             r = per_joint[j]
             follows = f", mostly as a function of {' and '.join(r['gains_most_with'])}" if r["gains_most_with"] else ""
+            if r.get("gains_most_in"):
+                follows += f", most in {GAIN_REGIMES[r['gains_most_in']][0]}"
             parts.append(f"{j} {r['rung_x_floor']:.2g}x -> {r['ceiling_x_floor']:.2g}x its floor{follows}")
         sentences.append(
             "A flexible learner on the motion explains much of what is left, so the library lacks an effect that is "
