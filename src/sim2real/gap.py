@@ -580,12 +580,16 @@ def compute_gap(
     if progress is not None:
         progress(gap, judged)
 
-    sections = [(metrics, None)] if current is None else [(metrics, None), (gap["metrics"], current["identified"])]
-    for section, identified in sections:
+    # The current model is replayed on the holdout runs, where it is judged (the ladder's last rung replays the
+    # same: one replay for both); the nominal MJCF on every run.
+    holdout = [c for c in comparisons if c.role == "holdout"]
+    sections = ([(metrics, None, comparisons)] if current is None
+                else [(metrics, None, comparisons), (gap["metrics"], current["identified"], holdout)])
+    for section, identified, replayed in sections:
         if mjcf_path is None:
             section["state_domain"] = {"status": "skipped", "reason": "no MJCF given to replay the commands in"}
         else:
-            section["state_domain"] = state_domain(mjcf_path, comparisons, settings["horizon_s"],
+            section["state_domain"] = state_domain(mjcf_path, replayed, settings["horizon_s"],
                                                    section["torque_rmse"]["overall"], models, identified)
         if section["state_domain"]["status"] == "computed":
             section["position_rmse"] = section["state_domain"]["position_rmse"]

@@ -481,7 +481,8 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
     else:
         g = sd["reality_gap"]
         if model:
-            lines += [f"The commands replayed on {_model_name(model)}, its fitted effects written into the MJCF."]
+            lines += [f"The commands of the holdout runs replayed on {_model_name(model)}, its fitted effects "
+                      "written into the MJCF."]
             nominal_sd = gap["nominal"]["metrics"]["state_domain"]
             if nominal_sd.get("status") == "computed":
                 lines[-1] += (f" The nominal MJCF, for reference: position RMSE {nominal_sd['position_rmse']['overall']:.3g}"

@@ -182,7 +182,7 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
 
     ``fit_data``/``holdout_data``: :class:`sim2real.fitting.TorqueData`; the residuals are the last rung's
     (judged minus predicted torque) on them. Joints within ``noise_floor_factor`` of their floor are
-    ``at_floor``: nothing to explain.
+    ``at_floor``: nothing to explain, no learner fitted (``fitted`` false; the ceiling is the rung's).
     """
     from threadpoolctl import threadpool_limits
 
@@ -195,9 +195,15 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
     per_joint: dict[str, Any] = {}
     with threadpool_limits(limits=1, user_api="openmp"):
         for j, joint in enumerate(joints):
+            rung = float(np.sqrt(np.mean(holdout_residual[:, j] ** 2)))
+            if floor[j] > 0 and rung <= noise_floor_factor * floor[j]:
+                # nothing above the floor for a learner to explain: the ceiling is the rung itself
+                per_joint[joint] = {"rung_rmse": round(rung, 6), "ceiling_rmse": round(rung, 6),
+                                    "rung_x_floor": round(rung / floor[j], 3), "ceiling_x_floor": round(rung / floor[j], 3),
+                                    "ratio": 1.0, "explained_beyond_noise": 0.0, "kind": "at_floor", "fitted": False}
+                continue
             learner = _learner().fit(x_fit[train], fit_residual[train, j])
             after[:, j] = holdout_residual[:, j] - learner.predict(x_holdout)
-            rung = float(np.sqrt(np.mean(holdout_residual[:, j] ** 2)))
             ceiling = float(np.sqrt(np.mean(after[:, j] ** 2)))
             row: dict[str, Any] = {
                 "rung_rmse": round(rung, 6), "ceiling_rmse": round(ceiling, 6),
@@ -206,9 +212,8 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
                 "ratio": round(ceiling / rung, 4) if rung > 0 else 1.0,
                 "explained_beyond_noise": round(_excess_share(holdout_residual[:, j], after[:, j], floor[j]), 4),
             }
-            if floor[j] > 0 and rung <= noise_floor_factor * floor[j]:
-                row["kind"] = "at_floor"
-            elif ceiling < CLOSE_TO_RUNG * rung:
+            row["fitted"] = True
+            if ceiling < CLOSE_TO_RUNG * rung:
                 row["kind"] = "motion"
                 row["gains_most_with"] = _gains_most(learner, x_holdout, holdout_residual[:, j], names)
                 row["gains_most_in"] = _gain_regime(holdout_residual[:, j], after[:, j], holdout_data.qd[:, j],
