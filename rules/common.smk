@@ -7,7 +7,7 @@ import os
 import sim2real.collision as _sim2real_collision
 import sim2real.excitation.separation as _sim2real_separation
 import sim2real.fleet as _sim2real_fleet
-import sim2real.io as _sim2real_io
+import sim2real.files as _sim2real_io
 import sim2real.urdf as _sim2real_urdf
 
 ROBOTS = list(config["robots"])
@@ -280,7 +280,7 @@ def measurement_files(wildcards):
 
 def bag_topics(wildcards):
     """ROS 2 topics of configs/{robot}/measurements.yaml (`ros2:`), with the package defaults."""
-    from sim2real.bags import ros2_topics
+    from sim2real.measurements.bags import ros2_topics
 
     return ros2_topics(measurement_list(wildcards.robot))
 

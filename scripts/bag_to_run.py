@@ -1,7 +1,7 @@
-"""Snakemake script: ROS 2 bag (MCAP) -> measurement run (sim2real.bags.mcap_to_run)."""
+"""Snakemake script: ROS 2 bag (MCAP) -> measurement run (sim2real.measurements.bags.mcap_to_run)."""
 
 from sim2real.cli import rule_entry
-from sim2real.bags import mcap_to_run
+from sim2real.measurements.bags import mcap_to_run
 
 with rule_entry(snakemake):
     mcap_to_run(

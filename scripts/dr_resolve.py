@@ -4,7 +4,7 @@ import logging
 
 from sim2real.cli import rule_entry
 from sim2real.dr import resolve_files
-from sim2real.io import write_json
+from sim2real.files import write_json
 
 snakemake = globals()["snakemake"]
 

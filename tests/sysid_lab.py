@@ -21,7 +21,7 @@ from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
 from sim2real import sysid
 from sim2real.cache import FitCache
 from sim2real.lab import run_lab_scenario_run, scenario_runs
-from sim2real.measurements import estimate_noise_floor, load_prepared_runs
+from sim2real.measurements import noise_floor_of, load_prepared_runs
 
 # Fast settings: decimated fit grid, few bootstrap replicates, a small refinement subset.
 FAST_FIT = {"fit_rate_hz": 100.0, "bootstrap_replicates": 20, "refine_max_samples": 1500}
@@ -114,7 +114,7 @@ class Lab:
             entries, prepared, _ = load_prepared_runs(self.measurement_list(scenario), PANDA_JOINTS, "/")
             by_role: dict[str, list[dict[str, Any]]] = {"fit": [], "holdout": []}
             for entry, run in zip(entries, prepared, strict=True):
-                by_role[entry.role].append(sysid.run_from_prepared(run, estimate_noise_floor(run)))
+                by_role[entry.role].append(sysid.run_from_prepared(run, noise_floor_of(run)))
             self._data[scenario] = (
                 sysid.stack_runs(by_role["fit"], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]),
                 sysid.stack_runs(by_role["holdout"], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]),

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from sim2real.errors import InputError
-from sim2real.io import validate
+from sim2real.files import validate
 from sim2real.fleet import (
     DEFAULT_CAMPAIGN,
     campaign_names,

@@ -253,7 +253,7 @@ def small_panda(path: Path) -> Path:
 @given(doc=broken(shipped("configs/panda/dr.yaml"), st.sampled_from([[1.1, 0.9], [-1.0, 1.0], [0.5, 0.5], "nomatch*"])))
 def test_dr_yaml(tmp_path_factory: pytest.TempPathFactory, doc: Any) -> None:
     from sim2real.dr import resolve_files
-    from sim2real.io import write_json
+    from sim2real.files import write_json
 
     folder = tmp_path_factory.mktemp("dr")
     path, mjcf, out = dump(folder / "dr.yaml", doc), small_panda(folder / "panda.xml"), folder / "out" / "dr.json"

@@ -12,7 +12,7 @@ import yaml
 from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
 from sim2real.errors import InputError
 from sim2real.gap import build_gap_report, compute_gap, reality_gap
-from sim2real.io import validate
+from sim2real.files import validate
 from sim2real.lab import run_lab_scenario_run
 from sim2real.report import FIGURES
 from sim2real.measurements import load_run, write_run

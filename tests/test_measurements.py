@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import yaml
 
-from sim2real.bags import mcap_to_run
+from sim2real.measurements.bags import mcap_to_run
 from sim2real.errors import InputError
 from sim2real.measurements import (
-    estimate_noise_floor,
+    noise_floor_of,
     load_measurement_list,
     load_prepared_runs,
     load_run,
@@ -147,7 +147,7 @@ def test_parquet_roundtrip_and_tau_cmd_fallback(tmp_path):
 def test_the_actuator_links_noise_floor_is_prepared_with_the_run_and_read_back(tmp_path):
     """A run that logs tau and tau_cmd carries the actuator link's floor from the rule that prepares it (what tau
     has that no filter of the command explains), through the prepared runs' file; one without it gets it computed."""
-    from sim2real.actuator import command_noise_floor
+    from sim2real.measurements import command_floor_of
     from sim2real.measurements import (
         MeasurementEntry, command_white_noise, read_prepared_runs, with_command_floor, write_prepared_runs,
     )
@@ -164,8 +164,8 @@ def test_the_actuator_links_noise_floor_is_prepared_with_the_run_and_read_back(t
     assert np.all((expected > 0.02) & (expected < 0.2))  # the sensor's noise (0.05 N*m, differenced and robust)
     write_prepared_runs(tmp_path / "runs.npz", [MeasurementEntry("r", Path("r.parquet"), "fit")], [run], {})
     back = read_prepared_runs(tmp_path / "runs.npz")[1][0]
-    assert np.array_equal(command_noise_floor(back), expected)
-    assert np.array_equal(command_noise_floor(dataclasses.replace(back, command_torque_sigma=np.zeros(0))), expected)
+    assert np.array_equal(command_floor_of(back), expected)
+    assert np.array_equal(command_floor_of(dataclasses.replace(back, command_torque_sigma=np.zeros(0))), expected)
     only_commands = with_command_floor(prepare_run(dataclasses.replace(load_run(tmp_path / "r.parquet"), tau=None)))
     assert only_commands.command_torque_sigma.size == 0
 
@@ -211,7 +211,7 @@ def test_noise_floor_matches_white_torque_noise(tmp_path):
     sigma = np.array([0.05, 0.2])
     tau = 3.0 * qdd + sigma * rng.standard_normal(qdd.shape)
     write_run(tmp_path / "n.parquet", t, JOINTS, {"q": q, "tau": tau}, META)
-    floor = estimate_noise_floor(prepare_run(load_run(tmp_path / "n.parquet")))
+    floor = noise_floor_of(prepare_run(load_run(tmp_path / "n.parquet")))
     assert np.allclose(floor, sigma, rtol=0.1)
 
 
@@ -262,7 +262,7 @@ def _two_logged_runs(tmp_path):
 
 
 def _counting_reads(monkeypatch):
-    from sim2real import measurements
+    from sim2real.measurements import runs as measurements
 
     reads: Counter[str] = Counter()
 

@@ -30,7 +30,7 @@ how the links can be judged (:func:`link_mode`):
 * ``sensor_only``: no commands. The body link only; the actuator cannot be seen.
 
 The actuator link's noise floor is the white part of the measured torque that no linear filter of the
-command explains (:func:`command_noise_floor`): a controller's command carries white noise of its own
+command explains (:func:`sim2real.measurements.command_floor_of`): a controller's command carries white noise of its own
 (velocity noise through its gains), which reaches the sensor through the motor, delayed and scaled.
 """
 
@@ -44,7 +44,7 @@ import numpy as np
 from sim2real.effects import EFFECTS, Signals, get_effect
 from sim2real.errors import InputError
 from sim2real.fitting import NominalModel, TorqueData, link_side, run_from_prepared, stack_runs
-from sim2real.measurements import PreparedRun, command_white_noise
+from sim2real.measurements import PreparedRun, command_floor_of
 
 LINK_MODES: dict[str, str] = {
     "separate": "the runs log the measured torque (tau) and the command (tau_cmd): the actuator link is judged "
@@ -127,23 +127,13 @@ def torque_sensor(runs: Sequence[PreparedRun]) -> str:
     return places.pop() if places else "motor"
 
 
-def command_noise_floor(run: PreparedRun) -> np.ndarray:
-    """Per joint, the RMS of the measured torque that no actuator model can explain
-    (:func:`sim2real.measurements.command_white_noise`), as computed when the run was prepared (a run
-    prepared by an older version, which did not keep it, has it computed here)."""
-    assert run.tau_cmd is not None and run.torque_source == "tau"
-    if run.command_torque_sigma.size:
-        return np.asarray(run.command_torque_sigma, dtype=float).copy()
-    return command_white_noise(run.tau, run.tau_cmd, run.dt)
-
-
 def actuator_data(runs: Sequence[PreparedRun], joint_names: Sequence[str]) -> tuple[TorqueData, np.ndarray]:
     """The actuator link's data on every sample: the measured torque as the judged torque (``TorqueData``,
     with the link's noise floor) and the command it is predicted from, stacked alike."""
     judged, commands = [], []
     for run in runs:
         assert run.tau_cmd is not None
-        record = run_from_prepared(run, command_noise_floor(run))
+        record = run_from_prepared(run, command_floor_of(run))
         judged.append(record)
         commands.append({**record, "tau": run.tau_cmd})
     rate = ACTUATOR_FIT_SETTINGS["fit_rate_hz"]

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.io import atomic_dir, write_json, write_text
+from sim2real.files import atomic_dir, write_json, write_text
 
 if TYPE_CHECKING:
     import trimesh

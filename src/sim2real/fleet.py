@@ -110,7 +110,7 @@ def _date_text(value: Any) -> Any:
 
 def load_campaign(robot: str, name: str, configs: str | Path = "configs") -> Campaign:
     """A campaign's metadata from its measurement list (validated by measurements.schema.yaml)."""
-    from sim2real.io import read_yaml, validate
+    from sim2real.files import read_yaml, validate
 
     path = campaign_file(robot, name, configs)
     data = read_yaml(path)
@@ -436,7 +436,7 @@ def figure_parameters(fleet: Mapping[str, Any], target: str | Path) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from sim2real.io import atomic_path
+    from sim2real.files import atomic_path
 
     dates = sorted({c["date"] for a in fleet["arms"] for c in a["campaigns"] if c["date"]})
     columns = (["undated"] if any(c["date"] is None for a in fleet["arms"] for c in a["campaigns"]) else []) + dates
@@ -505,7 +505,7 @@ def build_fleet(
     import json
 
     from sim2real.gap import os_relpath
-    from sim2real.io import read_yaml, validate, write_json, write_text
+    from sim2real.files import read_yaml, validate, write_json, write_text
 
     loaded = []
     for item in campaigns:

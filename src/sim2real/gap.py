@@ -14,7 +14,7 @@
 * Where it fails: per joint and regime (slow motion and velocity reversals, hard accelerations,
   gravity-loaded poses, near the limits; defined in ``sim2real.regimes``), and the worst time windows
   with their stamps.
-* The noise floor: the torque RMS that no model can explain (``estimate_noise_floor``).
+* The noise floor: the torque RMS that no model can explain (``noise_floor_of``).
 
 The runs come prepared by the rule ``prepare_runs`` (``sim2real.measurements.write_prepared_runs``),
 shared with the sysid rule; given a measurement list instead, they are read and prepared here
@@ -41,8 +41,8 @@ from mujoco import rollout
 from sim2real.dynamics import RigidBodyModel
 from sim2real.cache import FitCache
 from sim2real.errors import InputError
-from sim2real.io import validate, write_json
-from sim2real.measurements import PreparedRun, estimate_noise_floor, runs_for_model
+from sim2real.files import validate, write_json
+from sim2real.measurements import PreparedRun, noise_floor_of, runs_for_model
 from sim2real.metrics import rmse
 from sim2real.regimes import REGIME_DEFINITIONS, REGIME_LABELS, REGIMES, regime_masks
 
@@ -468,7 +468,7 @@ def read_model_residuals(path: str | Path, model: RigidBodyModel) -> list[Torque
     each holdout run at the fit's rate, its judged torque, the current model's prediction and residual."""
     import zipfile
 
-    from sim2real.io import read_array_archive
+    from sim2real.files import read_array_archive
 
     try:
         header, arrays = read_array_archive(path, lambda name: name.startswith("holdout/"))
@@ -525,7 +525,7 @@ def compute_gap(
     model = RigidBodyModel(urdf_path, prepared[0].joint_names, armature=armature)
     joints = model.joint_names
 
-    floors = np.array([estimate_noise_floor(p) for p in prepared])
+    floors = np.array([noise_floor_of(p) for p in prepared])
     weights = np.array([p.time.size for p in prepared], dtype=float)
     floor = np.sqrt(np.average(floors**2, axis=0, weights=weights))
     noise_floor = {"torque_rmse": _per_joint_dict(floor, joints, float(np.sqrt(np.mean(floor**2)))),
@@ -558,8 +558,8 @@ def compute_gap(
             "samples": int(p.time.size), "duration_s": float(p.time[-1] - p.time[0]),
             "has_commands": p.tau_cmd is not None, "filter": p.filter,
             "torque_rmse": per_run["torque_rmse"],
-            "noise_floor": _per_joint_dict(estimate_noise_floor(p), joints,
-                                           float(np.sqrt(np.mean(estimate_noise_floor(p) ** 2)))),
+            "noise_floor": _per_joint_dict(noise_floor_of(p), joints,
+                                           float(np.sqrt(np.mean(noise_floor_of(p) ** 2)))),
         })
 
     nominal = {"metrics": metrics, "where": where_it_fails(comparisons, model.lower, model.upper, floor)}
@@ -639,7 +639,7 @@ def build_gap_report(
     drawing.finish()
     md_dir = Path(gap_md).parent
     rel = {k: Path(os_relpath(v, md_dir)).as_posix() for k, v in figures.items()}
-    from sim2real.io import write_text
+    from sim2real.files import write_text
 
     write_text(gap_md, render_gap_markdown(gap, rel))
     write_json(gap_json, gap)

@@ -75,7 +75,6 @@ def gap_diff_markdown(base: GapReport | None, head: GapReport) -> str:
         lines += ["No gap report on the base branch to compare with; showing this branch only.", ""]
     head_ladder = list(head.get("ladder") or [])
     base_ladder = list((base or {}).get("ladder") or [])
-    base_by_label = {_rung_label(r): r for r in base_ladder}
     if head_ladder:
         lines += _rung_rows(head_ladder, base_ladder) + [""]
         # The model each branch ends with: its last rung, whatever effects either added.

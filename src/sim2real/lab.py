@@ -73,7 +73,7 @@ import mujoco
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.io import merge_settings, read_validated_yaml, write_yaml
+from sim2real.files import merge_settings, read_validated_yaml, write_yaml
 
 EFFECTS = (
     "viscous_friction",

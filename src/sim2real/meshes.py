@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.io import atomic_dir, atomic_path, write_json
+from sim2real.files import atomic_dir, atomic_path, write_json
 
 log = logging.getLogger(__name__)
 

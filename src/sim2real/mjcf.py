@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.io import atomic_path, read_validated_yaml, write_text
+from sim2real.files import atomic_path, read_validated_yaml, write_text
 from sim2real.meshes import read_parts
 from sim2real.urdf import mesh_name
 

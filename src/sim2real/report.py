@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from sim2real.io import atomic_path
+from sim2real.files import atomic_path
 from sim2real.regimes import REGIME_LABELS, REGIMES
 
 if TYPE_CHECKING:
@@ -266,7 +266,7 @@ class GapFigures:
 
     def finish(self) -> None:
         """Wait for the figures being drawn, keep them, and write those read back from the cache."""
-        from sim2real.io import write_bytes
+        from sim2real.files import write_bytes
 
         assert set(self.keys) == set(FIGURES), f"figures never shown: {sorted(set(FIGURES) - set(self.keys))}"
         for group, drawn in self.drawing:

@@ -34,7 +34,7 @@ from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of 
 from sim2real.blas import one_blas_thread
 from sim2real.cache import FitCache
 from sim2real.inertial import program_store
-from sim2real.measurements import PreparedRun, estimate_noise_floor
+from sim2real.measurements import PreparedRun, noise_floor_of
 from sim2real.metrics import rmse
 
 
@@ -249,7 +249,7 @@ def fit_model(
     body_effects = (list(effect_names) if mode == "commands_only"
                     else actuator.effects_of_link(effect_names, "body", sensor))
     body_data = {
-        role: stack_runs([run_from_prepared(run, estimate_noise_floor(run)) for run in runs[role]], joints,
+        role: stack_runs([run_from_prepared(run, noise_floor_of(run)) for run in runs[role]], joints,
                          fit_settings["fit_rate_hz"])
         for role in ("fit", "holdout")
     }
@@ -396,7 +396,7 @@ def write_model_residuals(path: str | Path, current: Mapping[str, Any]) -> None:
     """The body link's last rung on every run, at the fit's rate (:func:`fit_model`'s ``current_out``): time,
     motion, judged torque and residual by role and run, what the gap report judges the current model by
     (:func:`sim2real.gap.read_model_residuals`)."""
-    from sim2real.io import write_array_archive
+    from sim2real.files import write_array_archive
 
     header: dict[str, Any] = {"link": current["link"], "effects": current["effects"], "roles": {}}
     members = []
@@ -416,7 +416,7 @@ def write_model_residuals(path: str | Path, current: Mapping[str, Any]) -> None:
 
 def load_model_config(path: str | Path) -> dict[str, Any]:
     """configs/{robot}/model.yaml, validated; ``effects`` as a list (empty = nominal model)."""
-    from sim2real.io import read_validated_yaml
+    from sim2real.files import read_validated_yaml
 
     data = read_validated_yaml(path, "model.schema.yaml") or {}
     effects = list(data.get("effects") or [])
@@ -452,7 +452,7 @@ def run_sysid(
     ``cache_dir``: where the rungs and diagnoses are kept for the next round (:class:`FitCache`; None: not kept).
     """
     from sim2real.effects import calibration_from_params
-    from sim2real.io import read_yaml, write_json, write_yaml
+    from sim2real.files import read_yaml, write_json, write_yaml
     from sim2real.measurements import FIT_ARRAYS, runs_for_model
 
     model_config = load_model_config(model_config_path)

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.io import atomic_path
+from sim2real.files import atomic_path
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 PACKAGE_PREFIX = "package://"

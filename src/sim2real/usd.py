@@ -38,7 +38,7 @@ import trimesh
 
 from sim2real.collision import part_files
 from sim2real.errors import InputError
-from sim2real.io import read_validated_yaml
+from sim2real.files import read_validated_yaml
 from sim2real.meshes import read_parts
 from sim2real.mjcf import ROBOT_SCHEMA, actuated_joints
 from sim2real.urdf import mesh_name

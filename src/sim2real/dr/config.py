@@ -16,7 +16,7 @@ from typing import Any
 
 from sim2real.dr.parameters import NOISE_TERMS, Parameter, bound_words, fmt, is_physical
 from sim2real.errors import InputError
-from sim2real.io import validate
+from sim2real.files import validate
 
 SCHEMA_NAME = "dr.schema.json"
 PHYSICS_MODES = ("startup", "reset")

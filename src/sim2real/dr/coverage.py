@@ -15,7 +15,7 @@ from typing import Any
 
 from sim2real.dr.parameters import fmt
 from sim2real.errors import InputError
-from sim2real.io import read_yaml
+from sim2real.files import read_yaml
 
 
 # Names the sysid step may use for a parameter -> the randomized channel it corresponds to.

@@ -35,7 +35,7 @@ from sim2real.dr.parameters import (
     sensor_candidates,
 )
 from sim2real.errors import InputError
-from sim2real.io import read_yaml
+from sim2real.files import read_yaml
 
 FORMAT_VERSION = 1
 # MuJoCo allocates an actuator's history buffer of this many samples per actuator at most (a delay of

@@ -69,7 +69,7 @@ def plot_summary(rows: Sequence[Mapping[str, Any]], title: str, target: str | Pa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sim2real.io import atomic_path
+    from sim2real.files import atomic_path
 
     channels: dict[str, list[Mapping[str, Any]]] = {}
     for row in rows:
@@ -112,7 +112,7 @@ def build_summary(
     strict: bool = False,
 ) -> dict[str, Any]:
     """Coverage check + summary table + figure for one robot (the ``dr_summary`` rule)."""
-    from sim2real.io import write_json, write_text
+    from sim2real.files import write_json, write_text
 
     resolved = load_resolved(dr_json)
     coverage = coverage_summary(resolved, params_path, strict=strict)

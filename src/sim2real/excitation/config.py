@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.io import merge_settings, read_validated_yaml
+from sim2real.files import merge_settings, read_validated_yaml
 
 DEFAULTS: dict[str, Any] = {
     "duration_s": 20.0,

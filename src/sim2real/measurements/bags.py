@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.io import read_validated_yaml
+from sim2real.files import read_validated_yaml
 from sim2real.measurements import write_run
 
 DEFAULT_JOINT_TOPIC = "/joint_states"

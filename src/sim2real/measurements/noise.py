@@ -1,0 +1,79 @@
+"""Noise floors: the torque RMS no model can explain, measured once when a run is prepared.
+
+* the body link's (:func:`white_noise_sigma`): the white part of the raw torque, from its second differences;
+* the actuator link's (:func:`command_white_noise`): what no short filter of the command explains of the
+  measured torque.
+
+:func:`noise_floor_of` and :func:`command_floor_of` read them back from a prepared run.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sim2real.blas import one_blas_thread
+
+if TYPE_CHECKING:
+    from sim2real.measurements.runs import PreparedRun
+
+def white_noise_sigma(x: np.ndarray) -> np.ndarray:
+    """Per-column std of the white part of x from second differences (MAD-based, robust to the signal)."""
+    d2 = x[2:] - 2 * x[1:-1] + x[:-2]
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return 1.4826 * mad / np.sqrt(6.0)
+
+
+@one_blas_thread  # its products' last digits: the same from the rule and from any caller
+def command_white_noise(tau: np.ndarray, tau_cmd: np.ndarray, dt: float) -> np.ndarray:
+    """Per joint, the RMS of the measured torque ``tau`` that no actuator model can explain from ``tau_cmd``.
+
+    The second differences of ``tau`` are regressed on the second differences of ``tau_cmd`` at every
+    lag up to the longest delay the fit allows (a short FIR filter, per joint); what is left is the
+    sensor's white noise, measured robustly as :func:`white_noise_sigma` does. The differences remove
+    biases and slow motion; the lags hold any delay and gain, so the floor is the same with or without the
+    effects it is meant to expose (:mod:`sim2real.actuator`'s noise floor).
+    """
+    from sim2real.effects.actuation_delay import MAX_DELAY
+    from sim2real.inertial import CHUNK_ROWS
+
+    lags = int(round(MAX_DELAY / dt)) + 1
+    d2_tau = np.diff(tau, n=2, axis=0)
+    d2_cmd = np.diff(tau_cmd, n=2, axis=0)
+    rows = len(d2_tau) - lags
+    floor = np.empty(tau.shape[1])
+    for j in range(tau.shape[1]):
+        # Row i holds the command's differences at lags 0..lags-1 before sample lags + i (a view, no copy).
+        design = np.lib.stride_tricks.sliding_window_view(d2_cmd[:, j], lags)[1 : rows + 1, ::-1]
+        target = d2_tau[lags:, j]
+        if rows <= CHUNK_ROWS:
+            gram, rhs = design.T @ design, design.T @ target
+        else:  # a long log: its products summed a chunk of rows at a time (whole, numpy copies the view twice)
+            gram, rhs = np.zeros((lags, lags)), np.zeros(lags)
+            for start in range(0, rows, CHUNK_ROWS):
+                part = np.ascontiguousarray(design[start : start + CHUNK_ROWS])
+                gram += part.T @ part
+                rhs += part.T @ target[start : start + CHUNK_ROWS]
+        coef = np.linalg.lstsq(gram, rhs, rcond=None)[0]
+        left = target - design @ coef
+        floor[j] = 1.4826 * np.median(np.abs(left - np.median(left))) / np.sqrt(6.0)
+    return floor
+
+
+def noise_floor_of(prepared: PreparedRun) -> np.ndarray:
+    """Per-joint torque RMS that no model can explain: the white part of the raw torque, as measured when the run
+    was prepared (:func:`white_noise_sigma` of the raw, unfiltered, de-duplicated torque, robust to the motion).
+    Because the comparison uses the unfiltered torque, a model that explains everything else has a residual RMS
+    of about this value."""
+    return np.asarray(prepared.raw_torque_sigma, dtype=float).copy()
+
+
+def command_floor_of(run: PreparedRun) -> np.ndarray:
+    """Per joint, the RMS of the measured torque that no actuator model can explain (:func:`command_white_noise`),
+    as computed when the run was prepared (a run prepared by an older version, which did not keep it, has it
+    computed here)."""
+    assert run.tau_cmd is not None and run.torque_source == "tau"
+    if run.command_torque_sigma.size:
+        return np.asarray(run.command_torque_sigma, dtype=float).copy()
+    return command_white_noise(run.tau, run.tau_cmd, run.dt)

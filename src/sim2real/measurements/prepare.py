@@ -1,0 +1,182 @@
+"""Preparation of runs for the comparison with a model (:func:`prepare_run`, per run):
+
+1. Consecutive samples with identical positions (a logger faster than the state) are dropped:
+   they carry a stale state, and keeping them would put steps into the differentiated signals.
+2. Everything is linearly interpolated onto a uniform grid (median time step, or ``sample_rate_hz``).
+3. Positions are low-pass filtered with a zero-phase Butterworth filter (``scipy.signal.sosfiltfilt``),
+   velocities and accelerations are obtained by central differences of the filtered positions
+   (a logged ``qd`` is noisy or missing on real arms, so it is not trusted unless asked for).
+4. Both ends are trimmed by the filter's settling time.
+5. Torques are NOT filtered. The model is judged on the raw torque: what remains for a perfect model
+   is the torque's own high-frequency noise, which is exactly what the noise floor measures
+   (:mod:`sim2real.measurements.noise`), so RMSE and noise floor are directly comparable.
+
+:func:`prepare_runs` checks the runs of :func:`sim2real.measurements.runs.read_runs` against the model's joints
+and limits and prepares them (:func:`load_prepared_runs` does both when the joints are known;
+:func:`prepare_for_model` takes the joints and limits from a URDF).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim2real.errors import InputError
+from sim2real.measurements.noise import command_white_noise, white_noise_sigma
+from sim2real.measurements.runs import (
+    DEFAULT_CUTOFF_HZ, DEFAULT_FILTER_ORDER, MAX_GRID_PER_SAMPLE, MIN_SAMPLES, MeasurementEntry,
+    PreparedRun, Run, _row_label, check_run, read_runs,
+)
+
+def prepare_run(
+    run: Run,
+    cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+    order: int = DEFAULT_FILTER_ORDER,
+    sample_rate_hz: float | None = None,
+    use_measured_qd: bool = False,
+) -> PreparedRun:
+    """Dedup, resample to a uniform grid, zero-phase filter q, differentiate: see the module docstring."""
+    from scipy import signal
+    # 1. drop stale repeats: a row whose positions equal the previous row's
+    same = np.all(run.q[1:] == run.q[:-1], axis=1)
+    keep = np.concatenate([[True], ~same])
+    n_repeats = int(np.count_nonzero(~keep))
+    t_raw = run.time[keep]
+    raw_steps = np.diff(run.time)
+
+    # 2. uniform grid
+    rate = sample_rate_hz or run.meta.get("sample_rate_hz") or 1.0 / float(np.median(raw_steps))
+    dt = 1.0 / float(rate)
+    n_float = np.floor((run.time[-1] - run.time[0]) / dt) + 1
+    if not n_float <= MAX_GRID_PER_SAMPLE * run.time.size:  # NaN too: a rate or span no grid can hold
+        gap = int(np.argmax(raw_steps)) + 1
+        raise InputError(
+            run.path, f"column 'time', {_row_label(run.path, gap)}",
+            f"{run.time.size} samples span {float(run.time[-1] - run.time[0]):.6g} s, {n_float:.3g} grid points at "
+            f"{float(rate):.6g} Hz (largest gap {float(raw_steps[gap - 1]):.6g} s here)",
+            "log time in seconds, without gaps, and give sample_rate_hz in Hz (or leave it out)",
+        )
+    n = int(n_float)
+    grid = run.time[0] + dt * np.arange(n)
+
+    def resample(x: np.ndarray | None, t_src: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray | None:
+        if x is None:
+            return None
+        x = x if rows is None else x[rows]
+        return np.column_stack([np.interp(grid, t_src, x[:, j]) for j in range(x.shape[1])])
+
+    q_grid = resample(run.q, t_raw, keep)
+    nyquist = 0.5 * rate
+    if cutoff_hz >= nyquist:
+        raise InputError(run.path, "filter cutoff", f"{cutoff_hz} Hz is not below the Nyquist frequency {nyquist} Hz",
+                         "lower filter.cutoff_hz in measurements.yaml")
+    sos = signal.butter(order, cutoff_hz, btype="low", fs=rate, output="sos")
+    q_f = signal.sosfiltfilt(sos, q_grid, axis=0)
+    if use_measured_qd and run.qd is not None:
+        qd_f = signal.sosfiltfilt(sos, resample(run.qd, run.time), axis=0)
+        velocity_source = "logged qd, filtered"
+    else:
+        qd_f = np.gradient(q_f, dt, axis=0)
+        velocity_source = "central differences of filtered q"
+    qdd_f = np.gradient(qd_f, dt, axis=0)
+
+    # 4. trim the filter's transient at both ends (a few time constants of the cutoff)
+    trim = int(np.ceil(max(0.05, 3.0 / cutoff_hz) / dt))
+    if n - 2 * trim < MIN_SAMPLES:
+        raise InputError(run.path, "column 'time'", "run too short once the filter's edges are trimmed",
+                         f"log a longer run (at least {2 * trim * dt + MIN_SAMPLES * dt:.2f} s)")
+    sl = slice(trim, n - trim)
+
+    torque_source = "tau" if run.tau is not None else "tau_cmd"
+    raw_torque = run.tau if run.tau is not None else run.tau_cmd
+    assert raw_torque is not None
+    tau = resample(raw_torque, run.time)
+    tau_cmd = tau.copy() if run.tau is None else resample(run.tau_cmd, run.time)  # judged on the command: resampled once
+    q_cmd = resample(run.q_cmd, run.time)
+    qd_measured = resample(run.qd, run.time)
+    contact = None
+    if run.contact is not None:
+        idx = np.clip(np.searchsorted(run.time, grid, side="right") - 1, 0, run.time.size - 1)
+        contact = run.contact[idx][sl]
+
+    filter_info: dict[str, Any] = {
+        "type": "butterworth low-pass, zero-phase (scipy.signal.sosfiltfilt)",
+        "order": int(order),
+        "cutoff_hz": float(cutoff_hz),
+        "applied_to": "q (torque is not filtered)",
+        "velocity": velocity_source,
+        "acceleration": "central differences of the velocity",
+        "resampled_to_hz": float(rate),
+        "resampling": "linear interpolation onto a uniform grid",
+        "raw_step_ms": {"min": float(raw_steps.min() * 1e3), "median": float(np.median(raw_steps) * 1e3),
+                        "max": float(raw_steps.max() * 1e3)},
+        "repeated_samples_dropped": n_repeats,
+        "trimmed_s_each_end": float(trim * dt),
+    }
+    keep_raw = np.concatenate([[True], np.any(raw_torque[1:] != raw_torque[:-1], axis=1)])
+    return PreparedRun(
+        name=run.name, joint_names=list(run.joint_names), time=grid[sl], dt=dt, q=q_f[sl], qd=qd_f[sl],
+        qdd=qdd_f[sl], tau=tau[sl], torque_source=torque_source,
+        tau_cmd=None if tau_cmd is None else tau_cmd[sl], q_cmd=None if q_cmd is None else q_cmd[sl],
+        filter=filter_info, qd_measured=None if qd_measured is None else qd_measured[sl], contact=contact,
+        raw_torque_sigma=white_noise_sigma(raw_torque[keep_raw]),
+        torque_sensor=str(run.meta.get("torque_sensor", "motor")) if run.tau is not None else "motor",
+    )
+
+
+def with_command_floor(run: PreparedRun) -> PreparedRun:
+    """``run`` with its actuator-link noise floor (:func:`command_white_noise`, ``command_torque_sigma``) where it
+    logs both the measured and the commanded torque: computed once, by the rule that prepares the runs."""
+    if run.tau_cmd is None or run.torque_source != "tau" or run.command_torque_sigma.size:
+        return run
+    return dataclasses.replace(run, command_torque_sigma=command_white_noise(run.tau, run.tau_cmd, run.dt))
+
+
+def prepare_runs(
+    runs: Sequence[Run], settings: Mapping[str, Any], known_joints: Sequence[str] | None = None,
+    limits: Mapping[str, tuple[float, float]] | None = None,
+) -> list[PreparedRun]:
+    """Runs of :func:`read_runs` checked against the model (:func:`check_run`), then prepared with the
+    list's filter settings (:func:`prepare_run`)."""
+    for run in runs:
+        check_run(run, known_joints, limits)
+    return [prepare_run(run, cutoff_hz=settings["cutoff_hz"], order=settings["order"]) for run in runs]
+
+
+def load_prepared_runs(
+    measurement_list: str | Path, known_joints: Sequence[str] | None = None, root: str | Path = ".",
+    limits: Mapping[str, tuple[float, float]] | None = None,
+) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
+    """:func:`read_runs` then :func:`prepare_runs`, when the model's joints are known beforehand.
+
+    Returns (entries, prepared runs in the same order, settings of :func:`measurement_settings`).
+    """
+    entries, runs, settings = read_runs(measurement_list, root)
+    return entries, prepare_runs(runs, settings, known_joints, limits), settings
+
+
+def prepare_for_model(
+    measurement_list: str | Path, urdf_path: str | Path, root: str | Path = ".",
+) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
+    """Every run of a measurement list read, checked against the URDF's joints and limits, and prepared.
+
+    A run column naming a joint the URDF lacks is refused in the run's own terms (the file to edit is the
+    run). Returns (entries, prepared runs in the same order, settings of :func:`measurement_settings`).
+    """
+    from sim2real.dynamics import RigidBodyModel
+
+    entries, runs, settings = read_runs(measurement_list, root)
+    probe = RigidBodyModel(urdf_path)
+    for run in runs:
+        unknown = [j for j in run.joint_names if j not in probe.joint_names]
+        if unknown:
+            raise InputError(run.path, f"column q.{unknown[0]}", f"joint '{unknown[0]}' is not in {urdf_path}",
+                             f"name the columns after the URDF's joints ({', '.join(probe.joint_names)})")
+    probe = RigidBodyModel(urdf_path, runs[0].joint_names)
+    limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(probe.joint_names, probe.lower, probe.upper, strict=True)}
+    prepared = [with_command_floor(run) for run in prepare_runs(runs, settings, probe.joint_names, limits)]
+    return entries, prepared, settings

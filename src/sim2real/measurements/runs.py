@@ -1,0 +1,353 @@
+"""Measurement runs: the table format, reading and checking a run, the measurement list, writing a run.
+
+Format (a contract shared with real robot logs and the virtual lab):
+
+* A table, CSV or Parquet: ``time`` in seconds and, per joint named as in the URDF, ``q.<joint>``
+  (rad or m), optionally ``qd.<joint>``, ``tau.<joint>`` (torque measured at the joint),
+  ``tau_cmd.<joint>`` (torque the controller commanded at that stamp), ``q_cmd.<joint>``.
+  ``q`` and at least one of ``tau`` / ``tau_cmd`` are required; a signal kind is given for all
+  joints or for none.
+* Beside it ``<stem>.yaml`` validated by ``schemas/measurement.schema.yaml``.
+
+A rule reads each run file once: :func:`read_runs` reads every run of a measurement list; the caller
+builds its model from the runs' joints and prepares them (:mod:`sim2real.measurements.prepare`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from sim2real.errors import InputError
+from sim2real.files import read_validated_yaml
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+SIGNAL_KINDS = ("q", "qd", "tau", "tau_cmd", "q_cmd")
+MIN_DURATION_S = 1.0
+MIN_SAMPLES = 100
+# A uniform grid more than this many times denser than the logged samples means a gap, a stamp in other
+# units or a sample_rate_hz that is not the log's: refused before it is allocated.
+MAX_GRID_PER_SAMPLE = 20
+# More than a turn plus a margin: no revolute joint angle in rad, but common in degrees.
+DEGREES_THRESHOLD_RAD = 2 * np.pi + 0.5
+DEFAULT_CUTOFF_HZ = 10.0
+DEFAULT_FILTER_ORDER = 4
+
+
+@dataclass(frozen=True)
+class Run:
+    """A measurement run as loaded and validated (original, possibly irregular stamps)."""
+
+    name: str
+    path: Path
+    joint_names: list[str]
+    time: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray | None
+    tau: np.ndarray | None
+    tau_cmd: np.ndarray | None
+    q_cmd: np.ndarray | None
+    meta: dict
+    contact: np.ndarray | None = None  # (N,) bool contact flag when the log has a `contact` column
+
+
+@dataclass(frozen=True)
+class PreparedRun:
+    """A run cleaned and put on a uniform time grid: what fits and comparisons use."""
+
+    name: str
+    joint_names: list[str]
+    time: np.ndarray
+    dt: float
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau: np.ndarray
+    torque_source: str
+    tau_cmd: np.ndarray | None
+    q_cmd: np.ndarray | None
+    filter: dict
+    torque_sensor: str = "motor"  # where tau is measured (metadata `torque_sensor`): "motor" or "link"
+    qd_measured: np.ndarray | None = None  # logged velocity on the grid (unfiltered), if any
+    contact: np.ndarray | None = None
+    raw_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per-joint white-noise std
+    # per joint, the RMS of tau that no actuator model can explain from tau_cmd (with_command_floor); empty
+    # until computed, and unless the run logs both
+    command_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass(frozen=True)
+class MeasurementEntry:
+    name: str
+    path: Path
+    role: str  # "fit" | "holdout"
+
+
+def _read_table(path: Path) -> pd.DataFrame:
+    import pandas as pd
+    if not path.exists():
+        raise InputError(path, None, "file does not exist", "create it or correct the path in measurements.yaml")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".csv":
+            return pd.read_csv(path)
+        if suffix == ".parquet":
+            table = pd.read_parquet(path)
+            # Arrow keeps the memory it read the file into for later reads: give it back now (a 10-minute log at
+            # 1 kHz leaves ~0.4 GB behind per run, beside every other run of the list).
+            import pyarrow
+
+            pyarrow.default_memory_pool().release_unused()
+            return table
+    except Exception as exc:  # pandas/pyarrow raise many types
+        raise InputError(path, None, f"cannot be read as a table ({exc})", "write a valid CSV or Parquet file") from exc
+    raise InputError(path, None, f"unsupported extension '{suffix}'", "use .csv or .parquet")
+
+
+def _row_label(path: Path, index: int) -> str:
+    """Data row index -> a location a user finds in the file (CSV line numbers count the header)."""
+    if path.suffix.lower() == ".csv":
+        return f"row {index} (line {index + 2})"
+    return f"row {index}"
+
+
+def read_run(path: str | Path) -> Run:
+    """Read a CSV/Parquet run and its metadata, checked against the format (not yet against a model).
+
+    ``InputError`` (file, column, row) on bad input. :func:`check_run` checks the joints and their
+    limits once the model is known; :func:`load_run` does both.
+    """
+    import pandas as pd
+    path = Path(path)
+    meta_path = path.with_suffix(".yaml")
+    if not meta_path.exists():
+        raise InputError(
+            meta_path, None, "metadata file beside the run does not exist",
+            "write <stem>.yaml with robot, source (real|synthetic) and control_mode (torque|position)",
+        )
+    meta = read_validated_yaml(meta_path, "measurement.schema.yaml")
+    table = _read_table(path)
+    columns = [str(c) for c in table.columns]
+    if "time" not in columns:
+        raise InputError(path, "column 'time'", "is missing", "add a column 'time' in seconds")
+
+    by_kind: dict[str, list[str]] = {kind: [] for kind in SIGNAL_KINDS}
+    has_contact = False
+    for col in columns:
+        if col == "time":
+            continue
+        if col == "contact":
+            has_contact = True
+            continue
+        kind, _, joint = col.rpartition(".")
+        if kind not in by_kind or not joint:
+            raise InputError(
+                path, f"column '{col}'", "is not part of the measurement format",
+                "name columns time, q.<joint>, qd.<joint>, tau.<joint>, tau_cmd.<joint>, q_cmd.<joint> (or contact)",
+            )
+        by_kind[kind].append(joint)
+
+    joints = by_kind["q"]
+    if not joints:
+        raise InputError(path, "columns q.<joint>", "no joint positions", "add one column q.<joint> per joint")
+    for kind in SIGNAL_KINDS[1:]:
+        present = by_kind[kind]
+        if present and sorted(present) != sorted(joints):
+            missing = sorted(set(joints) - set(present))
+            extra = sorted(set(present) - set(joints))
+            detail = "; ".join([f"missing for {', '.join(missing)}"] * bool(missing)
+                               + [f"without q for {', '.join(extra)}"] * bool(extra))
+            raise InputError(
+                path, f"columns {kind}.<joint>", f"given for some joints only ({detail})",
+                f"give {kind}.<joint> for every joint of q.<joint>, with the same joint names, or for none",
+            )
+    if not by_kind["tau"] and not by_kind["tau_cmd"]:
+        raise InputError(
+            path, "columns tau.<joint> / tau_cmd.<joint>", "no torque at all",
+            "log the measured joint torque (tau.<joint>) or the commanded torque (tau_cmd.<joint>)",
+        )
+
+    numeric_cols = [c for c in columns if c != "contact"]
+    values = table[numeric_cols]
+    for col in numeric_cols:
+        try:
+            column = pd.to_numeric(values[col], errors="raise").to_numpy(dtype=float)
+        except (ValueError, TypeError) as exc:
+            bad = pd.to_numeric(values[col], errors="coerce").isna() & values[col].notna()
+            row = int(np.flatnonzero(bad.to_numpy())[0]) if bad.any() else 0
+            raise InputError(path, f"column '{col}', {_row_label(path, row)}", f"not a number ({exc})",
+                             "write plain decimal numbers") from exc
+        bad_rows = np.flatnonzero(~np.isfinite(column))
+        if bad_rows.size:
+            raise InputError(
+                path, f"column '{col}', {_row_label(path, int(bad_rows[0]))}",
+                f"NaN or infinite value ({bad_rows.size} such row(s))",
+                "remove or fill these rows (e.g. drop incomplete samples) before loading",
+            )
+
+    time = table["time"].to_numpy(dtype=float, copy=True)  # not a view that keeps the whole table alive
+    steps = np.diff(time)
+    bad = np.flatnonzero(steps <= 0)
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise InputError(
+            path, f"column 'time', {_row_label(path, k)}",
+            f"time does not increase ({float(time[k - 1]):.9g} s then {float(time[k]):.9g} s; {bad.size} such step(s))",
+            "sort the samples by time and drop duplicated stamps",
+        )
+    span = float(time[-1] - time[0]) if time.size else 0.0
+    if time.size < MIN_SAMPLES or span < MIN_DURATION_S:
+        raise InputError(
+            path, "column 'time'",
+            f"run too short to judge ({time.size} samples over {span:.3f} s)",
+            f"log at least {MIN_DURATION_S:g} s and {MIN_SAMPLES} samples of motion",
+        )
+
+    def block(kind: str) -> np.ndarray | None:
+        if not by_kind[kind]:
+            return None
+        return table[[f"{kind}.{j}" for j in joints]].to_numpy(dtype=float)
+
+    q = block("q")
+    assert q is not None
+    for i, joint in enumerate(joints):
+        worst = int(np.argmax(np.abs(q[:, i])))
+        if abs(q[worst, i]) > DEGREES_THRESHOLD_RAD:
+            _raise_degrees(path, joint, q[:, i], worst)
+
+    contact = None
+    if has_contact:
+        contact = table["contact"].astype(bool).to_numpy()
+    return Run(
+        name=path.stem, path=path, joint_names=list(joints), time=time, q=q, qd=block("qd"),
+        tau=block("tau"), tau_cmd=block("tau_cmd"), q_cmd=block("q_cmd"), meta=dict(meta), contact=contact,
+    )
+
+
+def _raise_degrees(path: Path, joint: str, col: np.ndarray, row: int) -> None:
+    raise InputError(
+        path, f"column 'q.{joint}', {_row_label(path, row)}",
+        f"value {col[row]:.4g} looks like degrees (outside the joint's range in radians)",
+        "log angles in radians (multiply degrees by pi/180)",
+    )
+
+
+def check_run(
+    run: Run,
+    known_joints: Sequence[str] | None = None,
+    position_limits: Mapping[str, tuple[float, float]] | None = None,
+) -> None:
+    """Check a run read by :func:`read_run` against the model: joints it knows, positions in radians.
+
+    A position outside the joint's limits (with a margin) that would be inside them read as degrees
+    is refused as degrees. ``InputError`` naming the file, the column and the fix.
+    """
+    if known_joints is not None:
+        unknown = [j for j in run.joint_names if j not in known_joints]
+        if unknown:
+            raise InputError(
+                run.path, f"column(s) {', '.join(f'q.{j}' for j in unknown)}", f"unknown joint(s) {', '.join(unknown)}",
+                f"use joint names of the robot description: {', '.join(known_joints)}",
+            )
+    for i, joint in enumerate(run.joint_names):
+        if not position_limits or joint not in position_limits:
+            continue
+        col = run.q[:, i]
+        lo, hi = position_limits[joint]
+        margin = 0.1 * (hi - lo) + 0.05
+        outside = (col < lo - margin) | (col > hi + margin)
+        in_limits_as_deg = np.all((np.deg2rad(col) >= lo - margin) & (np.deg2rad(col) <= hi + margin))
+        if outside.any() and in_limits_as_deg:
+            _raise_degrees(run.path, joint, col, int(np.flatnonzero(outside)[0]))
+
+
+def load_run(
+    path: str | Path,
+    known_joints: Sequence[str] | None = None,
+    position_limits: Mapping[str, tuple[float, float]] | None = None,
+) -> Run:
+    """:func:`read_run` then :func:`check_run`: one run read and checked against the model's joints."""
+    run = read_run(path)
+    check_run(run, known_joints, position_limits)
+    return run
+
+
+def load_measurement_list(path: str | Path) -> list[MeasurementEntry]:
+    """``configs/{robot}/measurements.yaml`` -> entries (name, path, role), names unique."""
+    return _entries(Path(path), read_validated_yaml(path, "measurements.schema.yaml"))
+
+
+def _entries(path: Path, data: Mapping[str, Any]) -> list[MeasurementEntry]:
+    entries: list[MeasurementEntry] = []
+    seen: set[str] = set()
+    for i, item in enumerate(data["runs"]):
+        if item["name"] in seen:
+            raise InputError(path, f"runs/{i}/name", f"duplicate run name '{item['name']}'", "give each run a unique name")
+        seen.add(item["name"])
+        entries.append(MeasurementEntry(name=item["name"], path=Path(item["path"]), role=item["role"]))
+    return entries
+
+
+def measurement_settings(path: str | Path) -> dict[str, Any]:
+    """Filter and replay settings of measurements.yaml, with defaults filled in."""
+    return _settings(read_validated_yaml(path, "measurements.schema.yaml"))
+
+
+def _settings(data: Mapping[str, Any]) -> dict[str, Any]:
+    return {
+        "cutoff_hz": float(data.get("filter", {}).get("cutoff_hz", DEFAULT_CUTOFF_HZ)),
+        "order": int(data.get("filter", {}).get("order", DEFAULT_FILTER_ORDER)),
+        "horizon_s": float(data.get("replay", {}).get("horizon_s", 0.5)),
+    }
+
+
+def read_runs(
+    measurement_list: str | Path, root: str | Path = ".",
+) -> tuple[list[MeasurementEntry], list[Run], dict[str, Any]]:
+    """Every run of a measurement list read once (:func:`read_run`), named as in the list.
+
+    Returns (entries, runs in the same order, settings of :func:`measurement_settings`). Every run must
+    log the same joints; the caller builds its model from ``runs[0].joint_names`` and hands it to
+    :func:`prepare_runs`.
+    """
+    path = Path(measurement_list)
+    data = read_validated_yaml(path, "measurements.schema.yaml")
+    entries = _entries(path, data)
+    runs = [dataclasses.replace(read_run(Path(root) / e.path), name=e.name) for e in entries]
+    joints = runs[0].joint_names
+    for run in runs:
+        if run.joint_names != joints:
+            raise InputError(run.path, "columns q.<joint>", "joints differ from the first run's",
+                             f"log the same joints in every run: {', '.join(joints)}")
+    return entries, runs, _settings(data)
+
+
+def write_run(
+    path: str | Path, time: np.ndarray, joint_names: Sequence[str], signals: Mapping[str, np.ndarray],
+    meta: Mapping[str, Any],
+) -> None:
+    """Write a run (CSV or Parquet by extension) plus its metadata YAML, atomically and deterministically."""
+    import pandas as pd
+    from sim2real.files import atomic_path, validate, write_yaml
+
+    path = Path(path)
+    columns: dict[str, np.ndarray] = {"time": np.asarray(time, dtype=float)}
+    for kind in SIGNAL_KINDS:
+        if kind in signals and signals[kind] is not None:
+            for i, joint in enumerate(joint_names):
+                columns[f"{kind}.{joint}"] = np.asarray(signals[kind], dtype=float)[:, i]
+    frame = pd.DataFrame(columns)
+    validate(dict(meta), "measurement.schema.yaml", path.with_suffix(".yaml"))
+    with atomic_path(path) as tmp:
+        if path.suffix.lower() == ".parquet":
+            frame.to_parquet(tmp, index=False)
+        else:
+            frame.to_csv(tmp, index=False, float_format="%.9g")
+    write_yaml(path.with_suffix(".yaml"), dict(meta))
