@@ -12,9 +12,9 @@ from pathlib import Path
 
 import yaml
 
-from sim2real.gap import build_gap_report, compute_gap
+from sim2real.report.gap import build_gap_report, compute_gap
 from sim2real.lab import run_lab_scenario_run, scenario_runs
-from sim2real.report import FIGURES
+from sim2real.report.figures import FIGURES
 
 
 def main(robot: str = "panda") -> None:

@@ -74,9 +74,9 @@ RULES = ("prepare_runs", "sysid", "gap_report")
 def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiprocessing.Queue) -> None:
     """In a fresh process, as the DAG runs it: one rule's function under cProfile; stage times, wall time and
     the peak resident set of the process and of the workers it forked."""
-    from sim2real.gap import build_gap_report
+    from sim2real.report.gap import build_gap_report
     from sim2real.measurements import prepare_for_model, write_prepared_runs
-    from sim2real.report import FIGURES
+    from sim2real.report.figures import FIGURES
     from sim2real.sysid import run_sysid
 
     t = Path(tree)

@@ -6,14 +6,14 @@ import os
 
 import sim2real.collision as _sim2real_collision
 import sim2real.excitation.separation as _sim2real_separation
-import sim2real.fleet as _sim2real_fleet
+import sim2real.measurements.campaigns as _sim2real_campaigns
 import sim2real.files as _sim2real_io
 import sim2real.urdf as _sim2real_urdf
 
 ROBOTS = list(config["robots"])
 # Measurement campaigns per robot: configs/{robot}/measurements.yaml is the default one (reports under
 # results/{robot}/), each configs/{robot}/campaigns/<name>.yaml another (reports under results/{robot}/<name>/).
-CAMPAIGNS = {robot: _sim2real_fleet.robot_campaigns(robot) for robot in ROBOTS}
+CAMPAIGNS = {robot: _sim2real_campaigns.robot_campaigns(robot) for robot in ROBOTS}
 
 
 # Every global wildcard constraint lives here, before any rule: a `wildcard_constraints:` block in a
@@ -26,7 +26,7 @@ wildcard_constraints:
     run="(?!truth$)[A-Za-z0-9_-]+",
     bag="[A-Za-z0-9_.-]+",
     design="[A-Za-z0-9_-]+",
-    campaign=_sim2real_fleet.wildcard_pattern(
+    campaign=_sim2real_campaigns.wildcard_pattern(
         [c.name for cs in CAMPAIGNS.values() for c in cs if c.prefix]
     ),
 
@@ -194,8 +194,8 @@ def collision_part_dirs(robot):
 
 def campaign_measurements(wildcards):
     """The measurement list of the {campaign} wildcard ("" = configs/{robot}/measurements.yaml)."""
-    return _sim2real_fleet.campaign_file(
-        wildcards.robot, _sim2real_fleet.campaign_name(wildcards.campaign)
+    return _sim2real_campaigns.campaign_file(
+        wildcards.robot, _sim2real_campaigns.campaign_name(wildcards.campaign)
     )
 
 

@@ -1,9 +1,9 @@
-"""Snakemake script: every campaign's sysid ladder and params -> fleet.json, fleet.md, figure (sim2real.fleet)."""
+"""Snakemake script: every campaign's sysid ladder and params -> fleet.json, fleet.md, figure (sim2real.report.fleet)."""
 
 import logging
 
 from sim2real.cli import rule_entry
-from sim2real.fleet import build_fleet
+from sim2real.report.fleet import build_fleet
 
 with rule_entry(snakemake):
     fleet = build_fleet(snakemake.params.campaigns, snakemake.output.json, snakemake.output.md, snakemake.output.figure)

@@ -1,7 +1,7 @@
-"""Snakemake script: measurements vs model -> gap.json, gap.md, figures (sim2real.gap.build_gap_report)."""
+"""Snakemake script: measurements vs model -> gap.json, gap.md, figures (sim2real.report.gap.build_gap_report)."""
 
 from sim2real.cli import rule_entry
-from sim2real.gap import build_gap_report
+from sim2real.report.gap import build_gap_report
 
 with rule_entry(snakemake):
     build_gap_report(

@@ -12,7 +12,7 @@ import pytest
 
 from sysid_lab import FAST_FIT, Lab, overall
 
-from sim2real.report import FIGURES
+from sim2real.report.figures import FIGURES
 
 ACTUATOR_SCENARIOS = {
     "sensor_actuation_delay": "actuation_delay",
@@ -145,7 +145,7 @@ def test_behind_a_link_side_sensor_the_drive_is_found_on_the_actuator_link(lab, 
 
     import yaml
 
-    from sim2real.gap import build_gap_report
+    from sim2real.report.gap import build_gap_report
 
     documents = follow_both_links(lab, "link_side_sensor")
     first, last = documents[0], documents[-1]
@@ -192,7 +192,7 @@ def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added
     import json
 
     from sim2real import sysid
-    from sim2real.gap import build_gap_report
+    from sim2real.report.gap import build_gap_report
 
     def report(listing, effects, name):
         document, _ = sysid.fit_model(effects, lab.nominal, lab.prepared(listing), {"fit": FAST_FIT}, "panda")

@@ -231,7 +231,7 @@ def test_the_run_that_separates_confounded_candidates(designed: Path, tmp_path: 
 
 
 def test_gap_md_names_the_design_when_the_inertias_are_poorly_pinned() -> None:
-    from sim2real.report import ILL_CONDITIONED, _identified_markdown
+    from sim2real.report.markdown import ILL_CONDITIONED, _identified_markdown
 
     def rung(condition: float) -> dict:
         body = {"moved": False, "mass_change_kg": 0.0, "com_shift_mm": 0.0, "divergence": 0.0, "implausible": []}

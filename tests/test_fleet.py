@@ -8,17 +8,8 @@ import pytest
 
 from sim2real.errors import InputError
 from sim2real.files import validate
-from sim2real.fleet import (
-    DEFAULT_CAMPAIGN,
-    campaign_names,
-    compare_campaigns,
-    fleet_document,
-    identified_values,
-    overlaps,
-    render_fleet_markdown,
-    robot_campaigns,
-    wildcard_pattern,
-)
+from sim2real.measurements.campaigns import DEFAULT_CAMPAIGN, campaign_names, robot_campaigns, wildcard_pattern
+from sim2real.report.fleet import compare_campaigns, fleet_document, identified_values, overlaps, render_fleet_markdown
 
 JOINTS = ["j1", "j2", "j3", "j4"]
 

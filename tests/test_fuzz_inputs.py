@@ -196,7 +196,7 @@ FILE_NAME = st.text(st.characters(codec="utf-8", exclude_characters="/\\\0\n\r")
        name=st.one_of(st.sampled_from(["panda_2-2026-11", "sysid", "lab", "default", "-x", "a b"]), FILE_NAME),
        suffix=st.sampled_from([".yaml", ".yaml", ".yml", ".txt"]))
 def test_campaign_files(tmp_path_factory: pytest.TempPathFactory, doc: Any, name: str, suffix: str) -> None:
-    from sim2real.fleet import DATE_PATTERN, NAME_PATTERN, RESERVED_NAMES, robot_campaigns, wildcard_pattern
+    from sim2real.measurements.campaigns import DATE_PATTERN, NAME_PATTERN, RESERVED_NAMES, robot_campaigns, wildcard_pattern
 
     configs = tmp_path_factory.mktemp("configs")
     path = configs / "panda" / "campaigns" / f"{name}{suffix}"

@@ -11,10 +11,11 @@ import yaml
 
 from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
 from sim2real.errors import InputError
-from sim2real.gap import build_gap_report, compute_gap, reality_gap
+from sim2real.report.gap import build_gap_report, compute_gap
+from sim2real.report.metrics import reality_gap
 from sim2real.files import validate
 from sim2real.lab import run_lab_scenario_run
-from sim2real.report import FIGURES
+from sim2real.report.figures import FIGURES
 from sim2real.measurements import load_run, write_run
 
 
@@ -132,7 +133,7 @@ def test_replay_models_drop_only_meshes_that_change_nothing(lab):
     """The replay's models leave out the mesh geoms of bodies with explicit inertias: same motion, to the bit."""
     import mujoco
 
-    from sim2real.gap import ReplayModels
+    from sim2real.report.replay import ReplayModels
     from sim2real.lab import arm_spec, compile_arm
 
     full, qadr, dadr = compile_arm(arm_spec(lab["mjcf"], PANDA_JOINTS), PANDA_JOINTS)
@@ -157,8 +158,8 @@ def test_replay_models_drop_only_meshes_that_change_nothing(lab):
 def test_a_report_kept_replays_and_figures_are_read_back_and_a_changed_rung_replayed_alone(lab, tmp_path, monkeypatch):
     """The next round of the loop changes one rung: the gap report replays that rung alone and draws only the
     figure that shows the ladder; everything it writes is the same bytes as a report without the cache."""
-    from sim2real import gap as gap_module
-    from sim2real import report
+    from sim2real.report import figures as report
+    from sim2real.report import replay as gap_module
 
     listing = lab["scenario"]("demo")
     ladder = {"torque_source": "tau", "ladder": [

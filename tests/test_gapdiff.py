@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from sim2real.errors import InputError
-from sim2real.gapdiff import gap_diff_markdown, load_gap
+from sim2real.report.gapdiff import gap_diff_markdown, load_gap
 
 JOINTS = ["j1", "j2"]
 

@@ -83,9 +83,9 @@ def test_the_fitting_core_depends_on_nothing_above_it():
         return seen
 
     for module in ("sim2real.sysid", "sim2real.fitting", "sim2real.diagnosis"):
-        assert not reach(module) & {"sim2real.gap", "sim2real.report"}, module
+        assert not any(m.startswith("sim2real.report") for m in reach(module)), module
     loaded = subprocess.run(
         [sys.executable, "-c", "import sys, sim2real.sysid; print(' '.join(sorted(sys.modules)))"],
         check=True, capture_output=True, text=True,
     ).stdout.split()
-    assert "sim2real.gap" not in loaded and "sim2real.report" not in loaded
+    assert not any(m.startswith("sim2real.report") for m in loaded)

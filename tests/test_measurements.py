@@ -279,7 +279,7 @@ def _counting_reads(monkeypatch):
 
 def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
     """sysid and the gap report, given the list, read every run's table and metadata, and the list, exactly once."""
-    from sim2real.gap import compute_gap
+    from sim2real.report.gap import compute_gap
     from sim2real.sysid import run_sysid
 
     urdf, mjcf, listing = _two_logged_runs(tmp_path)
@@ -297,7 +297,7 @@ def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
 def test_prepared_runs_are_read_back_exactly_and_the_rules_read_no_run_file(tmp_path, monkeypatch):
     """The prepare_runs rule's file: the same bytes from the same runs, read back to the same numbers, so that
     sysid and the gap report give what they give from the list, without reading or filtering a run again."""
-    from sim2real.gap import compute_gap
+    from sim2real.report.gap import compute_gap
     from sim2real.measurements import prepare_for_model, read_prepared_runs, write_prepared_runs
     from sim2real.sysid import run_sysid
 

@@ -21,7 +21,7 @@ from sim2real import fitting
 from sim2real.effects.link_inertia import (
     HULL_TOLERANCE_M, LinkInertia, body_changes, correction_anchors, hull_distance, plausibility, to_mass_com_inertia,
 )
-from sim2real.report import _identified_markdown
+from sim2real.report.markdown import _identified_markdown
 
 
 @pytest.fixture(scope="module")

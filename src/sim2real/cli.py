@@ -17,7 +17,7 @@ from sim2real.errors import InputError
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    commands = {"gap-diff": "sim2real.gapdiff"}
+    commands = {"gap-diff": "sim2real.report.gapdiff"}
     if not argv or argv[0] not in commands:
         print(f"usage: sim2real {{{','.join(commands)}}} ...", file=sys.stderr)
         return 2

@@ -64,6 +64,12 @@ def atomic_dir(target: str | Path) -> Iterator[Path]:
             shutil.rmtree(tmp)
 
 
+def relative_path(path: str | Path, start: str | Path) -> str:
+    """``path`` relative to the directory ``start``, with forward slashes: what an output written in ``start``
+    names another by (a mesh in the MJCF, a figure in gap.md), the same on every machine."""
+    return Path(os.path.relpath(Path(path).resolve(), Path(start).resolve())).as_posix()
+
+
 def write_text(target: str | Path, text: str) -> None:
     with atomic_path(target) as tmp:
         tmp.write_text(text, encoding="utf-8")

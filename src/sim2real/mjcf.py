@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.files import atomic_path, read_validated_yaml, write_text
+from sim2real.files import atomic_path, read_validated_yaml, relative_path, write_text
 from sim2real.meshes import read_parts
 from sim2real.urdf import mesh_name
 
@@ -101,10 +101,6 @@ def _matching(name: str, patterns: Mapping[str, object]) -> object | None:
         if fnmatch.fnmatchcase(name, pattern):
             return value
     return None
-
-
-def _relative(path: str | Path, start: Path) -> str:
-    return Path(os.path.relpath(Path(path).resolve(), start.resolve())).as_posix()
 
 
 def build_mjcf(
@@ -222,7 +218,7 @@ def _add_geometry(
                 for index, part in enumerate(record["parts"]):
                     mesh_id = f"{name}_{index}{suffix}"
                     if mesh_id not in meshes_added:
-                        spec.add_mesh(name=mesh_id, file=_relative(directory / part["file"], out_dir), scale=list(scale))
+                        spec.add_mesh(name=mesh_id, file=relative_path(directory / part["file"], out_dir), scale=list(scale))
                         meshes_added.add(mesh_id)
                     material_id = f"{name}_{index}"
                     if material_id not in materials_added:
@@ -239,7 +235,7 @@ def _add_geometry(
                 for index, file in enumerate(files):
                     mesh_id = f"{name}_collision{'' if len(files) == 1 else f'_{index}'}{suffix}"
                     if mesh_id not in meshes_added:
-                        spec.add_mesh(name=mesh_id, file=_relative(file, out_dir), scale=list(scale))
+                        spec.add_mesh(name=mesh_id, file=relative_path(file, out_dir), scale=list(scale))
                         meshes_added.add(mesh_id)
                     body.add_geom(
                         collision_class, name=geom_name(geometry.link, "collision"), type=mujoco.mjtGeom.mjGEOM_MESH,

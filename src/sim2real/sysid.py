@@ -35,7 +35,7 @@ from sim2real.blas import one_blas_thread
 from sim2real.cache import FitCache
 from sim2real.inertial import program_store
 from sim2real.measurements import PreparedRun, noise_floor_of
-from sim2real.metrics import rmse
+from sim2real.stats import rmse
 
 
 def round_floats(tree: Any, digits: int = 6) -> Any:
@@ -395,7 +395,7 @@ def params_document(
 def write_model_residuals(path: str | Path, current: Mapping[str, Any]) -> None:
     """The body link's last rung on every run, at the fit's rate (:func:`fit_model`'s ``current_out``): time,
     motion, judged torque and residual by role and run, what the gap report judges the current model by
-    (:func:`sim2real.gap.read_model_residuals`)."""
+    (:func:`sim2real.report.gap.read_model_residuals`)."""
     from sim2real.files import write_array_archive
 
     header: dict[str, Any] = {"link": current["link"], "effects": current["effects"], "roles": {}}

@@ -151,7 +151,7 @@ def _gains_most(learner: Any, features: np.ndarray, target: np.ndarray, names: S
     return [names[i] for i in order[:3] if top > 0 and importance[i] >= 0.5 * top]
 
 
-# Regimes of the joint's own motion where a learner's gain can concentrate (sim2real.regimes defines the same two
+# Regimes of the joint's own motion where a learner's gain can concentrate (sim2real.report.regimes defines the same two
 # for the gap report; these need no model): slow motion and reversals, hard accelerations.
 GAIN_REGIMES = {
     "slow_reversal": ("slow motion and velocity reversals",

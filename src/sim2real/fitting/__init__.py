@@ -30,7 +30,7 @@ package; it imports neither. Its modules, each importing only those above it:
 * :mod:`~sim2real.fitting.problem`: the design at given nonlinear parameters (``_Problem``), shared by
   the fit, its consistent variant and the bootstrap; the linear solve and the nonlinear refinement;
 * :mod:`~sim2real.fitting.bootstrap`: the block bootstrap and its intervals;
-* :mod:`~sim2real.fitting.metrics`: noise-floor units, the prediction and the holdout metrics;
+* :mod:`~sim2real.fitting.scoring`: noise-floor units, the prediction and the holdout metrics;
 * :mod:`~sim2real.fitting.rung`: one rung's fit (:func:`fit`, :func:`fit_on_the_previous`);
 * :mod:`sim2real.cache` (beside the package, which the gap report uses without importing the fit): fits kept
   between rounds of the loop, by the digest of their inputs.
@@ -45,7 +45,7 @@ from sim2real.fitting.bootstrap import (  # noqa: F401  (re-exported: the packag
 from sim2real.fitting.data import (  # noqa: F401  (re-exported: the package's names)
     TorqueData, kept_segments, link_side, run_from_prepared, stack_runs,
 )
-from sim2real.fitting.metrics import (  # noqa: F401  (re-exported: the package's names)
+from sim2real.fitting.scoring import (  # noqa: F401  (re-exported: the package's names)
     MIN_FLOOR_FRACTION, floor_units, holdout_metrics, joint_weights, predict,
 )
 from sim2real.fitting.nominal import (  # noqa: F401  (re-exported: the package's names)

@@ -13,12 +13,12 @@ import numpy as np
 from sim2real.effects import Effect, Signals, get_effect
 from sim2real.fitting.bootstrap import _block_bootstrap, _prune, replicate_intervals
 from sim2real.fitting.data import TorqueData, link_side
-from sim2real.fitting.metrics import holdout_metrics, joint_weights
+from sim2real.fitting.scoring import holdout_metrics, joint_weights
 from sim2real.fitting.nominal import NominalModel, make_signals
 from sim2real.fitting.problem import FitResult, _Problem, _linear_fit, _refine_nonlinear, _values
 from sim2real.forked import map_forked
 from sim2real.inertial import import_solver
-from sim2real.metrics import rmse
+from sim2real.stats import rmse
 
 
 DEFAULT_SETTINGS: dict[str, Any] = {

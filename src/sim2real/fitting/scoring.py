@@ -11,7 +11,7 @@ from sim2real.effects import Signals, get_effect
 from sim2real.fitting.data import TorqueData
 from sim2real.fitting.nominal import NominalModel, make_signals
 from sim2real.fitting.problem import FitResult, _Problem
-from sim2real.metrics import rmse
+from sim2real.stats import rmse
 
 
 # A joint whose floor reads below this fraction of the arm's RMS floor is weighted as if it were there:

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from sim2real.errors import InputError
+from sim2real.report import rung_label
 
 GapReport = Mapping[str, Any]
 
@@ -44,9 +45,8 @@ def _delta(base: float | None, head: float | None) -> str:
     return f"{arrow} {diff:+.4g}{pct}"
 
 
-def _rung_label(rung: Mapping[str, Any]) -> str:
-    effects = rung.get("effects") or []
-    return "nominal" if not effects else "+ " + ", ".join(effects)
+def _label(rung: Mapping[str, Any] | None) -> str:
+    return rung_label((rung or {}).get("effects") or [], whole=True)
 
 
 def _torque_rmse(rung: Mapping[str, Any] | None) -> Mapping[str, Any]:
@@ -83,8 +83,8 @@ def gap_diff_markdown(base: GapReport | None, head: GapReport) -> str:
         head_joints = _torque_rmse(last).get("per_joint", {})
         base_joints = _torque_rmse(base_last).get("per_joint", {})
         floor = (head.get("noise_floor") or {}).get("torque_rmse", {}).get("per_joint", {})
-        models = (f"base {_rung_label(base_last)}, this branch {_rung_label(last)}" if base_last is not None
-                  and _rung_label(base_last) != _rung_label(last) else _rung_label(last))
+        models = (f"base {_label(base_last)}, this branch {_label(last)}" if base_last is not None
+                  and _label(base_last) != _label(last) else _label(last))
         lines += [
             f"Per joint, the last rung of each branch, the model it calibrates ({models}):",
             "",
@@ -112,15 +112,15 @@ def gap_diff_markdown(base: GapReport | None, head: GapReport) -> str:
 
 def _rung_rows(head_ladder: Sequence[Mapping[str, Any]], base_ladder: Sequence[Mapping[str, Any]]) -> list[str]:
     """One row per rung of this branch against the base's rung with the same effects; removed rungs last."""
-    base_by_label = {_rung_label(r): r for r in base_ladder}
+    base_by_label = {_label(r): r for r in base_ladder}
     lines = ["| rung | holdout torque RMSE (base) | (this branch) | change |", "|---|---|---|---|"]
     for rung in head_ladder:
-        label = _rung_label(rung)
+        label = _label(rung)
         b = _torque_rmse(base_by_label.get(label)).get("overall")
         h = _torque_rmse(rung).get("overall")
         lines.append(f"| {label} | {_fmt(b, ' N·m')} | {_fmt(h, ' N·m')} | {_delta(b, h)} |")
     for label in base_by_label:
-        if label not in {_rung_label(r) for r in head_ladder}:
+        if label not in {_label(r) for r in head_ladder}:
             lines.append(f"| {label} | {_fmt(_torque_rmse(base_by_label[label]).get('overall'), ' N·m')} | removed | – |")
     return lines
 

@@ -1,145 +1,26 @@
-"""Campaigns and the fleet view: which arm drifted since its last campaign, and in what.
+"""The fleet view: which arm drifted since its last campaign, and in what.
 
-A *campaign* is one measurement session of one arm: a measurement list with the shape of
-``configs/{robot}/measurements.yaml`` (``schemas/measurements.schema.yaml``) plus a ``campaign:``
-block (``arm``, ``date``). Campaign files live in ``configs/{robot}/campaigns/{campaign}.yaml`` and
-their reports in ``results/{robot}/{campaign}/``; ``configs/{robot}/measurements.yaml`` itself is the
-``default`` campaign, whose reports keep their paths (``results/{robot}/gap.json``,
-``results/{robot}/sysid/``). A campaign is therefore only a different measurement list and output
-directory for the same fit (:func:`sim2real.sysid.run_sysid`) and report
-(:func:`sim2real.gap.build_gap_report`).
-
-The fleet view (``results/fleet.json``, ``fleet.md``, a figure) reads every campaign's sysid
-``ladder.json`` (holdout error per rung of each link) and ``params.yaml`` (identified values and their
-bootstrap intervals). Between consecutive dated campaigns of the same arm, a value counts as changed
-only when its two intervals do not overlap.
-
-One piece (~520 lines): the campaign files, the wildcard pattern the rules build from their names and
-the fleet view all read the same :class:`Campaign` records.
+The fleet view (``results/fleet.json``, ``fleet.md``, a figure) reads every campaign's
+(:mod:`sim2real.measurements.campaigns`) sysid ``ladder.json`` (holdout error per rung of each link) and
+``params.yaml`` (identified values and their bootstrap intervals). Between consecutive dated campaigns of the same
+arm, a value counts as changed only when its two intervals do not overlap.
 """
 
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from sim2real.errors import InputError
+from sim2real.report import rung_label
 
-DEFAULT_CAMPAIGN = "default"
-# Names of what results/{robot}/ already holds: a campaign directory may not shadow them.
-RESERVED_NAMES = frozenset({
-    DEFAULT_CAMPAIGN, "bags", "benchmarks", "calibrated", "collision", "dr", "gap", "lab", "logs", "meshes",
-    "mjcf", "sysid", "usd",
-})
-NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
-DATE_PATTERN = re.compile(r"^\d{4}-\d{2}(-\d{2})?$")
 UNIT_TEXT = {"N*m": "N·m", "N*m*s/rad": "N·m·s/rad", "kg*m^2": "kg·m²", "1": ""}
+
+
 # Names of the components of vector parameters (payload and link centres of mass, link inertias).
 COMPONENTS = {"com": ("x", "y", "z"), "inertia": ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
-
-
-# --------------------------------------------------------------------------------------------
-# campaigns
-
-
-@dataclass(frozen=True)
-class Campaign:
-    """One measurement session: where its runs are listed and where its reports go."""
-
-    robot: str
-    name: str  # DEFAULT_CAMPAIGN or the file stem under configs/{robot}/campaigns/
-    measurements: str  # the measurement list (measurements.yaml or the campaign file)
-    arm: str  # the physical unit measured (default: the robot's name)
-    date: str | None  # YYYY-MM or YYYY-MM-DD; the default campaign may have none
-
-    @property
-    def prefix(self) -> str:
-        """The ``{campaign}`` wildcard value: "" for the default campaign, else "<name>/"."""
-        return campaign_prefix(self.name)
-
-    @property
-    def results(self) -> str:
-        return f"results/{self.robot}/{self.prefix}"
-
-
-def campaign_prefix(name: str) -> str:
-    return "" if name == DEFAULT_CAMPAIGN else f"{name}/"
-
-
-def campaign_name(prefix: str) -> str:
-    return prefix.rstrip("/") or DEFAULT_CAMPAIGN
-
-
-def campaign_file(robot: str, name: str, configs: str | Path = "configs") -> str:
-    """The measurement list of a campaign (``configs/{robot}/measurements.yaml`` for the default one)."""
-    if name == DEFAULT_CAMPAIGN:
-        return (Path(configs) / robot / "measurements.yaml").as_posix()
-    return (Path(configs) / robot / "campaigns" / f"{name}.yaml").as_posix()
-
-
-def campaign_names(robot: str, configs: str | Path = "configs") -> list[str]:
-    """Names of the robot's campaign files (sorted), each checked to be a usable directory name."""
-    folder = Path(configs) / robot / "campaigns"
-    names = []
-    for path in sorted(folder.glob("*")):
-        if path.suffix == ".yml":
-            raise InputError(path, None, "campaign files end in .yaml", f"rename it to {path.with_suffix('.yaml').name}")
-        if path.suffix != ".yaml":
-            continue
-        name = path.stem
-        if not NAME_PATTERN.match(name):
-            raise InputError(path, "file name", f"'{name}' is not a usable campaign name",
-                             "use letters, digits, '_', '-' and '.', starting with a letter or digit")
-        if name in RESERVED_NAMES:
-            raise InputError(path, "file name", f"'{name}' is reserved (results/{robot}/{name} holds other outputs)",
-                             f"rename the file, e.g. to {robot}-{name}.yaml")
-        names.append(name)
-    return names
-
-
-def _date_text(value: Any) -> Any:
-    """YAML reads an unquoted 2026-10-05 as a date: accept it as the ISO text it was meant as."""
-    import datetime
-
-    return value.isoformat() if isinstance(value, datetime.date) else value
-
-
-def load_campaign(robot: str, name: str, configs: str | Path = "configs") -> Campaign:
-    """A campaign's metadata from its measurement list (validated by measurements.schema.yaml)."""
-    from sim2real.files import read_yaml, validate
-
-    path = campaign_file(robot, name, configs)
-    data = read_yaml(path)
-    if isinstance(data, dict) and isinstance(data.get("campaign"), dict) and "date" in data["campaign"]:
-        data["campaign"]["date"] = _date_text(data["campaign"]["date"])
-    validate(data, "measurements.schema.yaml", path)
-    block = data.get("campaign") or {}
-    date = block.get("date")
-    if name != DEFAULT_CAMPAIGN and date is None:
-        raise InputError(path, "campaign/date", "a campaign file needs the date it was measured",
-                         "add 'campaign: {date: \"2026-10\"}' (YYYY-MM or YYYY-MM-DD)")
-    return Campaign(robot=robot, name=name, measurements=path, arm=str(block.get("arm", robot)), date=date)
-
-
-def robot_campaigns(robot: str, configs: str | Path = "configs") -> list[Campaign]:
-    """The default campaign (where measurements.yaml exists) and every campaign file of the robot."""
-    names = ([DEFAULT_CAMPAIGN] if Path(campaign_file(robot, DEFAULT_CAMPAIGN, configs)).exists() else [])
-    return [load_campaign(robot, name, configs) for name in names + campaign_names(robot, configs)]
-
-
-def wildcard_pattern(names: Sequence[str]) -> str:
-    """Regex of the ``{campaign}`` wildcard: "" (default campaign) or one of ``names`` plus "/"."""
-    if not names:
-        return "(?:)"  # matches only "" (an empty constraint would fall back to Snakemake's default ".+")
-    return "(?:(?:" + "|".join(re.escape(n) for n in sorted(set(names))) + ")/)?"
-
-
-# --------------------------------------------------------------------------------------------
-# identified values
 
 
 def _units() -> dict[tuple[str, str], str]:
@@ -269,25 +150,17 @@ def compare_campaigns(
     return changes, compared
 
 
-def _rung_label(effects: Sequence[str]) -> str:
-    return f"+ {effects[-1]}" if effects else "nominal"
-
-
 def holdout_summary(ladder: Mapping[str, Any]) -> dict[str, Any]:
     """Holdout torque RMSE per rung of a sysid ladder.json, with the noise floor."""
     rungs = []
     for rung in ladder.get("ladder") or []:
         rungs.append({
             "effects": list(rung["effects"]),
-            "label": _rung_label(rung["effects"]),
+            "label": rung_label(rung["effects"]),
             "torque_rmse": float(rung["metrics"]["torque_rmse"]["overall"]),
         })
     floor = ladder.get("noise_floor", {}).get("torque_rmse", {}).get("overall")
     return {"rungs": rungs, "noise_floor": None if floor is None else float(floor)}
-
-
-# --------------------------------------------------------------------------------------------
-# the fleet document
 
 
 def fleet_document(campaigns: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -504,7 +377,7 @@ def build_fleet(
     ``report`` (gap.md), ``ladder`` (sysid ladder.json path), ``params`` (sysid params.yaml path)."""
     import json
 
-    from sim2real.gap import os_relpath
+    from sim2real.report.gap import os_relpath
     from sim2real.files import read_yaml, validate, write_json, write_text
 
     loaded = []
