@@ -27,7 +27,7 @@ def mesh_seconds(tree: Path, robot: str) -> dict[str, float]:
 
 def mesh_targets(tree: Path, robot: str) -> list[str]:
     """The converted visual and collision meshes (the decomposition's inputs) of the built URDF."""
-    from sim2real.urdf import mesh_names
+    from sim2real.assets.urdf import mesh_names
 
     names = mesh_names(tree / "results" / robot / f"{robot}.urdf")
     return [f"results/{robot}/meshes/visual/{n}" for n in names["visual"]] + [
@@ -44,8 +44,8 @@ def decompose_all(tree: Path, robot: str, cores: int) -> float:
 def usd_seconds(tree: Path, robot: str) -> tuple[float, float]:
     """(build_usd call in-process, the Snakemake rule's job incl. interpreter start) in seconds."""
     from sim2real.collision import part_files
-    from sim2real.urdf import mesh_names
-    from sim2real.usd import build_usd
+    from sim2real.assets.urdf import mesh_names
+    from sim2real.assets.usd import build_usd
 
     results = tree / "results" / robot
     names = mesh_names(results / f"{robot}.urdf")

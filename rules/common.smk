@@ -8,7 +8,7 @@ import sim2real.collision as _sim2real_collision
 import sim2real.excitation.separation as _sim2real_separation
 import sim2real.measurements.campaigns as _sim2real_campaigns
 import sim2real.files as _sim2real_io
-import sim2real.urdf as _sim2real_urdf
+import sim2real.assets.urdf as _sim2real_urdf
 
 ROBOTS = list(config["robots"])
 # Measurement campaigns per robot: configs/{robot}/measurements.yaml is the default one (reports under

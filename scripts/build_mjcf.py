@@ -1,9 +1,9 @@
-"""Snakemake script: URDF + meshes -> MJCF + scene.xml (sim2real.mjcf.build_mjcf)."""
+"""Snakemake script: URDF + meshes -> MJCF + scene.xml (sim2real.assets.mjcf.build_mjcf)."""
 
 from sim2real.cli import rule_entry
 from sim2real.collision import parts_by_uri
 from sim2real.effects import spec_edit_from_params
-from sim2real.mjcf import build_mjcf
+from sim2real.assets.mjcf import build_mjcf
 
 with rule_entry(snakemake):
     build_mjcf(

@@ -1,7 +1,7 @@
-"""Snakemake script: Xacro -> validated URDF (sim2real.urdf.build_urdf)."""
+"""Snakemake script: Xacro -> validated URDF (sim2real.assets.urdf.build_urdf)."""
 
 from sim2real.cli import rule_entry
-from sim2real.urdf import build_urdf
+from sim2real.assets.urdf import build_urdf
 
 with rule_entry(snakemake):
     build_urdf(snakemake.input.xacro, snakemake.output[0], dict(snakemake.params.args))

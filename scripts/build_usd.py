@@ -1,10 +1,10 @@
-"""Snakemake script: URDF + meshes + CoACD parts -> UsdPhysics asset (sim2real.usd.build_usd)."""
+"""Snakemake script: URDF + meshes + CoACD parts -> UsdPhysics asset (sim2real.assets.usd.build_usd)."""
 
 import logging
 
 from sim2real.cli import rule_entry
 from sim2real.collision import parts_by_uri
-from sim2real.usd import build_usd
+from sim2real.assets.usd import build_usd
 
 with rule_entry(snakemake):
     summary = build_usd(

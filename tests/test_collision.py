@@ -27,7 +27,7 @@ from sim2real.collision import (
     write_timing,
 )
 from sim2real.errors import InputError
-from sim2real.urdf import resolve_package_uri
+from sim2real.assets.urdf import resolve_package_uri
 
 PANDA_MESHES = "package://example-robot-data/robots/panda_description/meshes"
 FAST = MeshSettings(source="collision", coacd=CoacdSettings(threshold=0.3, max_convex_hull=4, preprocess_mode="off", mcts_iterations=10))

@@ -90,7 +90,7 @@ def test_calibration_has_the_build_urdf_shape_and_the_xacro_takes_it(tmp_path, r
     xacro = repo_root / "robots" / "panda" / "panda.urdf.xacro"
     if not xacro.exists():
         pytest.skip("the Panda Xacro is not in this checkout")
-    from sim2real.urdf import build_urdf
+    from sim2real.assets.urdf import build_urdf
 
     path = tmp_path / "calibration.yaml"
     path.write_text(yaml.safe_dump(calibration))

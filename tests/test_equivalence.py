@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from collision_usd_build import ROBOT, fast_panda_build
-from sim2real.equivalence import check_equivalence, mjcf_facts, urdf_facts, usd_facts
+from sim2real.assets.equivalence import check_equivalence, mjcf_facts, urdf_facts, usd_facts
 from sim2real.errors import InputError
 
 from pxr import Usd, UsdPhysics  # noqa: E402

@@ -150,7 +150,7 @@ def test_a_canonicalised_program_is_read_back_by_the_next_process_and_solves_to_
 def test_the_bodies_mesh_bounds_are_kept_and_follow_the_meshes(tmp_path, monkeypatch):
     """load_nominal reads the collision meshes (and imports trimesh) only when the URDF or a mesh changed."""
     from sim2real.fitting import nominal as nominal_module
-    from sim2real.urdf import resolve_package_uri
+    from sim2real.assets.urdf import resolve_package_uri
 
     urdf = tmp_path / "panda.urdf"
     shutil.copy(PANDA_URDF, urdf)

@@ -314,7 +314,7 @@ VALID_URDF = {"mass": 1.5, "ixx": 0.02, "iyy": 0.03, "izz": 0.04, "ixy": 0.001, 
        jtype=st.sampled_from(["revolute", "revolute", "prismatic", "continuous", "fixed", "hinge"]))
 def test_urdf_inertials_and_limits(tmp_path_factory: pytest.TempPathFactory, broken_fields: dict, removed: list,
                                    jtype: str) -> None:
-    from sim2real.urdf import build_urdf
+    from sim2real.assets.urdf import build_urdf
 
     folder = tmp_path_factory.mktemp("urdf")
     fields = {**VALID_URDF, **broken_fields}
@@ -327,7 +327,7 @@ def test_urdf_inertials_and_limits(tmp_path_factory: pytest.TempPathFactory, bro
     def valid(_: None) -> None:
         import xml.etree.ElementTree as ET
 
-        from sim2real.urdf import validate_urdf
+        from sim2real.assets.urdf import validate_urdf
 
         validate_urdf(out)  # what was written passes the checks it was built under
         root = ET.parse(out).getroot()

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from sim2real.errors import InputError
-from sim2real.meshes import convert_collision_mesh, convert_visual_mesh, read_parts
-from sim2real.urdf import mesh_names, resolve_package_uri
+from sim2real.assets.meshes import convert_collision_mesh, convert_visual_mesh, read_parts
+from sim2real.assets.urdf import mesh_names, resolve_package_uri
 
 PANDA_MESHES = "package://example-robot-data/robots/panda_description/meshes"
 

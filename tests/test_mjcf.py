@@ -12,9 +12,9 @@ import pytest
 import yaml
 
 from sim2real.errors import InputError
-from sim2real.meshes import convert_collision_mesh, convert_visual_mesh
-from sim2real.mjcf import build_mjcf
-from sim2real.urdf import build_urdf, mesh_names, resolve_package_uri
+from sim2real.assets.meshes import convert_collision_mesh, convert_visual_mesh
+from sim2real.assets.mjcf import build_mjcf
+from sim2real.assets.urdf import build_urdf, mesh_names, resolve_package_uri
 
 ROBOTS = ["panda", "ur5"]
 MJCF_RTOL = 1e-5  # MuJoCo's XML writer keeps 6 significant digits

@@ -14,8 +14,8 @@ import pytest
 import yaml
 
 from collision_usd_build import ROBOT, fast_panda_build
-from sim2real.equivalence import hold_in_mujoco, hold_in_newton
-from sim2real.usd import read_urdf
+from sim2real.assets.equivalence import hold_in_mujoco, hold_in_newton
+from sim2real.assets.urdf_model import read_urdf
 
 newton = pytest.importorskip("newton", reason="NVIDIA Newton is not installed: pip install -e '.[newton]'")
 pytest.importorskip("newton_usd_schemas", reason="Newton's USD importer needs newton-usd-schemas: pip install -e '.[newton]'")

@@ -99,7 +99,7 @@ def test_install_holds_what_the_readme_needs() -> None:
     assert not any(r.startswith("hypothesis") for r in main)  # the test extra stays out of the main install
     import pygments  # noqa: F401
 
-    from sim2real.usd import validator_names
+    from sim2real.assets.usd_validation import validator_names
 
     assert validator_names()
 

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from sim2real.errors import InputError
-from sim2real.urdf import build_urdf, mesh_names, resolve_package_uri, validate_urdf
+from sim2real.assets.urdf import build_urdf, mesh_names, resolve_package_uri, validate_urdf
 
 PANDA_ARM = [f"panda_joint{i}" for i in range(1, 8)]
 UR5_JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]

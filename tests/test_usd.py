@@ -14,18 +14,10 @@ import yaml
 
 from collision_usd_build import ROBOT, fast_panda_build
 from sim2real.collision import part_files
-from sim2real.usd import (
-    CLASSIC_CHECKS,
-    PACKAGE_ONLY_VALIDATORS,
-    PHYSICS_VALIDATORS,
-    axis_frame,
-    build_usd,
-    compliance_errors,
-    principal_inertia,
-    read_urdf,
-    validator_names,
-)
-from sim2real.urdf import mesh_names
+from sim2real.assets.urdf_model import read_urdf
+from sim2real.assets.usd import axis_frame, build_usd, principal_inertia
+from sim2real.assets.usd_validation import CLASSIC_CHECKS, PACKAGE_ONLY_VALIDATORS, PHYSICS_VALIDATORS, compliance_errors, validator_names
+from sim2real.assets.urdf import mesh_names
 
 pxr = pytest.importorskip("pxr")
 from pxr import Gf, Usd, UsdGeom, UsdPhysics, UsdShade  # noqa: E402

@@ -50,7 +50,10 @@ import numpy as np
 from sim2real import fitting
 from sim2real.effects import EFFECTS
 from sim2real.effects.base import Signals, per_joint_dict
-from sim2real.excitation.separation import separation_name
+from sim2real.design_names import separation_name
+from sim2real.diagnosis.caveats import (
+    NESTED_IN, caveats, implausible_bodies, not_told_apart_verdict, recommend, ties, trades_with_model,
+)
 from sim2real.forked import map_forked
 from sim2real.inertial import import_solver
 
@@ -68,33 +71,23 @@ DEFAULT_DIAGNOSIS: dict[str, float] = {
 }
 
 
-# Effects that are special cases of another: never tried once the larger one is in the model.
-# Gaz's sigmoid with no velocity offset is a Coulomb tanh: asymmetric_friction holds coulomb_friction.
-NESTED_IN: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",), "asymmetric_friction": ("coulomb_friction",)}
-
 # How each link is named in verdicts (sim2real.actuator.LINK_MODES says which links a data set has).
 LINK_TEXT: dict[str, str] = {
     "body": "the body link (measured torque against the motion)",
     "actuator": "the actuator link (measured against commanded torque)",
     "combined": "the commanded torque against the motion (actuator and body together: no torque sensor)",
 }
+
+
 CONFOUNDED_NOISE_FRACTION = 0.1  # two candidates whose predictions differ by less: not told apart
+
+
 # A per-joint fix may not push another joint further above its floor by more than this (x its floor).
 HARM_TOLERANCE = 0.1
+
+
 # A joint is named for an effect when the effect's own fitted term there is at least this (RMS, x its floor).
 OWN_TERM_MIN = 0.5
-# Ties: the holdout is cut into this many blocks of time (at most; 50 samples each at least); two candidates whose
-# summed squared residuals differ by less than TIE_SPREAD standard errors of that difference over the blocks (paired,
-# block by block) are not told apart on these runs.
-TIE_BLOCKS = 20
-TIE_SPREAD = 2.0
-# A candidate trades places with the model when the fit gives back, through the terms of the effects already in
-# the model, so much of the candidate's own term that the prediction moves by at most TRADE_NET of it (RMS); the
-# effects named are those whose term moved against it (correlation at most TRADE_CORRELATION).
-TRADE_NET = 0.5
-TRADE_CORRELATION = -0.5
-# Two candidates act "on the same joints" when the joints each is named on overlap by this share (Jaccard).
-TIE_JOINT_OVERLAP = 0.5
 
 
 def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: fitting.TorqueData,
@@ -109,71 +102,6 @@ def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: 
     without = dataclasses.replace(result, theta={**result.theta, name: np.zeros_like(coefficients)})
     term = fitting.predict(result, nominal, data, signals) - fitting.predict(without, nominal, data, signals)
     return np.sqrt(np.mean((term / unit) ** 2, axis=0))
-
-
-def _term(result: fitting.FitResult, name: str, nominal: Any, data: fitting.TorqueData, signals: Signals,
-          ) -> np.ndarray | None:
-    """What the effect ``name`` adds to ``result``'s prediction on ``data`` (None: no linear coefficients)."""
-    import dataclasses
-
-    coefficients = np.asarray(result.theta.get(name, []), dtype=float)
-    if not coefficients.size:
-        return None
-    without = dataclasses.replace(result, theta={**result.theta, name: np.zeros_like(coefficients)})
-    return fitting.predict(result, nominal, data, signals) - fitting.predict(without, nominal, data, signals)
-
-
-def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name: str, nominal: Any,
-                      data: fitting.TorqueData, signals: Signals, unit: np.ndarray) -> list[dict[str, Any]]:
-    """Effects already in the model that the candidate ``name`` trades places with: adding it, the fit moves their
-    terms against the candidate's own (a torque gain against the link inertias' scale) until the prediction moves
-    by at most :data:`TRADE_NET` of the own term. On these runs they are confounded: the candidate's fall is the
-    model's effect relabelled. Each with the size of its move (x the own term's RMS) and its correlation with the
-    own term, in floor units on the holdout; empty when the candidate adds a term of its own."""
-    own = _term(trial, name, nominal, data, signals)
-    if own is None:
-        return []
-    own = own / unit
-    size = float(np.sqrt(np.mean(own**2)))
-    if size <= 0:
-        return []
-    moves = {}
-    for effect in current.effects:
-        after, before = _term(trial, effect, nominal, data, signals), _term(current, effect, nominal, data, signals)
-        if after is not None and before is not None:
-            moves[effect] = (after - before) / unit
-    net = own + sum(moves.values(), np.zeros_like(own))
-    if float(np.sqrt(np.mean(net**2))) > TRADE_NET * size:
-        return []
-    out = []
-    for effect, change in moves.items():
-        denominator = float(np.linalg.norm(change) * np.linalg.norm(own))
-        correlation = float(np.sum(change * own) / denominator) if denominator > 0 else 0.0
-        if correlation <= TRADE_CORRELATION:
-            out.append({"effect": effect, "moved_x_own_term": round(float(np.sqrt(np.mean(change**2))) / size, 3),
-                        "correlation": round(correlation, 3)})
-    return out
-
-
-def _block_sse(scaled: np.ndarray, blocks: int) -> np.ndarray:
-    """Squared residual (floor units) summed over joints and over each of ``blocks`` contiguous blocks of rows."""
-    return np.array([float(np.sum(part**2)) for part in np.array_split(scaled, blocks)])
-
-
-def tied(a: np.ndarray, b: np.ndarray) -> tuple[bool, float, float]:
-    """Whether two candidates' block scores (:func:`_block_sse`) differ by less than :data:`TIE_SPREAD` standard
-    errors of their paired difference; (tie, difference, standard error), in floor units squared."""
-    difference = a - b
-    spread = float(np.sqrt(difference.size) * np.std(difference, ddof=1)) if difference.size > 1 else 0.0
-    total = float(difference.sum())
-    return abs(total) <= TIE_SPREAD * spread, total, spread
-
-
-def implausible_bodies(result: fitting.FitResult) -> list[str]:
-    """The bodies a fit leaves beyond plausible (:mod:`sim2real.effects.link_inertia`), each with why."""
-    link = (result.values or {}).get("link_inertia") or {}
-    return [f"{name} ({', '.join(body['implausible'])})" for name, body in (link.get("bodies") or {}).items()
-            if body.get("implausible")]
 
 
 def add_line(effect: str) -> str:
@@ -225,107 +153,6 @@ def _confounded(
 
 def _joint_text(joints: Sequence[str], before: Mapping[str, float], after: Mapping[str, float]) -> str:
     return ", ".join(f"{j} {before[j]:.2g}x -> {after[j]:.2g}x" for j in joints)
-
-
-def nested_pair(a: str, b: str) -> bool:
-    """Whether one of two effects is a special case of the other (:data:`NESTED_IN`)."""
-    return b in NESTED_IN.get(a, ()) or a in NESTED_IN.get(b, ())
-
-
-def _overlap(first: Sequence[str], second: Sequence[str]) -> float:
-    """Jaccard overlap of two joint lists (1 when both name none: arm-wide)."""
-    a, b = set(first), set(second)
-    return len(a & b) / len(a | b) if a | b else 1.0
-
-
-def _ties(candidates: list[dict[str, Any]], residuals: Mapping[str, np.ndarray], rows: int) -> list[dict[str, Any]]:
-    """The decisive candidates the best one is not told apart from on these runs: each removes about the same
-    residual (:func:`tied`, over blocks of the holdout) on joints the best one is named on. Each gets its test's
-    numbers in its evidence (``tie_with_best``)."""
-    if not candidates or not candidates[0]["decisive"]:
-        return []
-    best = candidates[0]
-    blocks = max(2, min(TIE_BLOCKS, rows // 50))
-    best_blocks = _block_sse(residuals[best["effect"]], blocks)
-    out = []
-    for c in candidates[1:]:
-        # A nested pair is parsimony's to decide (_rank); on other joints it is another effect, not a rival.
-        if (not c["decisive"] or nested_pair(best["effect"], c["effect"])
-                or _overlap(best["joints"], c["joints"]) < TIE_JOINT_OVERLAP):
-            continue
-        same, difference, spread = tied(_block_sse(residuals[c["effect"]], blocks), best_blocks)
-        if same:
-            c["evidence"]["tie_with_best"] = {"difference": round(difference, 3), "spread": round(spread, 3),
-                                              "blocks": blocks}
-            out.append(c)
-    return out
-
-
-def _trouble(candidate: Mapping[str, Any]) -> list[str]:
-    """Why a candidate would leave the model less trustworthy: inertias bent beyond plausible, or a trade with an
-    effect already in the model."""
-    evidence = candidate["evidence"]
-    reasons = []
-    if evidence.get("implausible_bodies"):
-        reasons.append(f"it leaves link inertias implausible ({'; '.join(evidence['implausible_bodies'])})")
-    for trade in evidence.get("trades_with", []):
-        reasons.append(f"it trades places with {trade['effect']} already in the model (the fit moves that effect's "
-                       f"term against its own, {trade['moved_x_own_term']:.2g}x its size, correlation "
-                       f"{trade['correlation']:.2f}: the prediction hardly changes, the fall is relabelled)")
-    return reasons
-
-
-def _recommend(candidates: list[dict[str, Any]], ties: list[dict[str, Any]],
-               ) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
-    """The candidate to add among the best and those tied with it: the first in the ranking (:func:`_rank`: the
-    best holdout residual, nested effects by parsimony) that is physically plausible (no inertia bent beyond
-    plausible, no trade with the model); None when the best is tied and none of the tied is plausible. A best
-    candidate that nothing ties is recommended, its trouble said beside it (:func:`_caveats`): early in the loop
-    bent inertias are the symptom of what is still missing. The recommended one goes first."""
-    if not candidates or not candidates[0]["decisive"]:
-        return candidates, None
-    if not ties:
-        return candidates, candidates[0]
-    chosen = next((c for c in [candidates[0], *ties] if not _trouble(c)), None)
-    if chosen is None:
-        return candidates, None
-    return [chosen] + [c for c in candidates if c is not chosen], chosen
-
-
-def _separating_runs(first: str, others: Sequence[str], robot: str) -> str:
-    return "; ".join(f"`snakemake results/{robot}/excitation/{separation_name(first, other)}.csv`" for other in others)
-
-
-def _caveats(best: Mapping[str, Any], group: Sequence[Mapping[str, Any]], robot: str) -> str:
-    """What the verdict must add when its candidate is not a clean decision: ties with other candidates (and the run
-    that would separate them), inertias it leaves implausible, effects of the model it trades with."""
-    text = ""
-    others = [c["effect"] for c in group if c["effect"] != best["effect"]]
-    if others:
-        text += (f" On these runs it is not told apart from {', '.join(others)}: each removes about the same residual "
-                 f"(within {TIE_SPREAD:g} standard errors of their difference over blocks of the holdout). "
-                 + (f"{best['effect']} is recommended: it scores best of them and keeps the model plausible. "
-                    if best is group[0] else
-                    f"{best['effect']} is recommended: it keeps the model plausible, which {group[0]['effect']} does "
-                    "not. ")
-                 + f"The run that would tell them apart: {_separating_runs(best['effect'], others, robot)} designs "
-                 "it; record it and add it to the fit runs.")
-    reasons = _trouble(best)
-    if reasons:
-        text += f" Caution: {'; '.join(reasons)}."
-    return text
-
-
-def _not_told_apart_verdict(group: Sequence[Mapping[str, Any]], where: str, robot: str) -> str:
-    """The verdict when the best candidates are not told apart and none keeps the model plausible: no line to add."""
-    names = [c["effect"] for c in group]
-    reasons = "; ".join(f"{c['effect']}: {', '.join(_trouble(c))}" for c in group)
-    runs = (f" The run that would tell them apart: {_separating_runs(names[0], names[1:], robot)} designs it; "
-            "record it and add it to the fit runs." if len(names) > 1 else
-            f" Record a run designed for the model (`snakemake results/{robot}/excitation/identification.csv`) "
-            "and add it to the fit runs.")
-    return (f"On {where}, {' and '.join(names)} {'each remove' if len(names) > 1 else 'removes'} part of the residual, "
-            f"but no line is recommended: {reasons}. What these runs show is not yet a trustworthy effect." + runs)
 
 
 def candidates_to_try(model_effects: Sequence[str], torque_source: str, forward: bool,
@@ -508,13 +335,13 @@ def diagnose(
         })
     candidates = _rank(ranked_candidates, float(limits["parsimony_noise_fraction"]))
     confounded = _confounded(candidates, residuals_after, CONFOUNDED_NOISE_FRACTION, float(limits["min_gain"]))
-    ties = _ties(candidates, residuals_after, rows)
-    group = [candidates[0], *ties] if ties else []  # the best and those it is not told apart from
+    tied_with_best = ties(candidates, residuals_after, rows)
+    group = [candidates[0], *tied_with_best] if tied_with_best else []  # the best and those it is not told apart from
     if current is not None:
         for c in (group or candidates[:1]) if candidates and candidates[0]["decisive"] else []:
             c["evidence"]["trades_with"] = trades_with_model(trials[c["effect"]][0], current, c["effect"], nominal,
                                                              holdout_data, holdout_signals, unit)
-    candidates, recommended = _recommend(candidates, ties)
+    candidates, recommended = recommend(candidates, tied_with_best)
     best = candidates[0] if candidates else None
     where = LINK_TEXT.get(link, link)
     x_now_map = per_joint_dict(joints, x_now, 3)
@@ -531,7 +358,7 @@ def diagnose(
         }
     if best is not None and best["decisive"] and recommended is None:
         status = "not_told_apart"
-        verdict = _not_told_apart_verdict(group, where, robot)
+        verdict = not_told_apart_verdict(group, where, robot)
     elif best is not None and best["decisive"]:
         status = "add_effect"
         after = best["evidence"]["per_joint_x_floor_after"]
@@ -556,7 +383,7 @@ def diagnose(
         verdict = (
             f"On {where}, the model is missing {best['effect']}{joint_text}: {reach}. "
             f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml.{twin_text}"
-            + _caveats(best, group, robot)
+            + caveats(best, group, robot)
         )
     elif not above:
         status = "at_noise_floor"

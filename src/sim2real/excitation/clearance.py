@@ -19,7 +19,7 @@ import numpy as np
 
 from sim2real.errors import InputError
 
-COLLISION_GROUP = 3  # menagerie convention, as sim2real.mjcf writes it
+COLLISION_GROUP = 3  # menagerie convention, as sim2real.assets.mjcf writes it
 OBSTACLE_GROUP = 4
 
 

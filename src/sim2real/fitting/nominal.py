@@ -66,7 +66,7 @@ class _MeshPart:
 
 def _collision_meshes(urdf_path: Path, link: ET.Element) -> list[_MeshPart] | None:
     """A link's collision meshes as the URDF names them (None when a collision is not a mesh)."""
-    from sim2real.urdf import resolve_package_uri
+    from sim2real.assets.urdf import resolve_package_uri
 
     def triple(element: ET.Element | None, key: str, default: str) -> tuple[float, float, float]:
         x, y, z = (float(v) for v in (element.get(key, default) if element is not None else default).split())

@@ -39,7 +39,7 @@ import numpy as np
 from sim2real.errors import InputError
 from sim2real.files import atomic_path
 
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
+PROJECT_ROOT = Path(__file__).resolve().parents[3]
 PACKAGE_PREFIX = "package://"
 ACTUATED_TYPES = ("revolute", "prismatic", "continuous")
 MESH_KINDS = ("visual", "collision")

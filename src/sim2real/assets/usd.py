@@ -14,8 +14,8 @@ Links without mass joined by a fixed joint (a flange frame, a TCP) are folded in
 body, as simulators require positive mass on every rigid body; their geometry moves with it.
 Output is deterministic: fixed authoring order, no timestamps, no absolute paths.
 
-One piece (~690 lines): the link and joint records read from the URDF, the folded bodies and the drive
-gains are what both layers are authored from, and the compliance check reads back what was authored.
+The link and joint records come from the URDF reader (:mod:`sim2real.assets.urdf_model`); what was authored
+is read back by USD's validators (:mod:`sim2real.assets.usd_validation`) before it is moved into place.
 """
 
 from __future__ import annotations
@@ -27,7 +27,6 @@ import os
 import re
 import shutil
 import tempfile
-import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,156 +35,15 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from sim2real.collision import part_files
+from sim2real.assets.meshes import read_parts
+from sim2real.assets.mjcf import ROBOT_SCHEMA
+from sim2real.assets.urdf import mesh_name
+from sim2real.assets.urdf_model import AXIS_TOKENS, RAD_PER_DEG, Geometry, Joint, UrdfModel, read_urdf, transform
+from sim2real.assets.usd_validation import compliance_errors
 from sim2real.errors import InputError
 from sim2real.files import read_validated_yaml
-from sim2real.meshes import read_parts
-from sim2real.mjcf import ROBOT_SCHEMA, actuated_joints
-from sim2real.urdf import mesh_name
 
-RAD_PER_DEG = math.pi / 180.0
-AXIS_TOKENS = ("X", "Y", "Z")
 GEOMETRY_ROOT = "/Geometry"
-
-
-# ---------------------------------------------------------------------------------------- URDF model
-
-
-def _floats(text: str | None, default: Sequence[float]) -> np.ndarray:
-    return np.array([float(v) for v in text.split()] if text else list(default), dtype=float)
-
-
-def rpy_matrix(rpy: Sequence[float]) -> np.ndarray:
-    """URDF roll-pitch-yaw (fixed axes X, then Y, then Z) -> rotation matrix."""
-    roll, pitch, yaw = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
-    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    return rz @ ry @ rx
-
-
-def transform(rotation: np.ndarray | None = None, translation: Sequence[float] | None = None) -> np.ndarray:
-    out = np.eye(4)
-    if rotation is not None:
-        out[:3, :3] = rotation
-    if translation is not None:
-        out[:3, 3] = translation
-    return out
-
-
-def origin_transform(element: ET.Element | None) -> np.ndarray:
-    origin = element.find("origin") if element is not None else None
-    xyz = _floats(origin.get("xyz") if origin is not None else None, (0, 0, 0))
-    rpy = _floats(origin.get("rpy") if origin is not None else None, (0, 0, 0))
-    return transform(rpy_matrix(rpy), xyz)
-
-
-@dataclass
-class Geometry:
-    kind: str  # "visual" | "collision"
-    shape: str  # "mesh" | "box" | "cylinder" | "sphere"
-    pose: np.ndarray  # in the link frame
-    uri: str = ""
-    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    size: tuple[float, ...] = ()  # box: full extents; cylinder: radius, length; sphere: radius
-
-
-@dataclass
-class Link:
-    name: str
-    mass: float = 0.0
-    com: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # about the CoM, link axes
-    geometries: list[Geometry] = field(default_factory=list)
-
-
-@dataclass
-class Joint:
-    name: str
-    type: str  # revolute | continuous | prismatic | fixed
-    parent: str
-    child: str
-    origin: np.ndarray
-    axis: np.ndarray
-    lower: float | None = None
-    upper: float | None = None
-    effort: float | None = None
-    velocity: float | None = None
-    mimic: str | None = None
-
-
-@dataclass
-class UrdfModel:
-    name: str
-    links: dict[str, Link]  # URDF order
-    joints: dict[str, Joint]  # URDF order
-    root: str
-
-
-def read_urdf(urdf_path: str | Path) -> UrdfModel:
-    """The kinematic and inertial content of a URDF that the USD and the equivalence check need."""
-    urdf_path = Path(urdf_path)
-    try:
-        root_element = ET.parse(urdf_path).getroot()
-    except (ET.ParseError, OSError) as exc:
-        raise InputError(urdf_path, None, f"cannot be read as URDF ({exc})", "rebuild the URDF") from exc
-    links: dict[str, Link] = {}
-    for element in root_element.findall("link"):
-        link = Link(element.get("name", ""))
-        inertial = element.find("inertial")
-        if inertial is not None and inertial.find("mass") is not None:
-            pose = origin_transform(inertial)
-            link.mass = float(inertial.find("mass").get("value", 0.0))  # type: ignore[union-attr]
-            link.com = pose[:3, 3].copy()
-            node = inertial.find("inertia")
-            values = {k: float(node.get(k, 0.0)) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")} if node is not None else {}
-            local = np.array([
-                [values.get("ixx", 0.0), values.get("ixy", 0.0), values.get("ixz", 0.0)],
-                [values.get("ixy", 0.0), values.get("iyy", 0.0), values.get("iyz", 0.0)],
-                [values.get("ixz", 0.0), values.get("iyz", 0.0), values.get("izz", 0.0)],
-            ])
-            rotation = pose[:3, :3]
-            link.inertia = rotation @ local @ rotation.T
-        for kind in ("visual", "collision"):
-            for item in element.findall(kind):
-                geometry = item.find("geometry")
-                if geometry is None or len(geometry) == 0:
-                    continue
-                shape = geometry[0]
-                pose = origin_transform(item)
-                if shape.tag == "mesh":
-                    scale = tuple(_floats(shape.get("scale"), (1, 1, 1)))
-                    link.geometries.append(Geometry(kind, "mesh", pose, uri=shape.get("filename", ""), scale=scale))  # type: ignore[arg-type]
-                elif shape.tag == "box":
-                    link.geometries.append(Geometry(kind, "box", pose, size=tuple(_floats(shape.get("size"), (0, 0, 0)))))
-                elif shape.tag == "cylinder":
-                    link.geometries.append(Geometry(kind, "cylinder", pose, size=(float(shape.get("radius", 0)), float(shape.get("length", 0)))))
-                elif shape.tag == "sphere":
-                    link.geometries.append(Geometry(kind, "sphere", pose, size=(float(shape.get("radius", 0)),)))
-        links[link.name] = link
-    joints: dict[str, Joint] = {}
-    for element in root_element.findall("joint"):
-        limit = element.find("limit")
-        mimic = element.find("mimic")
-
-        def limit_value(key: str, limit: ET.Element | None = limit) -> float | None:
-            return float(limit.get(key)) if limit is not None and limit.get(key) is not None else None  # type: ignore[arg-type]
-
-        axis = _floats(element.find("axis").get("xyz") if element.find("axis") is not None else None, (1, 0, 0))  # type: ignore[union-attr]
-        joint = Joint(
-            name=element.get("name", ""), type=element.get("type", ""),
-            parent=element.find("parent").get("link", ""), child=element.find("child").get("link", ""),  # type: ignore[union-attr]
-            origin=origin_transform(element), axis=axis / np.linalg.norm(axis),
-            lower=limit_value("lower"), upper=limit_value("upper"), effort=limit_value("effort"),
-            velocity=limit_value("velocity"), mimic=mimic.get("joint") if mimic is not None else None,
-        )
-        joints[joint.name] = joint
-    children = {j.child for j in joints.values()}
-    roots = [name for name in links if name not in children]
-    if len(roots) != 1:
-        raise InputError(urdf_path, "link tree", f"has {len(roots)} root links ({', '.join(roots)})", "connect every link to one root")
-    return UrdfModel(root_element.get("name", urdf_path.stem), links, joints, roots[0])
 
 
 def principal_inertia(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -221,9 +79,6 @@ def axis_frame(axis: np.ndarray) -> tuple[str, np.ndarray]:
             return token, trimesh.transformations.rotation_matrix(math.pi, other)[:3, :3]
     unit_x = np.array([1.0, 0.0, 0.0])
     return "X", trimesh.geometry.align_vectors(unit_x, axis)[:3, :3]
-
-
-# ----------------------------------------------------------------------------------------- bodies
 
 
 @dataclass
@@ -267,9 +122,6 @@ def fold_bodies(model: UrdfModel) -> tuple[dict[str, Body], dict[str, str | None
     return bodies, body_of
 
 
-# ------------------------------------------------------------------------------------------ gains
-
-
 @dataclass(frozen=True)
 class DriveGains:
     """MJCF actuator gains in MuJoCo units (N m/rad, N m s/rad or N/m, N s/m) and the USD drive."""
@@ -305,9 +157,6 @@ def drive_gains(model: UrdfModel, robot_config: Mapping[str, Any], config_path: 
             kv = float(entry.get("kv", 0.0)) if kind in ("position", "velocity") else 0.0
             out[name] = DriveGains(kind, kp, kv, model.joints[name].effort)
     return {name: out[name] for name in actuated if name in out}  # URDF order
-
-
-# -------------------------------------------------------------------------------------- USD writing
 
 
 def prim_name(text: str) -> str:
@@ -628,66 +477,6 @@ def _primitive(stage: Any, path: str, item: Geometry) -> Any:
     sphere.CreateRadiusAttr(float(radius))
     sphere.CreateExtentAttr([_vec((-radius,) * 3), _vec((radius,) * 3)])
     return sphere
-
-
-# usdz/ARKit packaging rules: this asset is a plain .usda pair, not a package.
-PACKAGE_ONLY_VALIDATORS = frozenset({"usdUtilsValidators:UsdzPackageValidator", "usdUtilsValidators:RootPackageValidator"})
-# Every check UsdUtils.ComplianceChecker (usdchecker's classic checks, removed in usd-core 26.8) made on
-# a non-ARKit asset, and the registered UsdValidation validators that make it now. compliance_errors
-# refuses a usd-core that lacks any of them, so no check is silently lost. The classic
-# ByteAlignment/Compression checks apply to usdz packages only (PACKAGE_ONLY_VALIDATORS); the classic
-# TextureChecker has no validator yet and nothing to check here (the writer authors no textures).
-CLASSIC_CHECKS = {
-    "StageMetadataChecker": ("usdValidation:StageMetadataChecker", "usdGeomValidators:StageMetadataChecker"),
-    "MissingReferenceChecker": ("usdUtilsValidators:MissingReferenceValidator",),
-    "PrimEncapsulationChecker": ("usdGeomValidators:EncapsulationChecker",
-                                 "usdShadeValidators:EncapsulationRulesValidator"),
-    "NormalMapTextureChecker": ("usdShadeValidators:NormalMapTextureValidator",),
-    "MaterialBindingAPIAppliedChecker": ("usdShadeValidators:MaterialBindingApiAppliedValidator",),
-    "SkelBindingAPIAppliedChecker": ("usdSkelValidators:SkelBindingApiAppliedValidator",),
-    "ShaderPropertyTypeConformanceChecker": ("usdShadeValidators:ShaderSdrCompliance",),
-}
-# The UsdPhysics checks the classic checker never had.
-PHYSICS_VALIDATORS = (
-    "usdPhysicsValidators:ArticulationChecker", "usdPhysicsValidators:ColliderChecker",
-    "usdPhysicsValidators:PhysicsJointChecker", "usdPhysicsValidators:RigidBodyChecker",
-)
-
-
-def validator_names() -> list[str]:
-    """Every registered UsdValidation validator the asset is checked with (all but the usdz-package ones).
-
-    Raises ``RuntimeError`` when the installed usd-core lacks a validator that replaces a classic check.
-    """
-    from pxr import UsdValidation
-
-    registry = UsdValidation.ValidationRegistry()
-    names = {str(m.name) for m in registry.GetAllValidatorMetadata() if not m.isSuite} - PACKAGE_ONLY_VALIDATORS
-    required = {n for ns in CLASSIC_CHECKS.values() for n in ns} | set(PHYSICS_VALIDATORS)
-    missing = sorted(required - names)
-    if missing:
-        raise RuntimeError(f"usd-core lacks the UsdValidation validators {', '.join(missing)}; "
-                           "install the usd-core pyproject.toml asks for (pip install -e .)")
-    return sorted(names)
-
-
-def compliance_errors(usd_path: str | Path) -> list[str]:
-    """Errors of USD's validation framework on a USD file and every layer it uses.
-
-    Runs every registered ``pxr.UsdValidation`` validator (:func:`validator_names`: core, UsdGeom,
-    UsdShade, UsdSkel, UsdUtils and UsdPhysics' articulation, joint, rigid-body and collider checks) on
-    the stage, its used layers and every prim; each error as "<validator>.<error>: <message>".
-    """
-    from pxr import Usd, UsdValidation
-
-    registry = UsdValidation.ValidationRegistry()
-    context = UsdValidation.ValidationContext(registry.GetOrLoadValidatorsByName(validator_names()))
-    stage = Usd.Stage.Open(str(usd_path))
-    return sorted(
-        f"{error.GetIdentifier()}: {error.GetMessage()}"
-        for error in context.Validate(stage)
-        if error.GetType() == UsdValidation.ValidationErrorType.Error
-    )
 
 
 @contextlib.contextmanager

@@ -19,7 +19,7 @@ import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.files import write_json
-from sim2real.usd import RAD_PER_DEG, read_urdf
+from sim2real.assets.urdf_model import RAD_PER_DEG, read_urdf
 
 REL_TOL = 1e-5  # USD stores float32: ~7 significant digits
 ABS_TOL = 1e-9

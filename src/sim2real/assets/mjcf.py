@@ -23,8 +23,8 @@ import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.files import atomic_path, read_validated_yaml, relative_path, write_text
-from sim2real.meshes import read_parts
-from sim2real.urdf import mesh_name
+from sim2real.assets.meshes import read_parts
+from sim2real.assets.urdf import mesh_name
 
 ROBOT_SCHEMA = "robot.schema.yaml"
 VISUAL_CLASS = "visual"
