@@ -5,7 +5,7 @@ import glob
 import os
 
 import sim2real.collision as _sim2real_collision
-import sim2real.excitation.separation as _sim2real_separation
+import sim2real.design_names as _sim2real_design_names
 import sim2real.measurements.campaigns as _sim2real_campaigns
 import sim2real.files as _sim2real_io
 import sim2real.assets.urdf as _sim2real_urdf
@@ -324,7 +324,7 @@ def optional_model_ladder(wildcards):
 
 def separation_ladder(wildcards):
     """The diagnosis a separating design (separate-<a>-vs-<b>) reads its two fitted candidates from."""
-    if _sim2real_separation.confounded_pair(wildcards.design) is None:
+    if _sim2real_design_names.confounded_pair(wildcards.design) is None:
         return []
     return [f"results/{wildcards.robot}/sysid/ladder.json"]
 

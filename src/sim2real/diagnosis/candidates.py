@@ -50,9 +50,9 @@ import numpy as np
 from sim2real import fitting
 from sim2real.effects import EFFECTS
 from sim2real.effects.base import Signals, per_joint_dict
-from sim2real.design_names import separation_name
 from sim2real.diagnosis.caveats import (
-    NESTED_IN, caveats, implausible_bodies, not_told_apart_verdict, recommend, ties, trades_with_model,
+    NESTED_IN, caveats, implausible_bodies, not_told_apart_verdict, recommend, separating_runs, ties,
+    trades_with_model,
 )
 from sim2real.forked import map_forked
 from sim2real.inertial import import_solver
@@ -366,8 +366,7 @@ def diagnose(
         twins = [t for t in twins if t not in {c["effect"] for c in group}]  # the ties' sentence names those
         twin_text = (f" These data cannot tell it apart from {', '.join(twins)} (the same prediction to within "
                      f"{CONFOUNDED_NOISE_FRACTION:g}x the noise floor). The run that would: "
-                     + "; ".join(f"`snakemake results/{robot}/excitation/{separation_name(best['effect'], twin)}.csv`"
-                                 for twin in twins)
+                     + separating_runs(best["effect"], twins, robot)
                      + " designs it (the motion on which their fitted predictions differ most, within the limits of "
                      f"configs/{robot}/excitation.yaml); record it and add it to the fit runs." if twins else "")
         if best["decided_on"] == "arm":

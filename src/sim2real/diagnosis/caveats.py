@@ -177,7 +177,7 @@ def recommend(candidates: list[dict[str, Any]], ties: list[dict[str, Any]],
     return [chosen] + [c for c in candidates if c is not chosen], chosen
 
 
-def _separating_runs(first: str, others: Sequence[str], robot: str) -> str:
+def separating_runs(first: str, others: Sequence[str], robot: str) -> str:
     return "; ".join(f"`snakemake results/{robot}/excitation/{separation_name(first, other)}.csv`" for other in others)
 
 
@@ -193,7 +193,7 @@ def caveats(best: Mapping[str, Any], group: Sequence[Mapping[str, Any]], robot: 
                     if best is group[0] else
                     f"{best['effect']} is recommended: it keeps the model plausible, which {group[0]['effect']} does "
                     "not. ")
-                 + f"The run that would tell them apart: {_separating_runs(best['effect'], others, robot)} designs "
+                 + f"The run that would tell them apart: {separating_runs(best['effect'], others, robot)} designs "
                  "it; record it and add it to the fit runs.")
     reasons = _trouble(best)
     if reasons:
@@ -205,7 +205,7 @@ def not_told_apart_verdict(group: Sequence[Mapping[str, Any]], where: str, robot
     """The verdict when the best candidates are not told apart and none keeps the model plausible: no line to add."""
     names = [c["effect"] for c in group]
     reasons = "; ".join(f"{c['effect']}: {', '.join(_trouble(c))}" for c in group)
-    runs = (f" The run that would tell them apart: {_separating_runs(names[0], names[1:], robot)} designs it; "
+    runs = (f" The run that would tell them apart: {separating_runs(names[0], names[1:], robot)} designs it; "
             "record it and add it to the fit runs." if len(names) > 1 else
             f" Record a run designed for the model (`snakemake results/{robot}/excitation/identification.csv`) "
             "and add it to the fit runs.")

@@ -22,7 +22,8 @@ from sim2real.excitation.config import load_design  # noqa: E402
 from sim2real.excitation.design import DesignResult, design_trajectory  # noqa: E402
 from sim2real.fitting import load_nominal  # noqa: E402
 from sim2real.errors import InputError  # noqa: E402
-from sim2real.excitation.separation import Separation, confounded_pair, fitted_candidates  # noqa: E402
+from sim2real.design_names import confounded_pair  # noqa: E402
+from sim2real.excitation.separation import Separation, fitted_candidates  # noqa: E402
 from sim2real.files import atomic_path, read_validated_yaml, write_json, write_text  # noqa: E402
 
 PNG_METADATA = {"Software": None}

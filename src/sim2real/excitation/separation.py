@@ -23,20 +23,7 @@ from sim2real.effects.base import Signals
 from sim2real.errors import InputError
 from sim2real.fitting import NominalModel
 
-SEPARATION_PREFIX = "separate-"
 FD_STEP = 1e-6
-
-
-def separation_name(first: str, second: str) -> str:
-    return f"{SEPARATION_PREFIX}{first}-vs-{second}"
-
-
-def confounded_pair(name: str) -> tuple[str, str] | None:
-    """The two effects a design name ``separate-<a>-vs-<b>`` separates, or None for an ordinary design."""
-    if not name.startswith(SEPARATION_PREFIX) or "-vs-" not in name:
-        return None
-    first, second = name[len(SEPARATION_PREFIX):].split("-vs-", 1)
-    return first, second
 
 
 def fitted_candidates(ladder: Mapping[str, Any], pair: Sequence[str], path: str) -> list[dict[str, Any]]:
