@@ -29,9 +29,9 @@ from buildtree import copy_repo, edit_yaml, make_fast, run_snakemake  # noqa: E4
 
 from sim2real.excitation.config import load_design  # noqa: E402
 from sim2real.excitation.information import Identification, condition_number, identification_effects  # noqa: E402
-from sim2real.fitting import load_nominal  # noqa: E402
+from sim2real.identification.fitting import load_nominal  # noqa: E402
 from sim2real.measurements import load_prepared_runs  # noqa: E402
-from sim2real.sysid import load_model_config, run_sysid  # noqa: E402
+from sim2real.identification.sysid import load_model_config, run_sysid  # noqa: E402
 
 CASES = {"random (lab)": "real_arm_like", "designed": "real_arm_like_designed",
          "designed (D)": "real_arm_like_d_optimal"}

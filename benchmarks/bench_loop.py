@@ -77,7 +77,7 @@ def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiproc
     from sim2real.report.gap import build_gap_report
     from sim2real.measurements import prepare_for_model, write_prepared_runs
     from sim2real.report.figures import FIGURES
-    from sim2real.sysid import run_sysid
+    from sim2real.identification.sysid import run_sysid
 
     t = Path(tree)
     o = Path(out)

@@ -11,7 +11,7 @@ virtual lab (:mod:`sim2real.lab`, which implements its hidden effects itself):
 
 The methods:
 
-* ours: ``sim2real.sysid.fit([effect])`` on the prepared runs (zero-phase filtered, 200 Hz grid) with
+* ours: ``sim2real.identification.sysid.fit([effect])`` on the prepared runs (zero-phase filtered, 200 Hz grid) with
   the package's 95 % block-bootstrap intervals (1 s blocks; the delay by a linearised step per
   replicate from the same blocks).
   For the friction, each joint's value and interval come from ``sysid.fit`` on the samples where that
@@ -47,7 +47,7 @@ Usage: ``.venv/bin/python benchmarks/bench_sysid.py [--case friction|delay|ladde
 [--repeats 3] [--draws 32] [--lab-dir DIR]`` (``--lab-dir`` keeps the simulated runs between invocations). ``ladder``
 times our whole ladder with the diagnosis (what ``sim2real sysid`` runs) once; ``consistent`` the physically
 consistent inertial fit beside the unconstrained one; ``actuator`` the actuator link's fit (the measured
-torque against the command, :mod:`sim2real.actuator`) per rung, with and without its bootstrap. Sections are functions registered
+torque against the command, :mod:`sim2real.identification.links`) per rung, with and without its bootstrap. Sections are functions registered
 in ``SECTIONS``: add one there (e.g. the timing of a physically consistent inertial fit) without
 touching the others.
 """
@@ -75,8 +75,8 @@ import toolbox  # noqa: E402  (mujoco.sysid at its best: the other method)
 from gap_fixtures import PANDA_JOINTS, build_dev_panda  # noqa: E402
 from toolbox import HAVE_TOOLBOX, log_step, ms  # noqa: E402
 
-from sim2real import sysid  # noqa: E402
-from sim2real.fitting import subset_signals  # noqa: E402
+from sim2real.identification import sysid  # noqa: E402
+from sim2real.identification.fitting import subset_signals  # noqa: E402
 from sim2real.lab import (  # noqa: E402
     arm_spec, load_lab_config, run_lab_scenario_run, scenario_runs, simulate_run, write_truth,
 )
@@ -646,17 +646,17 @@ def prepared_scenario_runs(directory: Path, scenario: str, duration_s: float = 2
 
 def section_actuator(ctx: Context) -> None:
     """Issue 10: the actuator link's fit (tau against tau_cmd, every sample, no dynamics), per rung, timed."""
-    from sim2real import actuator, fitting
+    from sim2real.identification import fitting, links
 
     print("\n== Actuator link: measured torque against the command (Panda, lab scenario real_arm_like_actuator, "
           "20 s runs at 1 kHz; hidden: 5 ms delay, motor gains 0.90-1.08, and the real_arm_like body) ==")
     with tempfile.TemporaryDirectory() as tmp:
         _, prepared = prepared_scenario_runs(Path(tmp), "real_arm_like_actuator")
         started = time.perf_counter()
-        link = {role: actuator.actuator_data(runs, PANDA_JOINTS) for role, runs in prepared.items()}
-        signals = {role: actuator.actuator_signals(*data) for role, data in link.items()}
+        link = {role: links.actuator_data(runs, PANDA_JOINTS) for role, runs in prepared.items()}
+        signals = {role: links.actuator_signals(*data) for role, data in link.items()}
         prepare_s = time.perf_counter() - started
-        settings = {**fitting.DEFAULT_SETTINGS, **actuator.ACTUATOR_FIT_SETTINGS}
+        settings = {**fitting.DEFAULT_SETTINGS, **links.ACTUATOR_FIT_SETTINGS}
         fit_data, holdout = link["fit"][0], link["holdout"][0]
         floor = float(np.sqrt(np.mean(holdout.noise_floor**2)))
         print(f"data: {fit_data.n_samples} fit samples x {len(PANDA_JOINTS)} joints; noise floors and stacking "
@@ -687,7 +687,7 @@ def section_actuator(ctx: Context) -> None:
 
 def section_consistent(ctx: Context) -> None:
     """Issue 11: time of the physically consistent rung beside the unconstrained one (Panda, real_arm_like)."""
-    from sim2real import fitting
+    from sim2real.identification import fitting
 
     repeats = ctx.repeats
 
@@ -780,7 +780,7 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         ctx = Context(BenchLab(args.lab_dir or Path(tmp)), max(1, args.repeats), max(2, args.draws))
         print(f"dev Panda (example-robot-data), virtual lab runs of {LAB_DURATION_S:.0f} s at 1 kHz; "
-              f"ours: sim2real.sysid.fit, {FIT_RATE_HZ:.0f} Hz grid, 95% block-bootstrap intervals; "
+              f"ours: sim2real.identification.sysid.fit, {FIT_RATE_HZ:.0f} Hz grid, 95% block-bootstrap intervals; "
               f"mujoco.sysid: {'available' if HAVE_TOOLBOX else 'NOT INSTALLED'}")
         for name in names:
             SECTIONS[name](ctx)

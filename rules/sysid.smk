@@ -22,7 +22,7 @@ rule sysid:
         "results/{robot}/logs/{campaign}sysid.log",
     benchmark:
         "results/{robot}/benchmarks/{campaign}sysid.tsv"
-    # the diagnosis fits its candidates side by side (sim2real.diagnosis.trial_fits)
+    # the diagnosis fits its candidates side by side (sim2real.identification.diagnosis.trial_fits)
     threads: 2
     resources:
         # forked workers share the parent's pages, but the benchmark sums every process's resident set

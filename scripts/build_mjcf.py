@@ -2,7 +2,7 @@
 
 from sim2real.cli import rule_entry
 from sim2real.collision import parts_by_uri
-from sim2real.effects import spec_edit_from_params
+from sim2real.identification.effects import spec_edit_from_params
 from sim2real.assets.mjcf import build_mjcf
 
 with rule_entry(snakemake):

@@ -1,9 +1,9 @@
-"""Snakemake script: measured runs + model ladder -> ladder.json, params.yaml, calibration.yaml (sim2real.sysid)."""
+"""Snakemake script: measured runs + model ladder -> ladder.json, params.yaml, calibration.yaml (sim2real.identification.sysid)."""
 
 import logging
 
 from sim2real.cli import rule_entry
-from sim2real.sysid import run_sysid
+from sim2real.identification.sysid import run_sysid
 
 with rule_entry(snakemake):
     document = run_sysid(

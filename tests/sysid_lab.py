@@ -18,7 +18,7 @@ import yaml
 from threadpoolctl import threadpool_limits
 
 from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
-from sim2real import sysid
+from sim2real.identification import sysid
 from sim2real.cache import FitCache
 from sim2real.lab import run_lab_scenario_run, scenario_runs
 from sim2real.measurements import noise_floor_of, load_prepared_runs

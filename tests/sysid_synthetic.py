@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim2real.dynamics import RigidBodyModel
+from sim2real.assets.dynamics import RigidBodyModel
 
 PANDA_URDF = (
     Path(__file__).resolve().parents[1]
@@ -59,7 +59,7 @@ def make_run(
     joints: list[str] | None = None,
     armature: float = 0.1,
 ) -> dict:
-    """One run as the mapping sim2real.sysid.stack_runs takes; ``hidden`` maps effect -> value."""
+    """One run as the mapping sim2real.identification.sysid.stack_runs takes; ``hidden`` maps effect -> value."""
     joints = joints or PANDA_JOINTS
     model = RigidBodyModel(urdf, joints, armature={j: armature for j in joints})
     t, q, qd, qdd = fourier_trajectory(model, duration, rate, seed)

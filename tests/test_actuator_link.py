@@ -83,10 +83,10 @@ def test_a_long_logs_delay_is_refined_on_windows_at_the_logs_own_step(lab, monke
     """Beyond refine_max_samples the actuator link refines on windows spread over the runs (its memory stays
     put however long the log): the delay of a few samples is found as on every sample, and the link falls to
     its floor. The cap is lowered here so that the lab's short runs exceed it."""
-    from sim2real import actuator
+    from sim2real.identification import links
 
     monkeypatch.setattr(actuator, "ACTUATOR_FIT_SETTINGS",
-                        {**actuator.ACTUATOR_FIT_SETTINGS, "refine_max_samples": 4000, "refine_windows_s": 1.0})
+                        {**links.ACTUATOR_FIT_SETTINGS, "refine_max_samples": 4000, "refine_windows_s": 1.0})
     link = lab.model("sensor_actuation_delay", ["actuation_delay"])["actuator"]
     delay = link["ladder"][-1]["params"]["actuation_delay"]["delay"]
     assert delay == pytest.approx(0.006, abs=0.5e-3)
@@ -191,7 +191,7 @@ def test_behind_a_link_side_sensor_the_drive_is_found_on_the_actuator_link(lab, 
 def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added(lab, tmp_path):
     import json
 
-    from sim2real import sysid
+    from sim2real.identification import sysid
     from sim2real.report.gap import build_gap_report
 
     def report(listing, effects, name):
@@ -217,8 +217,8 @@ def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added
 
 
 def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
-    from sim2real import sysid
-    from sim2real.effects import apply_to_spec
+    from sim2real.identification import sysid
+    from sim2real.identification.effects import apply_to_spec
     from sim2real.lab import arm_spec
 
     runs = lab.prepared(lab.measurement_list("actuator_gain"))

@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim2real import sysid
-from sim2real.effects.link_inertia import correction_anchors
-from sim2real.inertial import inside_ellipsoids, physically_consistent, pseudo_inertia
+from sim2real.identification import sysid
+from sim2real.identification.effects.link_inertia import correction_anchors
+from sim2real.identification.inertial import inside_ellipsoids, physically_consistent, pseudo_inertia
 from sysid_lab import FAST_FIT, Lab, overall
 
 REALISTIC = ["real_arm_like", "heavy_links_and_armature", "payload_and_armature"]
@@ -114,7 +114,7 @@ def test_data_that_contradict_a_positive_mass_are_reported_not_hidden(lab):
 
 def test_a_long_design_is_summed_chunk_by_chunk_to_the_same_data_term(monkeypatch):
     """A long log's data term is summed in chunks of rows (its memory is a chunk's), to the same normal equations."""
-    from sim2real import inertial
+    from sim2real.identification import inertial
 
     rng = np.random.default_rng(5)
     design = rng.normal(size=(5000, 6)) * np.array([1.0, 10.0, 0.1, 1.0, 3.0, 1.0])

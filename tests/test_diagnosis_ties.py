@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
-from sim2real import sysid
-from sim2real.diagnosis.caveats import nested_pair, tied
+from sim2real.identification import sysid
+from sim2real.identification.diagnosis.caveats import nested_pair, tied
 from sim2real.design_names import separation_name
 
 FAST = {"fit": {"fit_rate_hz": 100.0, "bootstrap_replicates": 20, "refine_max_samples": 1500}}

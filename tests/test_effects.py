@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from gap_fixtures import build_dev_panda
-from sim2real.effects import EFFECTS, apply_to_spec, calibration_from_params, get_effect, spec_edit_from_params
+from sim2real.identification.effects import EFFECTS, apply_to_spec, calibration_from_params, get_effect, spec_edit_from_params
 from sim2real.errors import InputError
 
 VOCABULARY = {"viscous_friction", "coulomb_friction", "asymmetric_friction", "stribeck_friction", "rotor_inertia",
@@ -119,15 +119,15 @@ def test_spec_edit_from_params_reads_params_yaml(tmp_path, dev_mjcf):
 def motion():
     """One 20 s Fourier excitation of the Panda at 200 Hz: (time, q, qd, qdd)."""
     from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, fourier_trajectory
-    from sim2real.dynamics import RigidBodyModel
+    from sim2real.assets.dynamics import RigidBodyModel
 
     return fourier_trajectory(RigidBodyModel(PANDA_URDF, PANDA_JOINTS), 20.0, 200.0, seed=1)
 
 
 def friction_data(motion, friction, noise=0.01):
     """TorqueData and Signals whose judged torque is ``friction(qd)`` plus white noise (nominal model: 0)."""
-    from sim2real.effects import Signals
-    from sim2real.fitting import TorqueData
+    from sim2real.identification.effects import Signals
+    from sim2real.identification.fitting import TorqueData
 
     t, q, qd, qdd = motion
     tau = friction(qd) + np.random.default_rng(0).normal(scale=noise, size=qd.shape)
@@ -151,7 +151,7 @@ def gaz(qd):
 
 
 def test_asymmetric_friction_recovers_the_gaz_sigmoid_that_coulomb_friction_cannot_fit(motion):
-    from sim2real.fitting import fit
+    from sim2real.identification.fitting import fit
 
     data, signals = friction_data(motion, gaz)
     result = fit(["asymmetric_friction"], None, data, signals=signals, uncertainty=False)
@@ -166,7 +166,7 @@ def test_asymmetric_friction_recovers_the_gaz_sigmoid_that_coulomb_friction_cann
 
 def test_asymmetric_friction_works_as_a_candidate_on_top_of_coulomb_friction(motion):
     """As the diagnosis tries it: on the current model (Coulomb friction, its smoothing held)."""
-    from sim2real.fitting import fit
+    from sim2real.identification.fitting import fit
 
     data, signals = friction_data(motion, gaz)
     current = fit(["coulomb_friction"], None, data, signals=signals, uncertainty=False)
@@ -192,7 +192,7 @@ def stribeck(qd):
 
 
 def test_stribeck_friction_recovers_a_hump_on_top_of_coulomb_friction(motion):
-    from sim2real.fitting import fit
+    from sim2real.identification.fitting import fit
 
     data, signals = friction_data(motion, stribeck)
     coulomb = fit(["coulomb_friction"], None, data, signals=signals, uncertainty=False)

@@ -14,7 +14,7 @@ import yaml
 
 from buildtree import run_snakemake
 from collision_usd_build import fast_panda_build
-from sim2real.dynamics import RigidBodyModel
+from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.errors import InputError
 from sim2real.excitation.config import load_designs
 from sim2real.excitation.files import build_excitation
@@ -182,7 +182,7 @@ def test_the_run_that_separates_confounded_candidates(designed: Path, tmp_path: 
     """Too slow a run cannot tell viscous from Coulomb friction; gap.md names the separating design's target;
     once the lab has played that run and it is added to the fit runs, the diagnosis tells them apart."""
     from sim2real.lab import run_lab_scenario_run
-    from sim2real.sysid import run_sysid
+    from sim2real.identification.sysid import run_sysid
 
     lab = yaml.safe_load((designed / "configs/panda/lab.yaml").read_text())
     scenario = lab["scenarios"]["slow_viscous"]

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from sim2real import sysid
+from sim2real.identification import sysid
 from sim2real.cache import FitCache, digest
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
 from test_sysid import _write_real_log
@@ -105,7 +105,7 @@ def test_a_round_after_one_added_line_refits_only_the_new_rung_and_writes_the_sa
 
 
 def test_a_canonicalised_program_is_read_back_by_the_next_process_and_solves_to_the_same_bits(tmp_path, monkeypatch):
-    from sim2real import inertial
+    from sim2real.identification import inertial
 
     rng = np.random.default_rng(3)
     design = rng.normal(size=(400, 3, 6))
@@ -133,7 +133,7 @@ def test_a_canonicalised_program_is_read_back_by_the_next_process_and_solves_to_
     inertial.solve_consistent(design, target, lower, None, 0.0)  # outside a store: built here, nothing kept
     assert len(built) == 1 and len(list(tmp_path.iterdir())) == 1
 
-    # built ahead of its first solve (sim2real.fitting.build_program: the diagnosis's candidates while the rung is
+    # built ahead of its first solve (sim2real.identification.fitting.build_program: the diagnosis's candidates while the rung is
     # fitted), in another store: read back, it solves to the same bits as the program its first solve built
     ahead = tmp_path / "ahead"
     monkeypatch.setattr(inertial, "_PROGRAMS", {})
@@ -149,7 +149,7 @@ def test_a_canonicalised_program_is_read_back_by_the_next_process_and_solves_to_
 
 def test_the_bodies_mesh_bounds_are_kept_and_follow_the_meshes(tmp_path, monkeypatch):
     """load_nominal reads the collision meshes (and imports trimesh) only when the URDF or a mesh changed."""
-    from sim2real.fitting import nominal as nominal_module
+    from sim2real.identification.fitting import nominal as nominal_module
     from sim2real.assets.urdf import resolve_package_uri
 
     urdf = tmp_path / "panda.urdf"

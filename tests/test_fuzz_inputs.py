@@ -139,8 +139,8 @@ def shipped(name: str) -> Any:
 @fuzz(300)
 @given(doc=broken(shipped("configs/panda/model.yaml"), st.sampled_from(["link_inertia", "payload", "magic"])))
 def test_model_yaml(tmp_path_factory: pytest.TempPathFactory, doc: Any) -> None:
-    from sim2real.effects import EFFECTS
-    from sim2real.sysid import load_model_config
+    from sim2real.identification.effects import EFFECTS
+    from sim2real.identification.sysid import load_model_config
 
     path = dump(tmp_path_factory.mktemp("model") / "model.yaml", doc)
 

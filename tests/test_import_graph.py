@@ -33,7 +33,7 @@ def import_graph() -> dict[str, set[str]]:
                     base = ".".join(package.split(".")[: len(package.split(".")) - node.level + 1] + ([base] if base else []))
                 targets = [f"{base}.{alias.name}" for alias in node.names] + [base]
             for target in targets:
-                # the deepest package module the import names (``from sim2real import sysid`` -> sim2real.sysid)
+                # the deepest package module the import names (``from sim2real.identification import sysid`` -> sim2real.identification.sysid)
                 while target and target not in modules:
                     target = target.rpartition(".")[0]
                 if target and target != name and target != "sim2real":
@@ -65,7 +65,7 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 def test_the_import_graph_has_no_cycle():
     graph = import_graph()
-    assert "sim2real.fitting" in graph["sim2real.diagnosis.candidates"], "the parser sees the package's imports"
+    assert "sim2real.identification.fitting" in graph["sim2real.identification.diagnosis.candidates"], "the parser sees the package's imports"
     cycle = find_cycle(graph)
     assert cycle is None, " -> ".join(cycle or [])
 
@@ -82,10 +82,47 @@ def test_the_fitting_core_depends_on_nothing_above_it():
                     todo.append(nxt)
         return seen
 
-    for module in ("sim2real.sysid", "sim2real.fitting", "sim2real.diagnosis"):
+    for module in ("sim2real.identification.sysid", "sim2real.identification.fitting", "sim2real.identification.diagnosis"):
         assert not any(m.startswith("sim2real.report") for m in reach(module)), module
     loaded = subprocess.run(
-        [sys.executable, "-c", "import sys, sim2real.sysid; print(' '.join(sorted(sys.modules)))"],
+        [sys.executable, "-c", "import sys, sim2real.identification.sysid; print(' '.join(sorted(sys.modules)))"],
         check=True, capture_output=True, text=True,
     ).stdout.split()
     assert not any(m.startswith("sim2real.report") for m in loaded)
+
+
+# The stages of rules/ as packages, and which may import which (issue 31): a stage imports only the stages
+# below it, never one above; the shared modules import no stage.
+SHARED = {"errors", "files", "cli", "cache", "blas", "forked", "stats", "design_names", "resources"}
+MAY_IMPORT = {
+    "shared": set(),
+    "assets": {"shared"},
+    "measurements": {"shared", "assets"},
+    "lab": {"shared", "assets", "measurements"},
+    "identification": {"shared", "assets", "measurements"},
+    "excitation": {"shared", "assets", "measurements", "identification"},
+    "dr": {"shared", "assets", "measurements", "identification"},
+    "report": {"shared", "assets", "measurements", "lab", "identification"},
+}
+
+
+def stage(module: str) -> str:
+    part = module.split(".")[1] if "." in module else module
+    if part in SHARED:
+        return "shared"
+    return "assets" if part == "collision" else part
+
+
+def test_each_stage_imports_only_the_stages_below_it():
+    graph = import_graph()
+    stages = {stage(m) for m in graph if m != "sim2real"}
+    assert stages == set(MAY_IMPORT), f"a package that is no stage, or a stage without a rule: {stages ^ set(MAY_IMPORT)}"
+    upward = [f"{a} -> {b}" for a, targets in sorted(graph.items()) for b in sorted(targets)
+              if stage(a) != stage(b) and stage(b) not in MAY_IMPORT[stage(a)]]
+    assert not upward, "imports running back up the stages:\n" + "\n".join(upward)
+
+
+def test_the_layering_check_sees_an_import_running_back_up():
+    graph = {"sim2real.measurements.runs": {"sim2real.identification.fitting"}}
+    upward = [(a, b) for a, targets in graph.items() for b in targets if stage(b) not in MAY_IMPORT[stage(a)]]
+    assert upward == [("sim2real.measurements.runs", "sim2real.identification.fitting")]

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from gap_fixtures import PANDA_JOINTS, build_dev_panda
-from sim2real import fitting
-from sim2real.effects.link_inertia import correction_anchors
-from sim2real.inertial import (PRIOR_BOUNDS, PRIOR_GRID, PRIOR_TOLERANCE, InertialBlock, choose_prior_weight,
+from sim2real.identification import fitting
+from sim2real.identification.effects.link_inertia import correction_anchors
+from sim2real.identification.inertial import (PRIOR_BOUNDS, PRIOR_GRID, PRIOR_TOLERANCE, InertialBlock, choose_prior_weight,
                                solve_consistent)
 
 NOISE = 0.05  # N*m
@@ -87,7 +87,7 @@ def test_a_design_kept_as_blocks_chooses_and_solves_to_the_same_bits(anchor, mon
     """The consistent fit hands its design over as blocks (inertial.DesignRows: rows put together a chunk at a
     time, so a long log's weighted design never exists whole): the weight, every score and the solution are
     the bits of the design put together, in one chunk (the demo) and in many."""
-    from sim2real import inertial
+    from sim2real.identification import inertial
 
     if chunk_rows is not None:
         monkeypatch.setattr(inertial, "CHUNK_ROWS", chunk_rows)

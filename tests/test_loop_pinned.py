@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from sysid_lab import FAST_FIT, Lab  # noqa: E402
 
-from sim2real import sysid  # noqa: E402
+from sim2real.identification import sysid  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PINNED = ROOT / "tests" / "data" / "loop_pinned.json"

@@ -173,7 +173,7 @@ def test_the_actuator_links_noise_floor_is_prepared_with_the_run_and_read_back(t
 def test_a_long_logs_actuator_floor_is_summed_chunk_by_chunk(monkeypatch):
     """Beyond a chunk of rows the lagged regression's products are summed a chunk at a time (never the whole lagged
     design, which numpy would copy twice: 1 GB on a 10-minute log): the same floor but for round-off."""
-    from sim2real import inertial
+    from sim2real import blas
     from sim2real.measurements import command_white_noise
 
     rng = np.random.default_rng(8)
@@ -181,7 +181,7 @@ def test_a_long_logs_actuator_floor_is_summed_chunk_by_chunk(monkeypatch):
     tau_cmd = 2.0 * motion(t)[2] + rng.normal(scale=0.3, size=(len(t), len(JOINTS)))
     tau = 0.9 * np.roll(tau_cmd, 4, axis=0) + rng.normal(scale=0.05, size=tau_cmd.shape)
     whole = command_white_noise(tau, tau_cmd, 0.001)
-    monkeypatch.setattr(inertial, "CHUNK_ROWS", 1000)  # six chunks and a part
+    monkeypatch.setattr(blas, "CHUNK_ROWS", 1000)  # six chunks and a part
     chunked = command_white_noise(tau, tau_cmd, 0.001)
     assert np.allclose(chunked, whole, rtol=1e-9, atol=0.0)  # the sums' order differs, not the floor
     assert np.all((whole > 0.02) & (whole < 0.2))
@@ -280,7 +280,7 @@ def _counting_reads(monkeypatch):
 def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
     """sysid and the gap report, given the list, read every run's table and metadata, and the list, exactly once."""
     from sim2real.report.gap import compute_gap
-    from sim2real.sysid import run_sysid
+    from sim2real.identification.sysid import run_sysid
 
     urdf, mjcf, listing = _two_logged_runs(tmp_path)
     reads = _counting_reads(monkeypatch)
@@ -299,7 +299,7 @@ def test_prepared_runs_are_read_back_exactly_and_the_rules_read_no_run_file(tmp_
     sysid and the gap report give what they give from the list, without reading or filtering a run again."""
     from sim2real.report.gap import compute_gap
     from sim2real.measurements import prepare_for_model, read_prepared_runs, write_prepared_runs
-    from sim2real.sysid import run_sysid
+    from sim2real.identification.sysid import run_sysid
 
     urdf, mjcf, listing = _two_logged_runs(tmp_path)
     entries, prepared, settings = prepare_for_model(listing, urdf, root=tmp_path)

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim2real.diagnosis import model_free_ceiling
-from sim2real.diagnosis.ceiling import since_reversal
-from sim2real.fitting import TorqueData
+from sim2real.identification.diagnosis import model_free_ceiling
+from sim2real.identification.diagnosis.ceiling import since_reversal
+from sim2real.identification.fitting import TorqueData
 
 JOINTS = ["j1", "j2", "j3"]
 FLOOR = 0.05

@@ -17,8 +17,8 @@ import pytest
 import yaml
 
 from gap_fixtures import PANDA_JOINTS, build_dev_panda
-from sim2real import fitting
-from sim2real.effects.link_inertia import (
+from sim2real.identification import fitting
+from sim2real.identification.effects.link_inertia import (
     HULL_TOLERANCE_M, LinkInertia, body_changes, correction_anchors, hull_distance, plausibility, to_mass_com_inertia,
 )
 from sim2real.report.markdown import _identified_markdown

@@ -11,7 +11,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim2real import sysid
+from sim2real.identification import sysid
 from sim2real.errors import InputError
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
 
@@ -50,7 +50,7 @@ def test_per_joint_effects_are_recovered_inside_their_intervals(nominal, effect,
 def test_bootstrap_intervals_widen_for_few_blocks_and_uneven_ones():
     from scipy import stats
 
-    from sim2real.fitting import small_sample_stretch
+    from sim2real.identification.fitting import small_sample_stretch
 
     # 20 equal blocks: the bootstrap variance is short by 19/20 and the t quantile with 19 dof replaces z.
     expected = np.sqrt(20 / 19) * stats.t.ppf(0.975, 19) / stats.norm.ppf(0.975)
@@ -73,7 +73,7 @@ def test_bootstrap_intervals_widen_for_few_blocks_and_uneven_ones():
 def test_stacked_lstsq_is_each_replicates_own_solve_to_the_bit(replicates, size, rank_deficient, scales, seed):
     """The bootstrap solves its replicates in one call; every one is the solve np.linalg.lstsq gives it alone,
     for badly scaled and singular Gram matrices too (the intervals in gap.json depend on it)."""
-    from sim2real.fitting.bootstrap import stacked_lstsq
+    from sim2real.identification.fitting.bootstrap import stacked_lstsq
 
     rng = np.random.default_rng(seed)
     columns = rng.normal(size=(replicates, 3 * size, size)) * 10.0 ** np.asarray(scales[:size])
@@ -102,8 +102,8 @@ def test_the_bootstraps_one_draw_is_the_stream_of_one_draw_per_replicate(seed, r
 def test_intervals_from_stacked_replicates_are_each_replicates_own_values(seed, replicates, with_gain, forward):
     """Every effect that takes its replicates stacked (values_stacked) gives the intervals that its values of
     each replicate alone give, to the bit, beside a torque gain that rescales them too."""
-    from sim2real.effects import EFFECTS, Signals
-    from sim2real.fitting import _intervals, _values, replicate_intervals
+    from sim2real.identification.effects import EFFECTS, Signals
+    from sim2real.identification.fitting import _intervals, _values, replicate_intervals
 
     rng = np.random.default_rng(seed)
     joints = ["a", "b", "c"]
@@ -133,7 +133,7 @@ def test_the_batched_inverse_dynamics_is_pinocchios_rnea_sample_by_sample(seed, 
     caller's joint order (reversed here), with the URDF's damping and friction on top."""
     import pinocchio as pin
 
-    from sim2real.dynamics import RigidBodyModel
+    from sim2real.assets.dynamics import RigidBodyModel
 
     joints = list(reversed(PANDA_JOINTS))
     model = RigidBodyModel(PANDA_URDF, joints)
@@ -151,8 +151,8 @@ def test_the_batched_inverse_dynamics_is_pinocchios_rnea_sample_by_sample(seed, 
 
 
 def test_the_refinement_runs_on_windows_of_the_runs_at_their_own_step_beyond_its_sample_cap():
-    from sim2real.effects import Signals
-    from sim2real.fitting.problem import refinement_rows
+    from sim2real.identification.effects import Signals
+    from sim2real.identification.fitting.problem import refinement_rows
 
     lengths = [70_000, 3_000, 50_000]  # three runs at 1 kHz, one shorter than a window
     time = np.concatenate([np.arange(n) * 1e-3 for n in lengths])
@@ -182,8 +182,8 @@ def test_the_refinement_runs_on_windows_of_the_runs_at_their_own_step_beyond_its
 def test_a_long_logs_block_is_scaled_chunk_by_chunk_to_the_same_bits(samples, joints, columns, chunk, weighted, seed):
     """A long log's columns are weighted and their norms summed a chunk of samples at a time, never as one
     weighted copy: the same scale, rows and acting columns as the block taken whole (the demo's path)."""
-    from sim2real import inertial
-    from sim2real.fitting import problem
+    from sim2real.identification import inertial
+    from sim2real.identification.fitting import problem
 
     rng = np.random.default_rng(seed)
     block = rng.normal(size=(samples, joints, columns)) * 10.0 ** rng.normal(size=(samples, 1, 1))

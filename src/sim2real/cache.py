@@ -157,7 +157,7 @@ class FitCache:
 
     def prune(self, keep_programs: int = 32) -> None:
         """Remove the fits this round did not use (the cache holds one round's fits, no more), and all but the
-        ``keep_programs`` last used canonicalised programs (``program-*``, :func:`sim2real.inertial.program_store`):
+        ``keep_programs`` last used canonicalised programs (``program-*``, :func:`sim2real.identification.inertial.program_store`):
         a round that reads every fit back solves nothing, and the next one needs them again."""
         if self.directory is None or not self.directory.is_dir():
             return

@@ -3,7 +3,7 @@
 The fit's inputs (the nominal Pinocchio model, signals holding their regressors) are large and not all
 picklable; a forked process inherits them as they are, and only its result travels back. Each piece of
 work is the computation one process would do, so the numbers are the same as one after the other
-(BLAS is held to one thread, :func:`sim2real.sysid.run_sysid`). Where fork is unavailable, or one
+(BLAS is held to one thread, :func:`sim2real.identification.sysid.run_sysid`). Where fork is unavailable, or one
 worker is asked for, the work runs in the calling process.
 """
 

@@ -30,7 +30,7 @@ from sim2real.excitation.config import Design, Limits, limits, start_pose
 from sim2real.excitation.fourier import FourierSeries, random_start
 from sim2real.excitation.information import Identification, condition_number, identification_effects
 from sim2real.excitation.separation import Separation
-from sim2real.fitting import NominalModel
+from sim2real.identification.fitting import NominalModel
 
 ACTIVE_SET_ROUNDS = 3
 CLEARANCE_SEARCH_M = 0.1  # distances are reported up to this; beyond it a pose is simply "clear"

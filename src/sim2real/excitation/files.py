@@ -20,7 +20,7 @@ import yaml  # noqa: E402
 
 from sim2real.excitation.config import load_design  # noqa: E402
 from sim2real.excitation.design import DesignResult, design_trajectory  # noqa: E402
-from sim2real.fitting import load_nominal  # noqa: E402
+from sim2real.identification.fitting import load_nominal  # noqa: E402
 from sim2real.errors import InputError  # noqa: E402
 from sim2real.design_names import confounded_pair  # noqa: E402
 from sim2real.excitation.separation import Separation, fitted_candidates  # noqa: E402
@@ -156,7 +156,7 @@ def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path
     A name ``separate-<a>-vs-<b>`` designs the run that tells the confounded candidates a and b of
     ``ladder`` (results/{robot}/sysid/ladder.json) apart, with the file's default settings (or its own entry).
     """
-    from sim2real.sysid import load_model_config
+    from sim2real.identification.sysid import load_model_config
 
     pair = confounded_pair(name)
     design = load_design(config, name, allow_default=pair is not None)

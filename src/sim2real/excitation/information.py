@@ -1,7 +1,7 @@
 """What a trajectory lets the fit identify: the regressor of the current model on its samples.
 
-The columns are those the fit estimates (:mod:`sim2real.fitting`): Pinocchio's inertial regressor of
-the moving bodies plus each effect's columns (:meth:`sim2real.effects.base.Effect.columns`) at its
+The columns are those the fit estimates (:mod:`sim2real.identification.fitting`): Pinocchio's inertial regressor of
+the moving bodies plus each effect's columns (:meth:`sim2real.identification.effects.base.Effect.columns`) at its
 default nonlinear parameters. Effects that move the inertias (``link_inertia``, ``payload``) live in the
 inertial columns; a delay has none. Without a friction effect in the model, viscous and Coulomb friction
 are added: every identification of a real arm has to separate friction from inertia.
@@ -25,9 +25,9 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.linalg
 
-from sim2real.effects import EFFECTS
-from sim2real.effects.base import Effect, Signals
-from sim2real.fitting import NominalModel
+from sim2real.identification.effects import EFFECTS
+from sim2real.identification.effects.base import Effect, Signals
+from sim2real.identification.fitting import NominalModel
 
 INERTIAL_EFFECTS = ("link_inertia", "payload")  # their columns are (combinations of) the inertial ones
 DEFAULT_FRICTION = ("viscous_friction", "coulomb_friction")

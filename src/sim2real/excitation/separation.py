@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.effects import EFFECTS
-from sim2real.effects.base import Signals
+from sim2real.identification.effects import EFFECTS
+from sim2real.identification.effects.base import Signals
 from sim2real.errors import InputError
-from sim2real.fitting import NominalModel
+from sim2real.identification.fitting import NominalModel
 
 FD_STEP = 1e-6
 

@@ -13,7 +13,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sim2real import blas
 from sim2real.blas import one_blas_thread
+
+# The longest actuation delay the fit allows (sim2real.identification.effects.actuation_delay): the command floor
+# regresses on every lag up to it, so the floor holds any delay the fit may find.
+MAX_COMMAND_DELAY_S = 0.1
 
 if TYPE_CHECKING:
     from sim2real.measurements.runs import PreparedRun
@@ -33,12 +38,10 @@ def command_white_noise(tau: np.ndarray, tau_cmd: np.ndarray, dt: float) -> np.n
     lag up to the longest delay the fit allows (a short FIR filter, per joint); what is left is the
     sensor's white noise, measured robustly as :func:`white_noise_sigma` does. The differences remove
     biases and slow motion; the lags hold any delay and gain, so the floor is the same with or without the
-    effects it is meant to expose (:mod:`sim2real.actuator`'s noise floor).
+    effects it is meant to expose (:mod:`sim2real.identification.links`'s noise floor).
     """
-    from sim2real.effects.actuation_delay import MAX_DELAY
-    from sim2real.inertial import CHUNK_ROWS
-
-    lags = int(round(MAX_DELAY / dt)) + 1
+    chunk = blas.CHUNK_ROWS
+    lags = int(round(MAX_COMMAND_DELAY_S / dt)) + 1
     d2_tau = np.diff(tau, n=2, axis=0)
     d2_cmd = np.diff(tau_cmd, n=2, axis=0)
     rows = len(d2_tau) - lags
@@ -47,14 +50,14 @@ def command_white_noise(tau: np.ndarray, tau_cmd: np.ndarray, dt: float) -> np.n
         # Row i holds the command's differences at lags 0..lags-1 before sample lags + i (a view, no copy).
         design = np.lib.stride_tricks.sliding_window_view(d2_cmd[:, j], lags)[1 : rows + 1, ::-1]
         target = d2_tau[lags:, j]
-        if rows <= CHUNK_ROWS:
+        if rows <= chunk:
             gram, rhs = design.T @ design, design.T @ target
         else:  # a long log: its products summed a chunk of rows at a time (whole, numpy copies the view twice)
             gram, rhs = np.zeros((lags, lags)), np.zeros(lags)
-            for start in range(0, rows, CHUNK_ROWS):
-                part = np.ascontiguousarray(design[start : start + CHUNK_ROWS])
+            for start in range(0, rows, chunk):
+                part = np.ascontiguousarray(design[start : start + chunk])
                 gram += part.T @ part
-                rhs += part.T @ target[start : start + CHUNK_ROWS]
+                rhs += part.T @ target[start : start + chunk]
         coef = np.linalg.lstsq(gram, rhs, rcond=None)[0]
         left = target - design @ coef
         floor[j] = 1.4826 * np.median(np.abs(left - np.median(left))) / np.sqrt(6.0)

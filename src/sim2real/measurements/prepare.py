@@ -167,7 +167,7 @@ def prepare_for_model(
     A run column naming a joint the URDF lacks is refused in the run's own terms (the file to edit is the
     run). Returns (entries, prepared runs in the same order, settings of :func:`measurement_settings`).
     """
-    from sim2real.dynamics import RigidBodyModel
+    from sim2real.assets.dynamics import RigidBodyModel
 
     entries, runs, settings = read_runs(measurement_list, root)
     probe = RigidBodyModel(urdf_path)

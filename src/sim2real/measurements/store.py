@@ -20,7 +20,7 @@ PREPARED_SUFFIX = ".npz"
 _PREPARED_ARRAYS = ("time", "q", "qd", "qdd", "tau", "tau_cmd", "q_cmd", "qd_measured", "contact", "raw_torque_sigma",
                     "command_torque_sigma")
 _SIGMAS = ("raw_torque_sigma", "command_torque_sigma")  # always arrays (empty when unknown)
-# What the fit reads of the prepared runs (sim2real.sysid.run_sysid): not the commanded positions, the logged
+# What the fit reads of the prepared runs (sim2real.identification.sysid.run_sysid): not the commanded positions, the logged
 # velocity or the contacts.
 FIT_ARRAYS = ("time", "q", "qd", "qdd", "tau", "tau_cmd", *_SIGMAS)
 

@@ -24,7 +24,7 @@ COMPONENTS = {"com": ("x", "y", "z"), "inertia": ("ixx", "ixy", "ixz", "iyy", "i
 
 
 def _units() -> dict[tuple[str, str], str]:
-    from sim2real.effects import EFFECTS
+    from sim2real.identification.effects import EFFECTS
 
     return {(e.name, p.name): p.unit for e in EFFECTS.values() for p in e.parameters}
 

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.cache import FitCache
-from sim2real.dynamics import RigidBodyModel
+from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.errors import InputError
 from sim2real.files import relative_path, validate, write_json
 from sim2real.measurements import PreparedRun, noise_floor_of, runs_for_model
@@ -44,7 +44,7 @@ from sim2real.report.regimes import where_it_fails
 from sim2real.report.replay import ReplayModels, ladder_position_rmse, model_armature, state_domain
 
 def read_model_residuals(path: str | Path, model: RigidBodyModel) -> list[TorqueComparison]:
-    """The last rung's holdout comparisons from the sysid rule's residuals (:func:`sim2real.sysid.write_model_residuals`):
+    """The last rung's holdout comparisons from the sysid rule's residuals (:func:`sim2real.identification.sysid.write_model_residuals`):
     each holdout run at the fit's rate, its judged torque, the current model's prediction and residual."""
     import zipfile
 

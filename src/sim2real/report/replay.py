@@ -66,7 +66,7 @@ class ReplayModels:
         self._models: dict[tuple[tuple[str, ...], str], tuple[mujoco.MjModel, np.ndarray, np.ndarray]] = {}
 
     def _spec(self, joints: Sequence[str], identified: Mapping[str, Any] | None, strip: bool) -> mujoco.MjSpec:
-        from sim2real.effects import apply_to_spec
+        from sim2real.identification.effects import apply_to_spec
         from sim2real.lab import arm_spec
 
         if not strip:

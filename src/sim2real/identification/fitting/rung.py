@@ -1,5 +1,5 @@
 """One rung's fit (:func:`fit`): the nonlinear refinement, the linear parameters, the physically
-consistent fit (:mod:`sim2real.inertial`) and the bootstrap; a model fitted on top of the previous one
+consistent fit (:mod:`sim2real.identification.inertial`) and the bootstrap; a model fitted on top of the previous one
 (:func:`fit_on_the_previous`)."""
 
 from __future__ import annotations
@@ -10,14 +10,14 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.effects import Effect, Signals, get_effect
-from sim2real.fitting.bootstrap import _block_bootstrap, _prune, replicate_intervals
-from sim2real.fitting.data import TorqueData, link_side
-from sim2real.fitting.scoring import holdout_metrics, joint_weights
-from sim2real.fitting.nominal import NominalModel, make_signals
-from sim2real.fitting.problem import FitResult, _Problem, _linear_fit, _refine_nonlinear, _values
+from sim2real.identification.effects import Effect, Signals, get_effect
+from sim2real.identification.fitting.bootstrap import _block_bootstrap, _prune, replicate_intervals
+from sim2real.identification.fitting.data import TorqueData, link_side
+from sim2real.identification.fitting.scoring import holdout_metrics, joint_weights
+from sim2real.identification.fitting.nominal import NominalModel, make_signals
+from sim2real.identification.fitting.problem import FitResult, _Problem, _linear_fit, _refine_nonlinear, _values
 from sim2real.forked import map_forked
-from sim2real.inertial import import_solver
+from sim2real.identification.inertial import import_solver
 from sim2real.stats import rmse
 
 
@@ -30,7 +30,7 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "confidence": 0.95,
     "bootstrap_few_blocks_correction": True,  # small_sample_stretch; off only to measure what it corrects
     "seed": 0,
-    # Weight of the entropic pull of link inertias towards CAD, x the noise floor's variance (sim2real.inertial):
+    # Weight of the entropic pull of link inertias towards CAD, x the noise floor's variance (sim2real.identification.inertial):
     # "held_out" chooses it on held-out blocks of the fit runs (inertial.choose_prior_weight); a number fixes it.
     "inertia_regularization": "held_out",
     # Each joint's residual in units of its own noise floor (joint_weights); "none": plain N*m, to measure it.
@@ -55,7 +55,7 @@ def fit(
 ) -> FitResult:
     """Fit the model ``nominal + effect_names`` on ``data`` (the fit runs).
 
-    ``consistency``: solve the rung as one convex program (:mod:`sim2real.inertial`: link inertias
+    ``consistency``: solve the rung as one convex program (:mod:`sim2real.identification.inertial`: link inertias
     physically consistent, friction/armature/payload mass >= 0) and keep the unconstrained fit beside
     it (``result.unconstrained``); ``uncertainty``: bootstrap intervals; ``nonlinear_fixed``: nonlinear
     parameters held (the diagnosis holds the current model's while it tries a candidate);
@@ -218,7 +218,7 @@ def _consistent_fit(
     with its own columns and lower bounds. Offsets that are not linear (a payload's own inertia) are
     held at the current estimate and updated by fixed-point iteration, as in the unconstrained fit.
     """
-    from sim2real.inertial import (DesignRows, InfeasibleFit, choose_prior_weight, physically_consistent,
+    from sim2real.identification.inertial import (DesignRows, InfeasibleFit, choose_prior_weight, physically_consistent,
                                    solve_consistent)
 
     signals = problem.signals
@@ -314,10 +314,10 @@ def _consistent_fit(
 def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -> tuple[
         list[tuple[Effect, slice, np.ndarray]], list[np.ndarray], Any]:
     """The consistent fit's columns (effect, its coefficients, its columns), each effect's lower bounds and the
-    link inertias' block (:class:`sim2real.inertial.InertialBlock`, None without link_inertia): what
-    :func:`sim2real.inertial.solve_consistent` builds its program of."""
-    from sim2real.effects.link_inertia import correction_anchors
-    from sim2real.inertial import InertialBlock, pseudo_inertia
+    link inertias' block (:class:`sim2real.identification.inertial.InertialBlock`, None without link_inertia): what
+    :func:`sim2real.identification.inertial.solve_consistent` builds its program of."""
+    from sim2real.identification.effects.link_inertia import correction_anchors
+    from sim2real.identification.inertial import InertialBlock, pseudo_inertia
 
     signals = problem.signals
     blocks, lower, inertial = [], [], None
@@ -348,9 +348,9 @@ def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -
 def build_program(effect_names: Sequence[str], nominal: NominalModel | None, data: TorqueData,
                   signals: Signals | None = None) -> None:
     """Canonicalise the consistent fit's convex program of the model ``effect_names`` into the program store
-    (:func:`sim2real.inertial.build_program`), as the model's first fit would: the fits that need it then read
+    (:func:`sim2real.identification.inertial.build_program`), as the model's first fit would: the fits that need it then read
     it back. The diagnosis's candidates' programs are built this way while the rung they sit on is fitted."""
-    from sim2real.inertial import build_program as build
+    from sim2real.identification.inertial import build_program as build
 
     if signals is None:
         assert nominal is not None
@@ -370,8 +370,8 @@ def _physical(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals)
 
 def _violations(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals) -> str:
     """What is non-physical in a solution, in words ('' when nothing)."""
-    from sim2real.effects.link_inertia import correction_anchors
-    from sim2real.inertial import min_eigenvalues
+    from sim2real.identification.effects.link_inertia import correction_anchors
+    from sim2real.identification.inertial import min_eigenvalues
 
     found = []
     for effect in problem.effects:

@@ -7,10 +7,10 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.effects import Signals, get_effect
-from sim2real.fitting.data import TorqueData
-from sim2real.fitting.nominal import NominalModel, make_signals
-from sim2real.fitting.problem import FitResult, _Problem
+from sim2real.identification.effects import Signals, get_effect
+from sim2real.identification.fitting.data import TorqueData
+from sim2real.identification.fitting.nominal import NominalModel, make_signals
+from sim2real.identification.fitting.problem import FitResult, _Problem
 from sim2real.stats import rmse
 
 
@@ -51,7 +51,7 @@ def predict(
 ) -> np.ndarray:
     """Judged torque the fitted model predicts on ``data`` (e.g. the holdout runs).
 
-    ``nominal`` may be None when ``signals`` are given (the actuator link, :mod:`sim2real.actuator`)."""
+    ``nominal`` may be None when ``signals`` are given (the actuator link, :mod:`sim2real.identification.links`)."""
     if signals is None:
         assert nominal is not None
         signals = make_signals(nominal, data)

@@ -14,11 +14,11 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from sim2real.dynamics import RigidBodyModel
-from sim2real.effects import Signals
+from sim2real.assets.dynamics import RigidBodyModel
+from sim2real.identification.effects import Signals
 from sim2real.errors import InputError
 from sim2real.cache import FitCache, digest
-from sim2real.fitting.data import TorqueData, link_side
+from sim2real.identification.fitting.data import TorqueData, link_side
 
 
 def resolve_armature(patterns: Mapping[str, float] | None, joint_names: Sequence[str]) -> dict[str, float]:
@@ -141,12 +141,12 @@ def _mesh_contents(urdf_path: Path, body_links: Sequence[str]) -> list[Any]:
 def body_ellipsoids(
     urdf_path: Path, body_links: Sequence[str], points: Sequence[np.ndarray | None] | None = None
 ) -> list[np.ndarray | None]:
-    """Bounding ellipsoid (``sim2real.inertial`` Q form) of each body's own link, from its collision meshes.
+    """Bounding ellipsoid (``sim2real.identification.inertial`` Q form) of each body's own link, from its collision meshes.
 
     The last body gets none: tools and payloads are mounted there, so its mass may lie outside its meshes.
     ``points``: the bodies' mesh vertices when already read (:func:`_body_points`).
     """
-    from sim2real.inertial import bounding_ellipsoid
+    from sim2real.identification.inertial import bounding_ellipsoid
 
     points = _body_points(urdf_path, body_links) if points is None else points
     return [bounding_ellipsoid(p) if p is not None and len(p) >= 4 else None for p in points]
@@ -260,7 +260,7 @@ def make_signals(nominal: NominalModel, data: TorqueData) -> Signals:
     """The body link's signals: the judged torque predicted from the motion by the nominal model.
 
     A link-side sensor measures what the links need, without the drive's rotor inertia, damping and
-    friction (those lie on the actuator link, :func:`sim2real.actuator.actuator_signals`).
+    friction (those lie on the actuator link, :func:`sim2real.identification.links.actuator_signals`).
     """
     dynamics = nominal.dynamics
     tau_nominal = dynamics.inverse_dynamics(data.q, data.qd, data.qdd)

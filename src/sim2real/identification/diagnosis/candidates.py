@@ -3,7 +3,7 @@
 On the holdout residual of the last rung, every effect of the library not yet in the model is
 tried: it is added to the model, the model is refitted on the fit runs, and its holdout residual
 is compared with the current one. Every residual is taken in units of each joint's own noise floor
-(:func:`sim2real.fitting.joint_weights`, the weights of the fit too): a wrist residual 8x its floor
+(:func:`sim2real.identification.fitting.joint_weights`, the weights of the fit too): a wrist residual 8x its floor
 weighs what a shoulder residual 8x its floor weighs, although its N*m are ten times smaller.
 ``explained`` is the fraction of the current holdout residual energy (in those units) the candidate
 removes (1 - SSE_after / SSE_now, clipped to 0..1); because it is measured on runs the fit never
@@ -12,11 +12,11 @@ saw, an effect that only soaks up noise explains nothing.
 floor, the part any model could remove: near the floor a real effect removes most of that excess
 but only a small share of the whole residual, so the decision is taken on it.
 
-Each candidate also carries its residual signature (:meth:`sim2real.effects.base.Effect.evidence`
+Each candidate also carries its residual signature (:meth:`sim2real.identification.effects.base.Effect.evidence`
 on the current holdout residual), the joints it acts on (those where it removes a good share of
 that joint's residual), its fitted values and ``add``, the line to add to configs/{robot}/model.yaml.
 
-The diagnosis runs per link of the model (:mod:`sim2real.actuator`): ``candidates`` are the effects
+The diagnosis runs per link of the model (:mod:`sim2real.identification.links`): ``candidates`` are the effects
 of that link, and the verdict names the link. Candidates whose holdout predictions agree to within a
 tenth of the noise floor are listed as ``confounded``: these data cannot tell them apart.
 
@@ -47,15 +47,15 @@ from typing import Any
 
 import numpy as np
 
-from sim2real import fitting
-from sim2real.effects import EFFECTS
-from sim2real.effects.base import Signals, per_joint_dict
-from sim2real.diagnosis.caveats import (
+from sim2real.identification import fitting
+from sim2real.identification.effects import EFFECTS
+from sim2real.identification.effects.base import Signals, per_joint_dict
+from sim2real.identification.diagnosis.caveats import (
     NESTED_IN, caveats, implausible_bodies, not_told_apart_verdict, recommend, separating_runs, ties,
     trades_with_model,
 )
 from sim2real.forked import map_forked
-from sim2real.inertial import import_solver
+from sim2real.identification.inertial import import_solver
 
 DEFAULT_DIAGNOSIS: dict[str, float] = {
     "min_explained": 0.3,  # a candidate must remove this share of the holdout residual beyond the noise floor
@@ -71,7 +71,7 @@ DEFAULT_DIAGNOSIS: dict[str, float] = {
 }
 
 
-# How each link is named in verdicts (sim2real.actuator.LINK_MODES says which links a data set has).
+# How each link is named in verdicts (sim2real.identification.links.LINK_MODES says which links a data set has).
 LINK_TEXT: dict[str, str] = {
     "body": "the body link (measured torque against the motion)",
     "actuator": "the actuator link (measured against commanded torque)",
@@ -190,8 +190,8 @@ def candidates_to_try(model_effects: Sequence[str], torque_source: str, forward:
 
 def _trial_way(item: tuple[str, Mapping[str, Any]], model_effects: Sequence[str], **inputs: Any,
                ) -> tuple[fitting.FitResult, np.ndarray] | None:
-    """One way (:func:`sim2real.fitting.previous_ways`) of fitting the candidate ``item[0]`` on the current model,
-    and its holdout residual (:func:`sim2real.fitting.rung._fit_way`)."""
+    """One way (:func:`sim2real.identification.fitting.previous_ways`) of fitting the candidate ``item[0]`` on the current model,
+    and its holdout residual (:func:`sim2real.identification.fitting.rung._fit_way`)."""
     name, way = item
     return fitting._fit_way(way, effect_names=[*model_effects, name], **inputs)
 
@@ -200,12 +200,12 @@ def trial_fits(names: Sequence[str], workers: int, *, model_effects: Sequence[st
                holdout_data: Any, nonlinear_fixed: Mapping[str, np.ndarray] | None, settings: Mapping[str, Any] | None,
                fit_signals: Signals, holdout_signals: Signals) -> dict[str, tuple[fitting.FitResult, np.ndarray]]:
     """Each candidate of ``names`` fitted as its rung will be: the current nonlinear parameters refined again or
-    held, whichever predicts better (:func:`sim2real.fitting.fit_on_the_previous`); (fit, holdout residual).
+    held, whichever predicts better (:func:`sim2real.identification.fitting.fit_on_the_previous`); (fit, holdout residual).
 
     Every way of every candidate is one piece of work, on up to ``workers`` processes side by side
     (:func:`sim2real.forked.map_forked`: the same numbers as one after the other). The candidates' first ways
     go first: each builds its candidate's convex program, which the second way then reads back
-    (:func:`sim2real.inertial.program_store`) instead of building it again.
+    (:func:`sim2real.identification.inertial.program_store`) instead of building it again.
     """
     previous = fitting.previous_nonlinear(nonlinear_fixed)
     ways = fitting.previous_ways(previous, uncertainty=False)
@@ -246,9 +246,9 @@ def diagnose(
     ``current``: the current rung's fit, against which a candidate that trades places with an effect already
     in the model is found (:func:`trades_with_model`).
 
-    ``nominal``, ``fit_data``, ``holdout_data`` are :mod:`sim2real.fitting` objects; the residual is the
+    ``nominal``, ``fit_data``, ``holdout_data`` are :mod:`sim2real.identification.fitting` objects; the residual is the
     current model's holdout residual (judged minus predicted torque). Each candidate is fitted exactly
-    as its rung would be (:func:`sim2real.fitting.fit`, physically consistent, the current model's
+    as its rung would be (:func:`sim2real.identification.fitting.fit`, physically consistent, the current model's
     nonlinear parameters ``nonlinear_fixed`` held), so ``rmse_after`` is the holdout error the ladder
     delivers when the user adds it. ``workers``: processes that fit the candidates side by side (:func:`trial_fits`).
     """

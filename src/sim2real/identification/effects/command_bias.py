@@ -1,7 +1,7 @@
 """Offset between the commanded and the applied torque per joint, on the actuator link: applied = cmd + b.
 
 A current-sensor offset in the motor drive, or a gravity compensation the drive adds on its own.
-Unlike :mod:`sim2real.effects.torque_bias` (the torque SENSOR's offset, which the simulation never
+Unlike :mod:`sim2real.identification.effects.torque_bias` (the torque SENSOR's offset, which the simulation never
 sees) it changes the motion, so the calibrated MJCF carries it: the actuator's affine bias
 ``biasprm[0]`` (divided by the actuator's gear, since MuJoCo applies gear * (gain * ctrl + bias)).
 On the actuator link (:attr:`Signals.forward`) the coefficient of its constant column is b itself. On
@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim2real.effects.base import per_joint_dict
-from sim2real.effects.torque_bias import TorqueBias
+from sim2real.identification.effects.base import per_joint_dict
+from sim2real.identification.effects.torque_bias import TorqueBias
 
 
 class CommandBias(TorqueBias):

@@ -13,10 +13,10 @@ import numpy as np
 # limit (threadpoolctl) holds only if it is loaded by then, and the fit's last bits depend on it.
 from scipy import optimize
 
-from sim2real.effects import Effect, Signals
-from sim2real.effects.actuation_delay import MAX_DELAY, shift_prediction
-from sim2real import inertial
-from sim2real.fitting.data import kept_segments
+from sim2real.identification.effects import Effect, Signals
+from sim2real.identification.effects.actuation_delay import MAX_DELAY, shift_prediction
+from sim2real.identification import inertial
+from sim2real.identification.fitting.data import kept_segments
 
 
 PREDICT_CHUNK_BYTES = 32 * 2**20  # the design's rows put together at once by _Problem.predict
@@ -134,7 +134,7 @@ class _Problem:
         return design, sizes
 
     def weighted_rows(self, blocks: list[np.ndarray]) -> inertial.DesignRows:
-        """The weighted design of these columns as rows (:class:`sim2real.inertial.DesignRows`); the last one is
+        """The weighted design of these columns as rows (:class:`sim2real.identification.inertial.DesignRows`); the last one is
         kept when it fits in one chunk (the consistent fit and the bootstrap put the same one together)."""
         if self._weighted is not None and len(self._weighted[0]) == len(blocks) and all(
                 a is b for a, b in zip(self._weighted[0], blocks, strict=True)):
@@ -506,8 +506,8 @@ def _refine_nonlinear(
 
 
 def subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
-    """The ``rows`` (sorted) of ``signals``, as :meth:`sim2real.fitting.TorqueData.subset` takes them of the data:
-    what :func:`sim2real.fitting.make_signals` computes on the subset, without computing it again."""
+    """The ``rows`` (sorted) of ``signals``, as :meth:`sim2real.identification.fitting.TorqueData.subset` takes them of the data:
+    what :func:`sim2real.identification.fitting.make_signals` computes on the subset, without computing it again."""
     segments = kept_segments(signals.segments, rows)
     regressor = signals._regressor[rows] if signals._regressor is not None else None
     parent = signals

@@ -9,11 +9,11 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.effects import Effect, Signals
-from sim2real.effects.actuation_delay import MAX_DELAY
-from sim2real.effects.base import Replicates
-from sim2real.fitting.problem import _Problem, _applied, _flatten_theta
-from sim2real.inertial import DesignRows, column_norms
+from sim2real.identification.effects import Effect, Signals
+from sim2real.identification.effects.actuation_delay import MAX_DELAY
+from sim2real.identification.effects.base import Replicates
+from sim2real.identification.fitting.problem import _Problem, _applied, _flatten_theta
+from sim2real.identification.inertial import DesignRows, column_norms
 
 
 DELAY_STEP_S = 2e-4  # half-step of the central difference of the prediction in the delay (bootstrap)
@@ -134,7 +134,7 @@ def replicate_intervals(
     states: Mapping[str, Any], confidence: float,
 ) -> dict[str, Any]:
     """Percentile intervals of every fitted value over the replicates (:func:`_block_bootstrap`'s stacks): the
-    values of each replicate as :func:`sim2real.fitting.problem._values` gives them, each effect's in one call
+    values of each replicate as :func:`sim2real.identification.fitting.problem._values` gives them, each effect's in one call
     where it takes stacked parameters (:attr:`Effect.values_stacked`), else replicate by replicate."""
     theta = _applied(effects, theta, signals)
     count = len(next(iter(theta.values())))

@@ -1,12 +1,12 @@
 """System identification: fit the model ladder of configs/{robot}/model.yaml to measured runs.
 
-:func:`fit_ladder` composes the fitting core (:mod:`sim2real.fitting`) and the diagnosis
-(:mod:`sim2real.diagnosis`): every rung (nominal, then each effect added in turn, refining only the
+:func:`fit_ladder` composes the fitting core (:mod:`sim2real.identification.fitting`) and the diagnosis
+(:mod:`sim2real.identification.diagnosis`): every rung (nominal, then each effect added in turn, refining only the
 new effect's nonlinear parameters) fitted on the ``role: fit`` runs and judged on the
 ``role: holdout`` runs, then the diagnosis of the last rung. :func:`fit_model` runs it on each link
-of the model (:mod:`sim2real.actuator`: the actuator and the body, judged apart when the runs log
+of the model (:mod:`sim2real.identification.links`: the actuator and the body, judged apart when the runs log
 both the measured and the commanded torque). It returns the ``ladder.json`` content;
-:func:`params_document` and :func:`sim2real.effects.calibration_from_params` give params.yaml and
+:func:`params_document` and :func:`sim2real.identification.effects.calibration_from_params` give params.yaml and
 calibration.yaml; :func:`run_sysid` is the files-in, files-out entry point of the rule.
 The fitting core's names are re-exported here (``sysid.fit``, ``sysid.TorqueData``, ...).
 """
@@ -20,20 +20,20 @@ from typing import Any
 
 import numpy as np
 
-from sim2real import actuator
-from sim2real.diagnosis import DEFAULT_DIAGNOSIS, candidates_to_try, model_free_ceiling
-from sim2real.diagnosis import diagnose as run_diagnosis
-from sim2real.effects import Signals, get_effect
+from sim2real.identification import links
+from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, candidates_to_try, model_free_ceiling
+from sim2real.identification.diagnosis import diagnose as run_diagnosis
+from sim2real.identification.effects import Signals, get_effect
 from sim2real.errors import InputError
 from sim2real.forked import Forked
-from sim2real.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
+from sim2real.identification.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
     DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
     joint_weights,
     kept_segments, load_nominal, make_signals, predict, resolve_armature, run_from_prepared, stack_runs,
 )
 from sim2real.blas import one_blas_thread
 from sim2real.cache import FitCache
-from sim2real.inertial import program_store
+from sim2real.identification.inertial import program_store
 from sim2real.measurements import PreparedRun, noise_floor_of
 from sim2real.stats import rmse
 
@@ -89,10 +89,10 @@ def fit_ladder(
     """Every rung (nominal, then each effect added in turn) fitted and judged; diagnosis of the last.
 
     Returns the ``ladder.json`` content (keys ``ladder``, ``diagnosis``, ``noise_floor``,
-    ``state_domain``, ...) and the last rung's fit. One link of the model (:mod:`sim2real.actuator`):
+    ``state_domain``, ...) and the last rung's fit. One link of the model (:mod:`sim2real.identification.links`):
     ``link`` names it in the diagnosis, ``candidates`` are the effects the diagnosis tries, and the
     signals (default: the nominal model's on the data) say what the judged torque is predicted from;
-    ``workers``: processes the rungs' two ways (:func:`sim2real.fitting.fit_on_the_previous`) and the
+    ``workers``: processes the rungs' two ways (:func:`sim2real.identification.fitting.fit_on_the_previous`) and the
     diagnosis's candidates are fitted on; ``cache``: rungs and diagnoses of earlier rounds with the same
     inputs are read back from it (:class:`sim2real.cache.FitCache`), the same to the last bit;
     ``residuals_out``: filled with the last rung's residual on the fit and the holdout data (keys ``fit``,
@@ -186,8 +186,8 @@ def fit_ladder(
 def _diagnose_link(effect_names: Sequence[str], nominal: NominalModel, fit_data: TorqueData,
                    holdout_data: TorqueData, holdout_residual: np.ndarray, fit_residual: np.ndarray,
                    settings: Mapping[str, Any], *, link: str, **options: Any) -> dict[str, Any]:
-    """The diagnosis of one link (:func:`sim2real.diagnosis.diagnose`) and, on a link judged against the motion,
-    its model-free ceiling (:func:`sim2real.diagnosis.model_free_ceiling`): when no effect is named, the
+    """The diagnosis of one link (:func:`sim2real.identification.diagnosis.diagnose`) and, on a link judged against the motion,
+    its model-free ceiling (:func:`sim2real.identification.diagnosis.model_free_ceiling`): when no effect is named, the
     verdict says what kind of thing is left."""
     diagnosis = run_diagnosis(effect_names, nominal, fit_data, holdout_data, holdout_residual, settings, link=link,
                               **options)
@@ -229,7 +229,7 @@ def fit_model(
     release_runs: bool = False,
     current_out: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], list[FitResult]]:
-    """Both links of the model (:mod:`sim2real.actuator`) on prepared runs by role (``fit``, ``holdout``).
+    """Both links of the model (:mod:`sim2real.identification.links`) on prepared runs by role (``fit``, ``holdout``).
 
     The body link's ladder and diagnosis are the document's ``ladder`` and ``diagnosis`` (on runs
     without a torque sensor: both links together, judged on the command); with a sensor and commands the
@@ -243,11 +243,11 @@ def fit_model(
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
     joints = nominal.joint_names
-    mode = actuator.link_mode([*runs["fit"], *runs["holdout"]])
-    sensor = actuator.torque_sensor([*runs["fit"], *runs["holdout"]])
+    mode = links.link_mode([*runs["fit"], *runs["holdout"]])
+    sensor = links.torque_sensor([*runs["fit"], *runs["holdout"]])
     body_link = "combined" if mode == "commands_only" else "body"
     body_effects = (list(effect_names) if mode == "commands_only"
-                    else actuator.effects_of_link(effect_names, "body", sensor))
+                    else links.effects_of_link(effect_names, "body", sensor))
     body_data = {
         role: stack_runs([run_from_prepared(run, noise_floor_of(run)) for run in runs[role]], joints,
                          fit_settings["fit_rate_hz"])
@@ -265,7 +265,7 @@ def fit_model(
     residuals: dict[str, np.ndarray] = {}
     document, result = fit_ladder(
         body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
-        candidates=actuator.candidates_of_link("body", sensor) if mode == "separate" or sensor == "link" else None,
+        candidates=links.candidates_of_link("body", sensor) if mode == "separate" or sensor == "link" else None,
         workers=workers, cache=cache, residuals_out=residuals,
     )
     if current_out is not None:
@@ -286,7 +286,7 @@ def fit_model(
         _note_drive(document["actuator"].get("diagnosis"), "actuator", sensor)
         confounded += section.get("diagnosis", {}).get("confounded", [])
         results.append(link_result)
-    document["links"] = round_floats(actuator.separability(mode, effect_names, confounded, sensor))
+    document["links"] = round_floats(links.separability(mode, effect_names, confounded, sensor))
     contradicted = [name for name in body_effects if get_effect(name).drive] if body_link == "body" else []
     if sensor == "link" and contradicted:
         # The metadata put the drive before the sensor; the model the user follows fits it after: say what that means.
@@ -316,14 +316,14 @@ def _actuator_link(
     """The actuator link's ladder and diagnosis (:func:`fit_ladder` on the command and the measured torque)."""
     joints = nominal.joint_names
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
-    link_data = {role: actuator.actuator_data(runs[role], joints) for role in ("fit", "holdout")}
-    signals = {role: actuator.actuator_signals(*link_data[role], nominal) for role in link_data}
-    link_settings = {**settings, "fit": {**fit_settings, **actuator.ACTUATOR_FIT_SETTINGS}}
+    link_data = {role: links.actuator_data(runs[role], joints) for role in ("fit", "holdout")}
+    signals = {role: links.actuator_signals(*link_data[role], nominal) for role in link_data}
+    link_settings = {**settings, "fit": {**fit_settings, **links.ACTUATOR_FIT_SETTINGS}}
     return fit_ladder(
-        actuator.effects_of_link(effect_names, "actuator", sensor), nominal, link_data["fit"][0],
+        links.effects_of_link(effect_names, "actuator", sensor), nominal, link_data["fit"][0],
         link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
         holdout_signals=signals["holdout"], link="actuator",
-        candidates=actuator.candidates_of_link("actuator", sensor), workers=workers, cache=cache,
+        candidates=links.candidates_of_link("actuator", sensor), workers=workers, cache=cache,
     )
 
 
@@ -331,7 +331,7 @@ def _note_drive(diagnosis: dict[str, Any] | None, link: str, sensor: str) -> Non
     """A drive effect named where the sensor's position did not expect it: the verdict says what that means."""
     if not diagnosis or diagnosis.get("status") != "add_effect":
         return
-    note = actuator.drive_verdict_note(link, diagnosis["candidates"][0]["effect"], sensor)
+    note = links.drive_verdict_note(link, diagnosis["candidates"][0]["effect"], sensor)
     if note:
         diagnosis["verdict"] += note
         diagnosis["sensor_note"] = note.strip()
@@ -451,7 +451,7 @@ def run_sysid(
     ``threads``: the diagnosis fits its candidates on that many processes (BLAS on one thread each);
     ``cache_dir``: where the rungs and diagnoses are kept for the next round (:class:`FitCache`; None: not kept).
     """
-    from sim2real.effects import calibration_from_params
+    from sim2real.identification.effects import calibration_from_params
     from sim2real.files import read_yaml, write_json, write_yaml
     from sim2real.measurements import FIT_ARRAYS, runs_for_model
 

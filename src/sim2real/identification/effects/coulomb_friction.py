@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.effects.base import (
+from sim2real.identification.effects.base import (
     ColumnLabel, Effect, ParameterSpec, Signals, correlation_per_joint, diagonal_columns, per_joint_dict,
 )
 

@@ -1,6 +1,6 @@
 """Effect library: the physical effects a nominal robot model may lack.
 
-One module per effect (see :mod:`sim2real.effects.base` for the shape they share). The
+One module per effect (see :mod:`sim2real.identification.effects.base` for the shape they share). The
 registry maps the vocabulary of configs/{robot}/model.yaml and of the lab to effect objects.
 
 - :func:`get_effect` / :data:`EFFECTS`: the registry.
@@ -15,19 +15,19 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from sim2real.effects.actuation_delay import ActuationDelay
-from sim2real.effects.actuator_gain import ActuatorGain
-from sim2real.effects.asymmetric_friction import AsymmetricFriction
-from sim2real.effects.base import ColumnLabel, Effect, ParameterSpec, Signals
-from sim2real.effects.command_bias import CommandBias
-from sim2real.effects.coulomb_friction import CoulombFriction
-from sim2real.effects.link_inertia import LinkInertia
-from sim2real.effects.payload import Payload
-from sim2real.effects.rotor_inertia import RotorInertia
-from sim2real.effects.stribeck_friction import StribeckFriction
-from sim2real.effects.torque_bias import TorqueBias
-from sim2real.effects.torque_gain import TorqueGain
-from sim2real.effects.viscous_friction import ViscousFriction
+from sim2real.identification.effects.actuation_delay import ActuationDelay
+from sim2real.identification.effects.actuator_gain import ActuatorGain
+from sim2real.identification.effects.asymmetric_friction import AsymmetricFriction
+from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals
+from sim2real.identification.effects.command_bias import CommandBias
+from sim2real.identification.effects.coulomb_friction import CoulombFriction
+from sim2real.identification.effects.link_inertia import LinkInertia
+from sim2real.identification.effects.payload import Payload
+from sim2real.identification.effects.rotor_inertia import RotorInertia
+from sim2real.identification.effects.stribeck_friction import StribeckFriction
+from sim2real.identification.effects.torque_bias import TorqueBias
+from sim2real.identification.effects.torque_gain import TorqueGain
+from sim2real.identification.effects.viscous_friction import ViscousFriction
 from sim2real.errors import InputError
 
 EFFECTS: dict[str, Effect] = {

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, explained_per_joint, per_joint_dict
+from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, explained_per_joint, per_joint_dict
 
 PAYLOAD_BODY_NAME = "calibrated_payload"
 

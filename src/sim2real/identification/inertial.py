@@ -40,6 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim2real import blas
+
 PARAMS_PER_BODY = 10  # Pinocchio order: m, m*c (3), I about the body frame (xx, xy, yy, xz, yz, zz)
 PD_MARGIN = 1e-4  # smallest eigenvalue kept, relative to the CAD body's pseudo-inertia (J >= 1e-4 J0)
 
@@ -280,10 +282,7 @@ class _DataTerm:
     target_root: np.ndarray
 
 
-# Rows of a (samples x joints, coefficients) design summed at a time: a long log's data term costs a chunk's
-# memory, not the log's. A design of up to this many rows (the demo's; a log of about 45 s at the fit's
-# 200 Hz on 7 joints) is summed in one product, as it always was.
-CHUNK_ROWS = 1 << 16
+CHUNK_ROWS = blas.CHUNK_ROWS  # the long sums' chunk (sim2real.blas), a name of this module the tests can vary
 
 
 class DesignRows:
@@ -478,7 +477,7 @@ def build_program(size: int, lower: np.ndarray, inertial: InertialBlock | None) 
 # data always outweigh (1e-4) to one that moves the prediction by about a tenth of the floor (0.1). The search
 # goes on past either edge while the held-out score says it should (choose_prior_weight), a decade at a time,
 # within PRIOR_BOUNDS. A stiffer prior cannot hand a candidate a fall it did not earn: the diagnosis fits every
-# candidate with the current rung's weight (sim2real.sysid).
+# candidate with the current rung's weight (sim2real.identification.sysid).
 PRIOR_GRID = (1e-4, 1e-3, 1e-2, 1e-1)
 PRIOR_BOUNDS = (1e-8, 1e2)
 PRIOR_BLOCKS = 4

@@ -6,7 +6,7 @@ The fit works in the torque domain. The judged torque (measured ``tau``, else th
     tau_judged(t) = [tau_nominal + sum_e A_e(nl_e) theta_e + offsets](t + delay)
 
 where ``tau_nominal`` is Pinocchio's inverse dynamics of the URDF (with the MJCF armature),
-``A_e`` are the regressor columns of each effect (:mod:`sim2real.effects`), linear in its
+``A_e`` are the regressor columns of each effect (:mod:`sim2real.identification.effects`), linear in its
 parameters ``theta_e``, ``nl_e`` its few nonlinear parameters (a friction smoothing velocity) and
 ``delay`` the actuation delay when the model has one. Steps of :func:`fit`:
 
@@ -14,7 +14,7 @@ parameters ``theta_e``, ``nl_e`` its few nonlinear parameters (a friction smooth
    parameters projected out (variable projection), started from a coarse grid for the delay;
    parameters of effects already in the model can be held (a ladder rung refines only its own);
 2. the linear parameters: unconstrained least squares (columns scaled, minimum-norm, link
-   inertias as base parameters) and the physically consistent fit (:mod:`sim2real.inertial`: one
+   inertias as base parameters) and the physically consistent fit (:mod:`sim2real.identification.inertial`: one
    convex program with the pseudo-inertia LMIs and sign bounds), which the rung reports;
 3. uncertainty by a block bootstrap of the fit samples (residuals are correlated in time, so whole
    blocks of time are resampled), the delay by a linearised step per replicate, the other nonlinear
@@ -22,41 +22,41 @@ parameters ``theta_e``, ``nl_e`` its few nonlinear parameters (a friction smooth
    (:func:`small_sample_stretch`);
 4. judgement on the ``role: holdout`` runs (:func:`holdout_metrics`).
 
-The ladder (:mod:`sim2real.sysid`) and the diagnosis (:mod:`sim2real.diagnosis`) both call this
+The ladder (:mod:`sim2real.identification.sysid`) and the diagnosis (:mod:`sim2real.identification.diagnosis`) both call this
 package; it imports neither. Its modules, each importing only those above it:
 
-* :mod:`~sim2real.fitting.data`: the torque data (:class:`TorqueData`, :func:`stack_runs`);
-* :mod:`~sim2real.fitting.nominal`: the nominal model (:func:`load_nominal`) and its signals;
-* :mod:`~sim2real.fitting.problem`: the design at given nonlinear parameters (``_Problem``), shared by
+* :mod:`~sim2real.identification.fitting.data`: the torque data (:class:`TorqueData`, :func:`stack_runs`);
+* :mod:`~sim2real.identification.fitting.nominal`: the nominal model (:func:`load_nominal`) and its signals;
+* :mod:`~sim2real.identification.fitting.problem`: the design at given nonlinear parameters (``_Problem``), shared by
   the fit, its consistent variant and the bootstrap; the linear solve and the nonlinear refinement;
-* :mod:`~sim2real.fitting.bootstrap`: the block bootstrap and its intervals;
-* :mod:`~sim2real.fitting.scoring`: noise-floor units, the prediction and the holdout metrics;
-* :mod:`~sim2real.fitting.rung`: one rung's fit (:func:`fit`, :func:`fit_on_the_previous`);
+* :mod:`~sim2real.identification.fitting.bootstrap`: the block bootstrap and its intervals;
+* :mod:`~sim2real.identification.fitting.scoring`: noise-floor units, the prediction and the holdout metrics;
+* :mod:`~sim2real.identification.fitting.rung`: one rung's fit (:func:`fit`, :func:`fit_on_the_previous`);
 * :mod:`sim2real.cache` (beside the package, which the gap report uses without importing the fit): fits kept
   between rounds of the loop, by the digest of their inputs.
 
-Every name is importable from ``sim2real.fitting`` as before the split (private ones too: the tests and
+Every name is importable from ``sim2real.identification.fitting`` as before the split (private ones too: the tests and
 the effects' documentation reach ``_intervals`` and ``_values``).
 """
 
-from sim2real.fitting.bootstrap import (  # noqa: F401  (re-exported: the package's names)
+from sim2real.identification.fitting.bootstrap import (  # noqa: F401  (re-exported: the package's names)
     DELAY_STEP_S, _block_bootstrap, _intervals, _prune, replicate_intervals, small_sample_stretch,
 )
-from sim2real.fitting.data import (  # noqa: F401  (re-exported: the package's names)
+from sim2real.identification.fitting.data import (  # noqa: F401  (re-exported: the package's names)
     TorqueData, kept_segments, link_side, run_from_prepared, stack_runs,
 )
-from sim2real.fitting.scoring import (  # noqa: F401  (re-exported: the package's names)
+from sim2real.identification.fitting.scoring import (  # noqa: F401  (re-exported: the package's names)
     MIN_FLOOR_FRACTION, floor_units, holdout_metrics, joint_weights, predict,
 )
-from sim2real.fitting.nominal import (  # noqa: F401  (re-exported: the package's names)
+from sim2real.identification.fitting.nominal import (  # noqa: F401  (re-exported: the package's names)
     NominalModel, body_ellipsoids, body_hulls, _body_points, _collision_points, load_nominal, make_signals,
     resolve_armature, _urdf_link_parameters,
 )
-from sim2real.fitting.problem import (  # noqa: F401  (re-exported: the package's names)
+from sim2real.identification.fitting.problem import (  # noqa: F401  (re-exported: the package's names)
     FitResult, _Problem, _flatten_theta, _linear_fit, _refine_nonlinear, _solve_blocks, _split_theta,
     subset_signals, _values,
 )
-from sim2real.fitting.rung import (  # noqa: F401  (re-exported: the package's names)
+from sim2real.identification.fitting.rung import (  # noqa: F401  (re-exported: the package's names)
     DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, _consistent_fit, better_way, build_program, fit, fit_on_the_previous,
     _fit_way, _physical,
     previous_nonlinear, previous_ways,

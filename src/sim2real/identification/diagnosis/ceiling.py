@@ -180,7 +180,7 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
                        noise_floor_factor: float = 1.5) -> dict[str, Any]:
     """The ceiling of ``diagnosis.model_free`` in gap.json (see the module docstring).
 
-    ``fit_data``/``holdout_data``: :class:`sim2real.fitting.TorqueData`; the residuals are the last rung's
+    ``fit_data``/``holdout_data``: :class:`sim2real.identification.fitting.TorqueData`; the residuals are the last rung's
     (judged minus predicted torque) on them. Joints within ``noise_floor_factor`` of their floor are
     ``at_floor``: nothing to explain, no learner fitted (``fitted`` false; the ceiling is the rung's).
     """

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, diagonal_columns, per_joint_dict
+from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, diagonal_columns, per_joint_dict
 
 
 class TorqueBias(Effect):

@@ -3,7 +3,7 @@
 The unconstrained fit works on the identifiable combinations (base parameters): the stacked
 regressor of the fit data is reduced by SVD to the directions it excites, and the correction is the
 minimum-norm one in those directions, so unexcited directions keep their nominal (URDF) values.
-The physically consistent fit (:mod:`sim2real.inertial`, the default) solves for every body's full
+The physically consistent fit (:mod:`sim2real.identification.inertial`, the default) solves for every body's full
 10-parameter correction under the pseudo-inertia LMIs with an entropic pull to the CAD link; its
 result is stored here as base-parameter coefficients plus the remainder (``null_offset``), so both
 fits predict through the same columns.
@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, explained_per_joint, per_joint_dict
-from sim2real.inertial import CHUNK_ROWS, entropic_divergence, physically_consistent
+from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, explained_per_joint, per_joint_dict
+from sim2real.identification.inertial import CHUNK_ROWS, entropic_divergence, physically_consistent
 
 RELATIVE_SINGULAR_TOL = 1e-3  # directions excited 1000x less than the best are left at nominal
 STRUCTURAL_ZERO = 1e-9  # relative column norm below which a parameter does not act at all

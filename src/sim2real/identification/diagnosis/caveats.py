@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from sim2real import fitting
+from sim2real.identification import fitting
 from sim2real.design_names import separation_name
-from sim2real.effects.base import Signals
+from sim2real.identification.effects.base import Signals
 
 # Effects that are special cases of another: never tried once the larger one is in the model, and never a tie
 # (parsimony decides). Gaz's sigmoid with no velocity offset is a Coulomb tanh: asymmetric_friction holds
@@ -106,7 +106,7 @@ def tied(a: np.ndarray, b: np.ndarray) -> tuple[bool, float, float]:
 
 
 def implausible_bodies(result: fitting.FitResult) -> list[str]:
-    """The bodies a fit leaves beyond plausible (:mod:`sim2real.effects.link_inertia`), each with why."""
+    """The bodies a fit leaves beyond plausible (:mod:`sim2real.identification.effects.link_inertia`), each with why."""
     link = (result.values or {}).get("link_inertia") or {}
     return [f"{name} ({', '.join(body['implausible'])})" for name, body in (link.get("bodies") or {}).items()
             if body.get("implausible")]

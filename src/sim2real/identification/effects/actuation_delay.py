@@ -15,9 +15,11 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.effects.base import Effect, ParameterSpec, Signals, correlation_per_joint, per_joint_dict
+from sim2real.measurements.noise import MAX_COMMAND_DELAY_S
 
-MAX_DELAY = 0.1  # s
+from sim2real.identification.effects.base import Effect, ParameterSpec, Signals, correlation_per_joint, per_joint_dict
+
+MAX_DELAY = MAX_COMMAND_DELAY_S  # s: the command noise floor regresses on every lag up to it
 
 
 def shift_prediction(values: np.ndarray, time: np.ndarray, segments: list[slice], delay: float) -> np.ndarray:

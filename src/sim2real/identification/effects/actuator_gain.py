@@ -3,7 +3,7 @@
 A motor constant or current-loop gain other than the controller assumes. On the actuator link the
 column is the command and the coefficient g - 1 (:attr:`Signals.forward`). On runs without a torque
 sensor the command is judged against the nominal model's torque: ``tau_cmd = k * tau_applied`` with
-k = 1/g, and the other joint-local effects are divided by k afterwards (``sim2real.fitting._values``).
+k = 1/g, and the other joint-local effects are divided by k afterwards (``sim2real.identification.fitting._values``).
 MJCF holds it as the actuator's ``gainprm[0]`` (scaled by g, with a servo's feedback terms
 ``biasprm[1:3]``), which domain randomization's ``kp`` channel randomizes.
 """
@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim2real.effects.base import per_joint_dict
-from sim2real.effects.torque_gain import TorqueGain
+from sim2real.identification.effects.base import per_joint_dict
+from sim2real.identification.effects.torque_gain import TorqueGain
 
 
 class ActuatorGain(TorqueGain):

@@ -14,9 +14,9 @@ An effect is a physical phenomenon the nominal rigid-body model lacks. Each one 
   delay, a motor gain, a command bias) or ``body`` (between the applied torque and the motion:
   friction, inertias, payload; and the torque sensor's own gain and bias, which measure that torque).
   When runs log both the measured and the commanded torque, each link is fitted and judged on its
-  own (:mod:`sim2real.actuator`). A ``drive`` effect (rotor inertia, joint friction and damping) sits
+  own (:mod:`sim2real.identification.links`). A ``drive`` effect (rotor inertia, joint friction and damping) sits
   in the drive between the motor and the link: on the body link behind a motor-side sensor, on the
-  actuator link in front of a link-side one (:func:`sim2real.actuator.effect_link`).
+  actuator link in front of a link-side one (:func:`sim2real.identification.links.effect_link`).
 
 Fitted values always live in one structure, ``{param_name: {joint: value}}`` for per-joint
 parameters and ``{param_name: value}`` for global ones, in SI units, as *total* values (the

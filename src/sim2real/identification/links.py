@@ -1,13 +1,13 @@
 """The two links of the model: the actuator (command -> applied torque) and the body (applied torque -> motion).
 
-Every effect declares its link (:attr:`sim2real.effects.base.Effect.link`). What the runs log decides
+Every effect declares its link (:attr:`sim2real.identification.effects.base.Effect.link`). What the runs log decides
 how the links can be judged (:func:`link_mode`):
 
 * ``separate``: a joint torque sensor (``tau``) beside the command (``tau_cmd``). The body link is the
   rigid-body ladder on ``tau`` against the motion. The actuator link is judged directly, the measured
   torque against the command: no dynamics, so no body error leaks into it. Through the fitting core
-  (:mod:`sim2real.fitting`), with the command in the place of the nominal model's prediction
-  (:attr:`sim2real.effects.Signals.forward`)::
+  (:mod:`sim2real.identification.fitting`), with the command in the place of the nominal model's prediction
+  (:attr:`sim2real.identification.effects.Signals.forward`)::
 
       tau(t) = g * tau_cmd(t - d) + b + sensor noise
 
@@ -24,7 +24,7 @@ how the links can be judged (:func:`link_mode`):
 
       tau(t) = g * tau_cmd(t - d) + b - (I_a * qdd + D * qd + F_c * tanh(qd / v_s))(t) + sensor noise
 
-  and the body link is the rigid body alone (:func:`sim2real.fitting.make_signals`).
+  and the body link is the rigid body alone (:func:`sim2real.identification.fitting.make_signals`).
 * ``commands_only``: no torque sensor (most arms). One ladder on ``tau_cmd`` against the motion holds
   both links; :func:`separability` says what these data can and cannot tell apart.
 * ``sensor_only``: no commands. The body link only; the actuator cannot be seen.
@@ -41,9 +41,9 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.effects import EFFECTS, Signals, get_effect
+from sim2real.identification.effects import EFFECTS, Signals, get_effect
 from sim2real.errors import InputError
-from sim2real.fitting import NominalModel, TorqueData, link_side, run_from_prepared, stack_runs
+from sim2real.identification.fitting import NominalModel, TorqueData, link_side, run_from_prepared, stack_runs
 from sim2real.measurements import PreparedRun, command_floor_of
 
 LINK_MODES: dict[str, str] = {
