@@ -1,5 +1,5 @@
 # sim2real: every robot asset and every gap report is a build output of this DAG.
-from snakemake.utils import min_version, validate
+from snakemake.utils import min_version
 
 import sim2real.cli as _sim2real_cli
 
@@ -12,7 +12,7 @@ _sim2real_cli.one_line_input_errors()
 configfile: "configs/config.yaml"
 
 
-validate(config, "schemas/config.schema.yaml")
+report: "report/workflow.rst"
 
 
 include: "rules/common.smk"

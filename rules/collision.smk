@@ -61,6 +61,3 @@ rule collision_report:
         tolerance=lambda w: collision_section(w.robot).get("tolerance") or {},
     script:
         "../scripts/collision_report.py"
-
-
-STAGE_TARGETS.append(lambda robot: [f"results/{robot}/collision/report.json"])

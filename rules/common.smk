@@ -7,8 +7,13 @@ import os
 import sim2real.collision as _sim2real_collision
 import sim2real.design_names as _sim2real_design_names
 import sim2real.measurements.campaigns as _sim2real_campaigns
-import sim2real.files as _sim2real_io
+import sim2real.files as _sim2real_files
+from sim2real.errors import InputError
 import sim2real.assets.urdf as _sim2real_urdf
+
+from snakemake.utils import validate
+
+validate(config, "../schemas/config.schema.yaml")
 
 ROBOTS = list(config["robots"])
 # Measurement campaigns per robot: configs/{robot}/measurements.yaml is the default one (reports under
@@ -31,19 +36,25 @@ wildcard_constraints:
     ),
 
 
-# Each rules file appends a function robot -> list of its final outputs; WORKFLOW_TARGETS holds the
-# outputs over all robots (the fleet view).
-STAGE_TARGETS = []
-WORKFLOW_TARGETS = []
-
-
 def all_targets():
-    """Every output `snakemake all` builds, stage by stage, for every configured robot, then the fleet."""
+    """Every output `snakemake all` builds: the one list of the workflow's targets, stage by stage for every
+    configured robot (each stage's function below), then the fleet view over all robots.
+    """
     targets = []
     for robot in ROBOTS:
-        for stage_targets in STAGE_TARGETS:
+        for stage_targets in (
+            urdf_targets,
+            mjcf_targets,
+            collision_targets,
+            usd_targets,
+            lab_truth_targets,
+            campaign_sysid_targets,
+            campaign_report_targets,
+            dr_targets,
+            excitation_targets,
+        ):
             targets.extend(stage_targets(robot))
-    return targets + WORKFLOW_TARGETS
+    return targets + ["results/fleet.json", "results/fleet.md"]
 
 
 # ---- robot sources and settings -------------------------------------------------
@@ -60,7 +71,7 @@ def robot_config(robot):
 @functools.cache
 def robot_settings(robot):
     """configs/{robot}/robot.yaml as a dict (validated by the MJCF stage); read once per run."""
-    return _sim2real_io.read_yaml(robot_config(robot))
+    return _sim2real_files.read_yaml(robot_config(robot))
 
 
 def robot_xacro(robot):
@@ -82,11 +93,15 @@ def model_ladder(robot):
     return f"configs/{robot}/model.yaml"
 
 
+@functools.cache
+def has_model(robot):
+    """Whether the robot has a model ladder (configs/{robot}/model.yaml): then its runs are fitted."""
+    return os.path.exists(model_ladder(robot))
+
+
 def identifies(robot):
     """Robots with measurements and a model ladder get identified parameters and calibrated assets."""
-    return os.path.exists(measurement_list(robot)) and os.path.exists(
-        model_ladder(robot)
-    )
+    return os.path.exists(measurement_list(robot)) and has_model(robot)
 
 
 # ---- URDF: nominal (variant "") and calibrated (variant "calibrated/") trees -----
@@ -166,9 +181,11 @@ def coacd_source(wildcards):
     if coacd_settings(wildcards)["source"] == "collision":
         return f"results/{wildcards.robot}/meshes/collision/{wildcards.name}.stl"
     if wildcards.name not in robot_meshes(wildcards.robot)["visual"]:
-        raise ValueError(
-            f"{robot_config(wildcards.robot)}: collision.overrides.{wildcards.name}: no visual mesh named "
-            f"'{wildcards.name}' to decompose. Fix: set 'source: collision' for this mesh"
+        raise InputError(
+            robot_config(wildcards.robot),
+            f"collision.overrides.{wildcards.name}",
+            f"no visual mesh named '{wildcards.name}' to decompose",
+            "set 'source: collision' for this mesh",
         )
     return f"results/{wildcards.robot}/meshes/visual/{wildcards.name}"
 
@@ -210,7 +227,7 @@ def campaign_report_targets(robot):
 
 def campaign_sysid_targets(robot):
     """The fitted ladder and calibration of every campaign, where the robot has a model ladder."""
-    if not os.path.exists(model_ladder(robot)):
+    if not has_model(robot):
         return []
     return [
         f"results/{robot}/{c.prefix}sysid/{name}"
@@ -219,8 +236,9 @@ def campaign_sysid_targets(robot):
     ]
 
 
+@functools.cache
 def fleet_campaigns():
-    """Every identified campaign of every robot, with the files the fleet view reads."""
+    """Every identified campaign of every robot, with the files the fleet view reads (read once per run)."""
     return [
         {
             "robot": c.robot,
@@ -233,9 +251,21 @@ def fleet_campaigns():
             "params": f"{c.results}sysid/params.yaml",
         }
         for robot in ROBOTS
-        if os.path.exists(model_ladder(robot))
+        if has_model(robot)
         for c in CAMPAIGNS[robot]
     ]
+
+
+def fleet_ladders(wildcards):
+    return [c["ladder"] for c in fleet_campaigns()]
+
+
+def fleet_params(wildcards):
+    return [c["params"] for c in fleet_campaigns()]
+
+
+def fleet_records(wildcards):
+    return fleet_campaigns()
 
 
 def identified_params(wildcards):
@@ -260,7 +290,7 @@ def sysid_ladder(wildcards):
             f"results/{wildcards.robot}/{wildcards.campaign}sysid/ladder.json",
             f"results/{wildcards.robot}/{wildcards.campaign}sysid/residuals.npz",
         ]
-        if os.path.exists(model_ladder(wildcards.robot))
+        if has_model(wildcards.robot)
         else []
     )
 
@@ -318,8 +348,7 @@ def excitation_config(robot):
 
 def optional_model_ladder(wildcards):
     """The model ladder the design makes identifiable, when the robot has one."""
-    path = model_ladder(wildcards.robot)
-    return [path] if os.path.exists(path) else []
+    return [model_ladder(wildcards.robot)] if has_model(wildcards.robot) else []
 
 
 def separation_ladder(wildcards):
@@ -334,7 +363,45 @@ def excitation_targets(robot):
     path = excitation_config(robot)
     if not os.path.exists(path):
         return []
-    designs = (_sim2real_io.read_yaml(path) or {}).get("designs") or {}
+    designs = (_sim2real_files.read_yaml(path) or {}).get("designs") or {}
     return [f"results/{robot}/excitation/{name}.csv" for name in sorted(designs)] + [
         f"results/{robot}/excitation/{name}.md" for name in sorted(designs)
+    ]
+
+
+# ---- the stages' final outputs (all_targets) ---------------------------------------
+
+
+def urdf_targets(robot):
+    return [nominal_urdf(robot)]
+
+
+def mjcf_targets(robot):
+    """The MJCF and its scene, nominal and (where the robot is identified) calibrated."""
+    return [
+        f"results/{robot}/{variant}mjcf/{robot}.xml"
+        for variant in ("", "calibrated/")
+        if not variant or identifies(robot)
+    ] + [f"results/{robot}/mjcf/scene.xml"]
+
+
+def collision_targets(robot):
+    return [f"results/{robot}/collision/report.json"]
+
+
+def usd_targets(robot):
+    """The USD and its equivalence check with the URDF and the MJCF, nominal and (identified) calibrated."""
+    return [
+        f"results/{robot}/{variant}{name}"
+        for variant in ("", "calibrated/")
+        if not variant or identifies(robot)
+        for name in (f"usd/{robot}.usda", "equivalence.json")
+    ]
+
+
+def dr_targets(robot):
+    return [
+        f"results/{robot}/dr.json",
+        f"results/{robot}/dr/coverage.json",
+        f"results/{robot}/dr/summary.svg",
     ]

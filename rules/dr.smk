@@ -64,12 +64,3 @@ rule dr_summary:
         strict=config.get("dr", {}).get("strict_coverage", False),
     script:
         "../scripts/dr_summary.py"
-
-
-STAGE_TARGETS.append(
-    lambda robot: [
-        f"results/{robot}/dr.json",
-        f"results/{robot}/dr/coverage.json",
-        f"results/{robot}/dr/summary.svg",
-    ]
-)

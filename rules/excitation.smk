@@ -34,6 +34,3 @@ rule excitation:
         runtime=30,
     script:
         "../scripts/excitation.py"
-
-
-STAGE_TARGETS.append(excitation_targets)

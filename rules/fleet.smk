@@ -9,8 +9,8 @@ localrules:
 
 rule fleet:
     input:
-        ladders=[c["ladder"] for c in fleet_campaigns()],
-        params=[c["params"] for c in fleet_campaigns()],
+        ladders=fleet_ladders,
+        params=fleet_params,
         schema="schemas/fleet.schema.json",
     output:
         json="results/fleet.json",
@@ -29,9 +29,6 @@ rule fleet:
         mem_mb=512,
         runtime=2,
     params:
-        campaigns=fleet_campaigns(),
+        campaigns=fleet_records,
     script:
         "../scripts/fleet.py"
-
-
-WORKFLOW_TARGETS.extend(["results/fleet.json", "results/fleet.md"])

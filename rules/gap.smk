@@ -22,9 +22,7 @@ rule bag_to_run:
         mem_mb=1024,
         runtime=10,
     params:
-        joint_topic=lambda w: bag_topics(w)["joint_topic"],
-        command_topic=lambda w: bag_topics(w)["command_topic"],
-        torque_sensor=lambda w: bag_topics(w)["torque_sensor"],
+        topics=bag_topics,
     script:
         "../scripts/bag_to_run.py"
 
@@ -101,6 +99,3 @@ rule gap_report:
         kept=lambda w: f"results/{w.robot}/{w.campaign}gap/kept",
     script:
         "../scripts/gap_report.py"
-
-
-STAGE_TARGETS.append(campaign_report_targets)

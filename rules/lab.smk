@@ -45,6 +45,3 @@ rule lab_truth:
 
 
 ruleorder: lab_truth > lab_run
-
-
-STAGE_TARGETS.append(lab_truth_targets)

@@ -25,13 +25,3 @@ rule mjcf:
         collision_dirs=lambda w: collision_part_dirs(w.robot),
     script:
         "../scripts/build_mjcf.py"
-
-
-STAGE_TARGETS.append(
-    lambda robot: [
-        f"results/{robot}/{variant}mjcf/{robot}.xml"
-        for variant in ("", "calibrated/")
-        if not variant or identifies(robot)
-    ]
-    + [f"results/{robot}/mjcf/scene.xml"]
-)

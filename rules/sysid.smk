@@ -33,6 +33,3 @@ rule sysid:
         fits=lambda w: f"results/{w.robot}/{w.campaign}sysid/fits",
     script:
         "../scripts/sysid.py"
-
-
-STAGE_TARGETS.append(campaign_sysid_targets)

@@ -25,6 +25,3 @@ checkpoint urdf:
         args=urdf_xacro_args,
     script:
         "../scripts/build_urdf.py"
-
-
-STAGE_TARGETS.append(lambda robot: [nominal_urdf(robot)])

@@ -44,19 +44,3 @@ rule equivalence:
         runtime=3,
     script:
         "../scripts/equivalence.py"
-
-
-STAGE_TARGETS.append(
-    lambda robot: [
-        f"results/{robot}/usd/{robot}.usda",
-        f"results/{robot}/equivalence.json",
-    ]
-    + (
-        [
-            f"results/{robot}/calibrated/usd/{robot}.usda",
-            f"results/{robot}/calibrated/equivalence.json",
-        ]
-        if identifies(robot)
-        else []
-    )
-)

@@ -8,7 +8,7 @@ with rule_entry(snakemake):
         snakemake.input.bag,
         snakemake.output.run,
         robot=snakemake.wildcards.robot,
-        joint_topic=snakemake.params.joint_topic,
-        command_topic=snakemake.params.command_topic,
-        torque_sensor=snakemake.params.torque_sensor,
+        joint_topic=snakemake.params.topics["joint_topic"],
+        command_topic=snakemake.params.topics["command_topic"],
+        torque_sensor=snakemake.params.topics["torque_sensor"],
     )

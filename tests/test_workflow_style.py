@@ -27,3 +27,20 @@ def test_snakemake_lint_reports_only_the_justified_lint() -> None:
     readme = (ROOT / "README.md").read_text()
     for lint in ACCEPTED_LINTS:
         assert lint.rstrip(".") in readme, "every accepted lint is justified in the README"
+
+
+def test_the_snakefile_is_short_and_the_helpers_live_in_common() -> None:
+    """As the snakemake-workflows exemplars: the config validated in rules/common.smk, a global report with the
+    workflow's caption, the targets listed in one place, and no rules file keeping state of its own."""
+    snakefile = (ROOT / "Snakefile").read_text()
+    assert 'report: "report/workflow.rst"' in snakefile and (ROOT / "report" / "workflow.rst").is_file()
+    assert "validate(" not in snakefile
+    common = (ROOT / "rules" / "common.smk").read_text()
+    assert 'validate(config, "../schemas/config.schema.yaml")' in common
+    assert "def all_targets():" in common
+    for rules in sorted((ROOT / "rules").glob("*.smk")):
+        text = rules.read_text()
+        if rules.name != "common.smk":
+            assert not re.search(r"^\w+\.(append|extend)\(", text, flags=re.MULTILINE), rules.name
+            assert "raise ValueError" not in text and "def " not in text, f"{rules.name}: helpers belong in common.smk"
+        assert "ValueError" not in text, f"{rules.name}: bad input is an InputError (file, key, fix)"
