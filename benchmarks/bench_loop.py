@@ -40,22 +40,22 @@ from buildtree import copy_repo, edit_yaml, make_fast, rules_run, run_snakemake 
 
 # Stage -> (module file suffix, function name): cumulative time of that function in one round.
 STAGES = {
-    "prepare runs (rule prepare_runs, not in a round)": [("measurements.py", "prepare_for_model")],
-    "read the prepared runs": [("measurements.py", "read_prepared_runs")],
-    "regressors": [("dynamics.py", "regressor")],
-    "nominal inverse dynamics": [("dynamics.py", "inverse_dynamics")],
-    "ladder (all rungs)": [("sysid.py", "fit_ladder")],
-    "  rung fit (incl. consistency, bootstrap)": [("fitting/rung.py", "fit")],
-    "  nonlinear refinement": [("fitting/problem.py", "_refine_nonlinear")],
-    "  consistent fit (SDP)": [("fitting/rung.py", "_consistent_fit")],
-    "  prior weight (held-out CV)": [("inertial.py", "choose_prior_weight")],
-    "  bootstrap": [("fitting/bootstrap.py", "_block_bootstrap")],
-    "  diagnosis (candidate trials)": [("diagnosis/candidates.py", "diagnose")],
-    "  model-free ceiling": [("diagnosis/ceiling.py", "model_free_ceiling")],
-    "gap: compute (replay, metrics, figures)": [("gap.py", "compute_gap")],
-    "  replay in MuJoCo": [("gap.py", "replay")],
-    "  figures (drawn from the torque domain's part)": [("report.py", "_draw_all")],
-    "writing": [("io.py", "write_json"), ("io.py", "write_yaml"), ("io.py", "write_text")],
+    "prepare runs (rule prepare_runs, not in a round)": [("measurements/prepare.py", "prepare_for_model")],
+    "read the prepared runs": [("measurements/store.py", "read_prepared_runs")],
+    "regressors": [("assets/dynamics.py", "regressor")],
+    "nominal inverse dynamics": [("assets/dynamics.py", "inverse_dynamics")],
+    "ladder (all rungs)": [("identification/sysid.py", "fit_ladder")],
+    "  rung fit (incl. consistency, bootstrap)": [("identification/fitting/rung.py", "fit")],
+    "  nonlinear refinement": [("identification/fitting/refine.py", "_refine_nonlinear")],
+    "  consistent fit (SDP)": [("identification/fitting/rung.py", "_consistent_fit")],
+    "  prior weight (held-out CV)": [("identification/inertial/prior.py", "choose_prior_weight")],
+    "  bootstrap": [("identification/fitting/bootstrap.py", "_block_bootstrap")],
+    "  diagnosis (candidate trials)": [("identification/diagnosis/candidates.py", "diagnose")],
+    "  model-free ceiling": [("identification/diagnosis/ceiling.py", "model_free_ceiling")],
+    "gap: compute (replay, metrics, figures)": [("report/gap.py", "compute_gap")],
+    "  replay in MuJoCo": [("report/replay.py", "replay")],
+    "  figures (drawn from the torque domain's part)": [("report/figures.py", "_draw_all")],
+    "writing": [("files.py", "write_json"), ("files.py", "write_yaml"), ("files.py", "write_text")],
 }
 
 

@@ -114,12 +114,13 @@ def test_data_that_contradict_a_positive_mass_are_reported_not_hidden(lab):
 
 def test_a_long_design_is_summed_chunk_by_chunk_to_the_same_data_term(monkeypatch):
     """A long log's data term is summed in chunks of rows (its memory is a chunk's), to the same normal equations."""
+    from sim2real import blas
     from sim2real.identification import inertial
 
     rng = np.random.default_rng(5)
     design = rng.normal(size=(5000, 6)) * np.array([1.0, 10.0, 0.1, 1.0, 3.0, 1.0])
     target = design @ rng.normal(size=6) + rng.normal(scale=0.1, size=5000)
-    program = inertial._ConsistentProgram(6, np.full(6, -np.inf), None)
+    program = inertial.program._ConsistentProgram(6, np.full(6, -np.inf), None)
 
     def normal_equations(term):
         return term.root.T @ term.root, term.root.T @ term.target_root
@@ -128,8 +129,8 @@ def test_a_long_design_is_summed_chunk_by_chunk_to_the_same_data_term(monkeypatc
     parts = [slice(0, 1200), slice(2500, 5000)]
     picked = program.prepare(np.concatenate([design[p] for p in parts]), np.concatenate([target[p] for p in parts]),
                              whole.scale)
-    monkeypatch.setattr(inertial, "CHUNK_ROWS", 700)
-    assert inertial._chunks([slice(0, 1500), slice(2000, 2100)]) == [
+    monkeypatch.setattr(blas, "CHUNK_ROWS", 700)
+    assert inertial.rows._chunks([slice(0, 1500), slice(2000, 2100)]) == [
         [slice(0, 700)], [slice(700, 1400)], [slice(1400, 1500), slice(2000, 2100)]]
     chunked = program.prepare(design, target)
     np.testing.assert_allclose(chunked.scale, whole.scale, rtol=1e-12)

@@ -87,10 +87,11 @@ def test_a_design_kept_as_blocks_chooses_and_solves_to_the_same_bits(anchor, mon
     """The consistent fit hands its design over as blocks (inertial.DesignRows: rows put together a chunk at a
     time, so a long log's weighted design never exists whole): the weight, every score and the solution are
     the bits of the design put together, in one chunk (the demo) and in many."""
+    from sim2real import blas
     from sim2real.identification import inertial
 
     if chunk_rows is not None:
-        monkeypatch.setattr(inertial, "CHUNK_ROWS", chunk_rows)
+        monkeypatch.setattr(blas, "CHUNK_ROWS", chunk_rows)
     design, target = regression(anchor, 0.3 * anchor, rows=300)
     rng = np.random.default_rng(3)
     design = np.concatenate([design, rng.normal(size=(300, 1, 2))], axis=2)  # the body and another effect's block

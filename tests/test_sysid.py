@@ -152,7 +152,7 @@ def test_the_batched_inverse_dynamics_is_pinocchios_rnea_sample_by_sample(seed, 
 
 def test_the_refinement_runs_on_windows_of_the_runs_at_their_own_step_beyond_its_sample_cap():
     from sim2real.identification.effects import Signals
-    from sim2real.identification.fitting.problem import refinement_rows
+    from sim2real.identification.fitting.refine import refinement_rows
 
     lengths = [70_000, 3_000, 50_000]  # three runs at 1 kHz, one shorter than a window
     time = np.concatenate([np.arange(n) * 1e-3 for n in lengths])
@@ -182,20 +182,20 @@ def test_the_refinement_runs_on_windows_of_the_runs_at_their_own_step_beyond_its
 def test_a_long_logs_block_is_scaled_chunk_by_chunk_to_the_same_bits(samples, joints, columns, chunk, weighted, seed):
     """A long log's columns are weighted and their norms summed a chunk of samples at a time, never as one
     weighted copy: the same scale, rows and acting columns as the block taken whole (the demo's path)."""
-    from sim2real.identification import inertial
-    from sim2real.identification.fitting import problem
+    from sim2real import blas
+    from sim2real.identification.fitting import linear
 
     rng = np.random.default_rng(seed)
     block = rng.normal(size=(samples, joints, columns)) * 10.0 ** rng.normal(size=(samples, 1, 1))
     block[:, rng.integers(0, joints), rng.integers(0, columns)] = 0.0  # a column that does not act on a joint
     weights = rng.uniform(0.1, 10.0, size=joints) if weighted else None
-    whole = problem._scaled_block(block, weights)
-    original = inertial.CHUNK_ROWS
+    whole = linear._scaled_block(block, weights)
+    original = blas.CHUNK_ROWS
     try:
-        inertial.CHUNK_ROWS = chunk
-        chunked = problem._scaled_block(block, weights)
+        blas.CHUNK_ROWS = chunk
+        chunked = linear._scaled_block(block, weights)
     finally:
-        inertial.CHUNK_ROWS = original
+        blas.CHUNK_ROWS = original
     assert np.array_equal(whole.scale, chunked.scale)
     for (cols_a, rows_a), (cols_b, rows_b) in zip(whole.joints, chunked.joints, strict=True):
         assert np.array_equal(cols_a, cols_b) and np.array_equal(rows_a, rows_b)

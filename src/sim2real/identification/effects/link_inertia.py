@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, explained_per_joint, per_joint_dict
-from sim2real.identification.inertial import CHUNK_ROWS, entropic_divergence, physically_consistent
+from sim2real import blas
+from sim2real.identification.inertial import entropic_divergence, physically_consistent
 
 RELATIVE_SINGULAR_TOL = 1e-3  # directions excited 1000x less than the best are left at nominal
 STRUCTURAL_ZERO = 1e-9  # relative column norm below which a parameter does not act at all
@@ -174,8 +175,8 @@ class LinkInertia(Effect):
         # Parameters that (numerically) never act on the measured joints are not identifiable at all. Their norms
         # are summed a chunk of rows at a time (they only meet a threshold: no copy of the regressor for them).
         squares = np.zeros(n_params)
-        for start in range(0, y.shape[0], CHUNK_ROWS):
-            squares += np.sum((y[start : start + CHUNK_ROWS] * scale) ** 2, axis=0)
+        for start in range(0, y.shape[0], blas.CHUNK_ROWS):
+            squares += np.sum((y[start : start + blas.CHUNK_ROWS] * scale) ** 2, axis=0)
         norms = np.sqrt(squares)
         active = np.flatnonzero(norms > STRUCTURAL_ZERO * norms.max())
         ya = y[:, active] * scale[active]  # the scaled active columns, as (y * scale)[:, active] to the bit

@@ -28,7 +28,9 @@ package; it imports neither. Its modules, each importing only those above it:
 * :mod:`~sim2real.identification.fitting.data`: the torque data (:class:`TorqueData`, :func:`stack_runs`);
 * :mod:`~sim2real.identification.fitting.nominal`: the nominal model (:func:`load_nominal`) and its signals;
 * :mod:`~sim2real.identification.fitting.problem`: the design at given nonlinear parameters (``_Problem``), shared by
-  the fit, its consistent variant and the bootstrap; the linear solve and the nonlinear refinement;
+  the fit, its consistent variant and the bootstrap, and the fitted values (:class:`FitResult`);
+* :mod:`~sim2real.identification.fitting.linear`: the linear solve, joint by joint (a long log's design never whole);
+* :mod:`~sim2real.identification.fitting.refine`: the nonlinear refinement (variable projection);
 * :mod:`~sim2real.identification.fitting.bootstrap`: the block bootstrap and its intervals;
 * :mod:`~sim2real.identification.fitting.scoring`: noise-floor units, the prediction and the holdout metrics;
 * :mod:`~sim2real.identification.fitting.rung`: one rung's fit (:func:`fit`, :func:`fit_on_the_previous`);
@@ -52,10 +54,11 @@ from sim2real.identification.fitting.nominal import (  # noqa: F401  (re-exporte
     NominalModel, body_ellipsoids, body_hulls, _body_points, _collision_points, load_nominal, make_signals,
     resolve_armature, _urdf_link_parameters,
 )
+from sim2real.identification.fitting.linear import _linear_fit, _solve_blocks  # noqa: F401
 from sim2real.identification.fitting.problem import (  # noqa: F401  (re-exported: the package's names)
-    FitResult, _Problem, _flatten_theta, _linear_fit, _refine_nonlinear, _solve_blocks, _split_theta,
-    subset_signals, _values,
+    FitResult, _Problem, _flatten_theta, _split_theta, subset_signals, _values,
 )
+from sim2real.identification.fitting.refine import _refine_nonlinear, refinement_rows  # noqa: F401
 from sim2real.identification.fitting.rung import (  # noqa: F401  (re-exported: the package's names)
     DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, _consistent_fit, better_way, build_program, fit, fit_on_the_previous,
     _fit_way, _physical,

@@ -1,6 +1,6 @@
-"""One model on one data set: the design at given nonlinear parameters (``_Problem``), the linear solve
-with the nonlinear parameters projected out, their refinement by bounded least squares, and the
-fitted values (:class:`FitResult`)."""
+"""One model on one data set: the design at given nonlinear parameters (``_Problem``) and the fitted values
+(:class:`FitResult`). The linear solve is :mod:`~sim2real.identification.fitting.linear`'s, the refinement of the
+nonlinear parameters :mod:`~sim2real.identification.fitting.refine`'s."""
 
 from __future__ import annotations
 
@@ -9,17 +9,17 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-# Imported with the module, not when first needed: it loads scipy's own BLAS, which run_sysid's one-thread
-# limit (threadpoolctl) holds only if it is loaded by then, and the fit's last bits depend on it.
-from scipy import optimize
 
-from sim2real.identification.effects import Effect, Signals
-from sim2real.identification.effects.actuation_delay import MAX_DELAY, shift_prediction
+from sim2real import blas
 from sim2real.identification import inertial
+from sim2real.identification.effects import Effect, Signals
+from sim2real.identification.effects.actuation_delay import shift_prediction
 from sim2real.identification.fitting.data import kept_segments
 
 
 PREDICT_CHUNK_BYTES = 32 * 2**20  # the design's rows put together at once by _Problem.predict
+
+
 # An effect's columns at its last nonlinear parameters are kept up to this size (the fit, its consistent variant,
 # the predictions and the bootstrap ask for them in turn); a long log's larger blocks are computed again instead
 # of staying alive beside the arrays of the next steps.
@@ -140,7 +140,7 @@ class _Problem:
                 a is b for a, b in zip(self._weighted[0], blocks, strict=True)):
             return self._weighted[1]
         rows = inertial.DesignRows(blocks, self.weights)
-        self._weighted = (list(blocks), rows) if rows.shape[0] <= inertial.CHUNK_ROWS else None
+        self._weighted = (list(blocks), rows) if rows.shape[0] <= blas.CHUNK_ROWS else None
         return rows
 
     def _blocks(self, nonlinear: dict[str, np.ndarray]) -> tuple[list[np.ndarray], list[int]]:
@@ -209,302 +209,6 @@ def _split_theta(effects: list[Effect], flat: np.ndarray, sizes: list[int]) -> d
     return out
 
 
-def _column_blocks(design: np.ndarray, sizes: Sequence[int] | None) -> list[np.ndarray]:
-    """``design`` (N, n, p) split into its effects' column blocks (views), empty ones left out."""
-    if sizes is None:
-        return [design] if design.shape[2] else []
-    bounds = np.cumsum([0, *sizes])
-    return [design[:, :, a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True) if b > a]
-
-
-@dataclass
-class _ScaledBlock:
-    """One block of columns, weighted per joint, on unit-norm columns: per joint the columns that act on
-    it and their rows there (a friction column acts on its own joint only), and the columns' norms."""
-
-    joints: list[tuple[np.ndarray, np.ndarray]]
-    scale: np.ndarray
-
-
-def _block_scale(block: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """The weighted block's column norms (1 where a column is all zero) and which columns act on each joint (n, k)."""
-    n_samples, n, k = block.shape
-    if k < 2 or n_samples * n <= inertial.CHUNK_ROWS:  # one chunk (the demo's): numpy's own norm
-        weighted = block if weights is None else block * weights[None, :, None]
-        scale = np.linalg.norm(weighted.reshape(-1, k), axis=0)
-        acting = np.any(weighted != 0.0, axis=0)  # (n, k)
-        del weighted  # each joint's rows are weighted again later, so a long log never holds both copies
-    else:
-        # A long log's block, a chunk of samples at a time: numpy sums the squares of a column over the rows one
-        # row after the other (two or more columns), so each chunk's sum continues the last (its first row):
-        # the same bits as np.linalg.norm of the whole weighted block, which never exists.
-        squares = np.zeros((0, k))
-        acting = np.zeros((n, k), dtype=bool)
-        step = max(1, inertial.CHUNK_ROWS // n)
-        for start in range(0, n_samples, step):
-            part = block[start : start + step] if weights is None else block[start : start + step] * weights[None, :, None]
-            squares = np.add.reduce(np.concatenate([squares, (part * part).reshape(-1, k)]), axis=0, keepdims=True)
-            acting |= np.any(part != 0.0, axis=0)
-        scale = np.sqrt(squares[0])
-    scale[scale == 0] = 1.0
-    return scale, acting
-
-
-def _joint_rows(block: np.ndarray, weights: np.ndarray | None, joint: int, cols: np.ndarray,
-                scale: np.ndarray) -> np.ndarray:
-    """Joint ``joint``'s rows of the block's columns ``cols``, weighted and on unit-norm columns (a new array)."""
-    rows = block[:, joint, cols] if weights is None else block[:, joint, cols] * weights[joint]
-    rows /= scale[cols]
-    return rows
-
-
-def _scaled_block(block: np.ndarray, weights: np.ndarray | None) -> _ScaledBlock:
-    scale, acting = _block_scale(block, weights)
-    joints = []
-    for j in range(block.shape[1]):
-        cols = np.flatnonzero(acting[j])
-        joints.append((cols, _joint_rows(block, weights, j, cols, scale)))
-    return _ScaledBlock(joints, scale)
-
-
-def _normal_equations_by_joint(blocks: Sequence[np.ndarray], target: np.ndarray, weights: np.ndarray | None,
-                               ) -> tuple[list[list[np.ndarray]], list[np.ndarray], list[np.ndarray]]:
-    """Each pair of blocks' product and each block's right-hand side, as :func:`_block_product` and
-    :func:`_block_rhs` sum them (joint by joint, in joint order: the same bits), with one joint's scaled rows
-    held at a time instead of every joint's (a long log's copy of its blocks); and the blocks' scales."""
-    heads = [_block_scale(block, weights) for block in blocks]
-    products = [[np.zeros((heads[i][0].size, heads[k][0].size)) if k >= i else None for k in range(len(blocks))]
-                for i in range(len(blocks))]  # the pairs k >= i: the Gram matrix is symmetric
-    rhs = [np.zeros(scale.size) for scale, _ in heads]
-    for j in range(target.shape[1]):
-        rows = []
-        for block, (scale, acting) in zip(blocks, heads, strict=True):
-            cols = np.flatnonzero(acting[j])
-            rows.append((cols, _joint_rows(block, weights, j, cols, scale)))
-        for i, (left_cols, left_rows) in enumerate(rows):
-            if left_cols.size:
-                rhs[i][left_cols] += left_rows.T @ target[:, j]
-            for k in range(i, len(rows)):
-                right_cols, right_rows = rows[k]
-                if left_cols.size and right_cols.size:
-                    products[i][k][np.ix_(left_cols, right_cols)] += left_rows.T @ right_rows
-    return products, rhs, [scale for scale, _ in heads]
-
-
-def _block_product(left: _ScaledBlock, right: _ScaledBlock) -> np.ndarray:
-    """``left``^T ``right`` summed joint by joint in joint order, over the columns acting on each joint."""
-    out = np.zeros((left.scale.size, right.scale.size))
-    for (left_cols, left_rows), (right_cols, right_rows) in zip(left.joints, right.joints, strict=True):
-        if left_cols.size and right_cols.size:
-            out[np.ix_(left_cols, right_cols)] += left_rows.T @ right_rows
-    return out
-
-
-def _block_rhs(left: _ScaledBlock, target: np.ndarray) -> np.ndarray:
-    """``left``^T ``target`` (N, n) summed joint by joint, as :func:`_block_product`."""
-    out = np.zeros(left.scale.size)
-    for j, (cols, rows) in enumerate(left.joints):
-        if cols.size:
-            out[cols] += rows.T @ target[:, j]
-    return out
-
-
-class _GramCache:
-    """The scaled blocks, their products and right-hand sides for the blocks that stay put while the
-    refinement moves the nonlinear parameters (``static``: per non-empty block). Computed once, they are
-    the same bits :func:`_solve_blocks` computes each time."""
-
-    def __init__(self) -> None:
-        self.static: list[bool] = []
-        self._scaled: dict[int, _ScaledBlock] = {}
-        self._products: dict[tuple[int, int], np.ndarray] = {}
-        self._rhs: dict[int, np.ndarray] = {}
-        self._target: np.ndarray | None = None
-
-    def scaled(self, i: int, block: np.ndarray, weights: np.ndarray | None) -> _ScaledBlock:
-        if not self.static[i]:
-            return _scaled_block(block, weights)
-        if i not in self._scaled:
-            self._scaled[i] = _scaled_block(block, weights)
-        return self._scaled[i]
-
-    def product(self, i: int, j: int, left: _ScaledBlock, right: _ScaledBlock) -> np.ndarray:
-        if not (self.static[i] and self.static[j]):
-            return _block_product(left, right)
-        if (i, j) not in self._products:
-            self._products[i, j] = _block_product(left, right)
-        return self._products[i, j]
-
-    def rhs(self, i: int, left: _ScaledBlock, target: np.ndarray) -> np.ndarray:
-        if not self.static[i]:
-            return _block_rhs(left, target)
-        if self._target is None or not np.array_equal(self._target, target):
-            self._rhs.clear()
-            self._target = target.copy()
-        if i not in self._rhs:
-            self._rhs[i] = _block_rhs(left, target)
-        return self._rhs[i]
-
-
-def _solve_blocks(blocks: Sequence[np.ndarray], target: np.ndarray, weights: np.ndarray | None,
-                  cache: _GramCache | None) -> np.ndarray:
-    """Minimum-norm least squares on unit-norm columns (collinear columns share, never blow up), each
-    joint's rows multiplied by its weight (:func:`joint_weights`); ``blocks``: each effect's columns.
-
-    Solved through the p x p Gram matrix (pseudo-inverse by SVD): the designs are tall (samples x joints
-    rows, tens of columns), so this is many times faster than a QR of the design. The Gram matrix is summed
-    block by block and joint by joint, over the columns that act on each joint, so a block's products come
-    out the same to the last bit whichever blocks sit beside it. ``cache``: the scaled blocks and products
-    of the blocks that stay put (the refinement's, :class:`_GramCache`); None computes every block.
-    """
-    if not blocks:
-        return np.zeros(0)
-    weighted_target = target if weights is None else target * weights[None, :]
-    if cache is None:
-        products, block_rhs, scales = _normal_equations_by_joint(blocks, weighted_target, weights)
-    else:
-        scaled = [cache.scaled(i, block, weights) for i, block in enumerate(blocks)]
-        scales = [b.scale for b in scaled]
-        block_rhs = [cache.rhs(i, left, weighted_target) for i, left in enumerate(scaled)]
-        products = [[cache.product(i, k, left, scaled[k]) if k >= i else None for k in range(len(scaled))]
-                    for i, left in enumerate(scaled)]
-    bounds = np.cumsum([0] + [scale.size for scale in scales])
-    gram = np.empty((bounds[-1], bounds[-1]))
-    rhs = np.empty(bounds[-1])
-    for i in range(len(scales)):
-        rows = slice(bounds[i], bounds[i + 1])
-        rhs[rows] = block_rhs[i]
-        for k in range(i, len(scales)):
-            cols = slice(bounds[k], bounds[k + 1])
-            gram[rows, cols] = products[i][k]
-            gram[cols, rows] = products[i][k].T
-    coef = np.linalg.lstsq(gram, rhs, rcond=1e-12)[0]
-    return coef / np.concatenate(scales)
-
-
-def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndarray], iterations: int = 3,
-                cache: _GramCache | None = None):
-    """Linear parameters at fixed nonlinear ones; offsets (payload inertia) by fixed-point iteration.
-    ``cache``: the blocks that stay put between calls (:func:`_refine_nonlinear`)."""
-    # Without a time shift the effects' columns are solved as they are, never put together into one design (on a
-    # long log the largest array of a fit); the same values, so the same bits. The refinement's small problem
-    # keeps its one design, whose moving columns are rewritten in place at each step (reuse_design): faster.
-    direct = problem.delay(nonlinear) == 0.0 and not problem.reuse_design
-    if direct:
-        columns, sizes = problem._blocks(nonlinear)
-        blocks = [b for b in columns if b.shape[2]]
-    else:
-        shifted, sizes = problem.shifted_design(nonlinear)
-        blocks = _column_blocks(shifted, sizes)
-    has_offset = any(type(e).offset is not Effect.offset for e in problem.effects)
-    theta: dict[str, np.ndarray] = {}
-    for _ in range(iterations if has_offset else 1):
-        if cache is not None:
-            cache.static = [e.name in problem.static_columns for e, size in zip(problem.effects, sizes, strict=True) if size]
-        base = problem.base(theta, nonlinear)
-        flat = _solve_blocks(blocks, tau - base, problem.weights, cache)
-        theta = _split_theta(problem.effects, flat, sizes)
-    # Without offsets the base does not depend on the linear parameters: the prediction's is the one just used.
-    known = None if has_offset else base
-    predicted = (problem.predict_from_blocks(theta, nonlinear, columns, sizes, base=known) if direct
-                 else problem.predict(theta, nonlinear, (shifted, sizes), base=known))
-    return theta, tau - predicted, sizes
-
-
-def _refine_nonlinear(
-    problem: _Problem, tau: np.ndarray, settings: Mapping[str, Any], fixed: Mapping[str, np.ndarray] | None = None,
-    start: Mapping[str, np.ndarray] | None = None,
-) -> dict[str, np.ndarray]:
-    """Nonlinear parameters by bounded least squares, the linear ones projected out.
-
-    ``fixed``: nonlinear values of some effects to hold (e.g. the current model's, while the
-    diagnosis tries a candidate on top of it); ``start``: values to start from but refine again (the
-    previous rung's: a friction smoothing refined before the rotor inertia was in the model is refined
-    again once it is); a delay given there starts from it instead of the grid.
-    """
-    signals = problem.signals
-    fixed = dict(fixed or {})
-    begin = {**dict(start or {}), **fixed}
-    x0 = np.concatenate(
-        [np.asarray(begin.get(e.name, e.nonlinear_init(signals)), dtype=float) for e in problem.effects] or [np.zeros(0)]
-    )
-    if x0.size == 0:
-        return problem.split_nonlinear(x0)
-    lower = np.concatenate([e.nonlinear_bounds(signals)[0] for e in problem.effects])
-    upper = np.concatenate([e.nonlinear_bounds(signals)[1] for e in problem.effects])
-    held = np.concatenate([np.full(s, e.name in fixed) for e, s in zip(problem.effects, problem.nl_sizes, strict=True)])
-    # A previous value at its bound sits on a plateau (a sigmoid at its steepest is a sign function for every
-    # sample: its slope no longer moves the residual), where the refinement cannot leave it: start that one
-    # from its default instead.
-    default = np.concatenate(
-        [np.asarray(e.nonlinear_init(signals), dtype=float) for e in problem.effects] or [np.zeros(0)]
-    )
-    at_bound = ~held & ((x0 <= lower + 1e-9 * np.abs(lower)) | (x0 >= upper - 1e-9 * np.abs(upper)))
-    x0 = np.where(at_bound & (lower < upper), default, x0)
-    if held.all():
-        return problem.split_nonlinear(x0)
-    rows, windows = refinement_rows(signals, int(settings["refine_max_samples"]), settings.get("refine_windows_s"))
-    sub_signals = subset_signals(signals, rows)
-    if windows is not None:
-        sub_signals.segments = windows
-    sub = _Problem(problem.effects, sub_signals, problem.states, problem.weights, reuse_design=True)
-    sub_tau = tau[rows]
-
-    free = ~held
-    # While the delay stays put, so do the columns of the effects without nonlinear parameters (the link
-    # inertias, a rotor inertia): their part of the Gram matrix is computed once.
-    delay_moves = any(e.time_shift and e.name not in fixed for e in problem.effects)
-    cache = None if delay_moves else _GramCache()
-
-    def residual_full(x: np.ndarray) -> np.ndarray:
-        fitted = _linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1, cache=cache)
-        return (fitted[1] * sub.weights).reshape(-1)
-
-    def with_free(values: np.ndarray) -> np.ndarray:
-        x = x0.copy()
-        x[free] = values
-        return x
-
-    # A delay has local minima at multiples of the signal's periods, and between samples where the
-    # interpolation averages white noise away: start from a grid no coarser than the sampling step.
-    offset = 0
-    for effect, size in zip(problem.effects, problem.nl_sizes, strict=True):
-        if effect.time_shift and effect.name not in begin:
-            dt = float(np.median(np.diff(sub_signals.time))) if len(sub_signals.time) > 1 else MAX_DELAY
-            grid = np.linspace(0.0, MAX_DELAY, max(41, int(round(MAX_DELAY / dt)) + 1))
-            costs = []
-            for d in grid:
-                x = x0.copy()
-                x[offset] = d
-                costs.append(float(np.sum(residual_full(x) ** 2)))
-            x0[offset] = grid[int(np.argmin(costs))]
-        offset += size
-    # Smoothing velocities span decades: optimise their logarithm.
-    log_mask = np.concatenate(
-        [np.asarray(e.nonlinear_log_scale(signals), dtype=bool) for e in problem.effects]
-    )
-
-    def to_z(x: np.ndarray) -> np.ndarray:
-        z = x.copy()
-        z[log_mask] = np.log(x[log_mask])
-        return z
-
-    z_lower, z_upper = to_z(lower)[free], to_z(upper)[free]
-    z0 = np.clip(to_z(x0)[free], z_lower, z_upper)
-    log_free = log_mask[free]
-
-    def to_x_free(z: np.ndarray) -> np.ndarray:
-        values = z.copy()
-        values[log_free] = np.exp(z[log_free])
-        return with_free(values)
-
-    result = optimize.least_squares(
-        lambda z: residual_full(to_x_free(z)), z0, bounds=(z_lower, z_upper), method="trf", x_scale="jac",
-        diff_step=1e-3, max_nfev=60, xtol=1e-4, ftol=1e-6,
-    )
-    return problem.split_nonlinear(to_x_free(result.x))
-
-
 def subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
     """The ``rows`` (sorted) of ``signals``, as :meth:`sim2real.identification.fitting.TorqueData.subset` takes them of the data:
     what :func:`sim2real.identification.fitting.make_signals` computes on the subset, without computing it again."""
@@ -518,32 +222,6 @@ def subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
         regressor_fn=lambda: parent.regressor[rows], nominal=signals.nominal, forward=signals.forward,
         unshifted=None if signals.unshifted is None else signals.unshifted[rows], _regressor=regressor,
     )
-
-
-def refinement_rows(signals: Signals, max_samples: int, window_s: float | None = None) -> tuple[np.ndarray, list[slice] | None]:
-    """The samples the nonlinear refinement runs on, and their segments when they are not the runs'.
-
-    Up to ``max_samples``, all of them. Beyond: every k-th sample of whole runs (the time grid stays uniform,
-    k times coarser); or, with ``window_s``, windows of that length spread evenly over the runs, each its own
-    segment (a time shift never crosses them), so the sampling step stays the log's: the actuator link
-    refines a delay of a few samples. Its memory then stays put however long the log (the refinement's
-    Jacobian is samples x joints x parameters)."""
-    count = len(signals.time)
-    if window_s is None or count <= max_samples:
-        return np.arange(0, count, max(1, int(np.ceil(count / max_samples)))), None
-    dt = float(np.median(np.diff(signals.time)))
-    width = max(2, int(round(float(window_s) / dt)))
-    candidates = []
-    for seg in signals.segments:
-        length = seg.stop - seg.start
-        candidates.extend((start, start + width) for start in range(seg.start, seg.stop - width + 1, width))
-        if 0 < length < width:
-            candidates.append((seg.start, seg.stop))
-    wanted = max(1, max_samples // width)
-    picked = np.unique(np.linspace(0, len(candidates) - 1, min(wanted, len(candidates))).round().astype(int))
-    rows = np.concatenate([np.arange(*candidates[k]) for k in picked])
-    bounds = np.cumsum([0] + [candidates[k][1] - candidates[k][0] for k in picked])
-    return rows, [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
 def _values(effects: list[Effect], theta, nonlinear, signals: Signals, states) -> dict[str, Any]:
@@ -565,4 +243,3 @@ def _applied(effects: list[Effect], theta: Mapping[str, np.ndarray], signals: Si
                     and np.shape(theta[effect.name])[-1]):
                 theta[effect.name] = theta[effect.name] / np.where(np.abs(gain) > 1e-6, gain, 1.0)
     return theta
-

@@ -15,7 +15,9 @@ from sim2real.identification.fitting.bootstrap import _block_bootstrap, _prune, 
 from sim2real.identification.fitting.data import TorqueData, link_side
 from sim2real.identification.fitting.scoring import holdout_metrics, joint_weights
 from sim2real.identification.fitting.nominal import NominalModel, make_signals
-from sim2real.identification.fitting.problem import FitResult, _Problem, _linear_fit, _refine_nonlinear, _values
+from sim2real.identification.fitting.linear import _linear_fit
+from sim2real.identification.fitting.problem import FitResult, _Problem, _values
+from sim2real.identification.fitting.refine import _refine_nonlinear
 from sim2real.forked import map_forked
 from sim2real.identification.inertial import import_solver
 from sim2real.stats import rmse
