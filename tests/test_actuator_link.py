@@ -85,7 +85,7 @@ def test_a_long_logs_delay_is_refined_on_windows_at_the_logs_own_step(lab, monke
     its floor. The cap is lowered here so that the lab's short runs exceed it."""
     from sim2real.identification import links
 
-    monkeypatch.setattr(actuator, "ACTUATOR_FIT_SETTINGS",
+    monkeypatch.setattr(links, "ACTUATOR_FIT_SETTINGS",
                         {**links.ACTUATOR_FIT_SETTINGS, "refine_max_samples": 4000, "refine_windows_s": 1.0})
     link = lab.model("sensor_actuation_delay", ["actuation_delay"])["actuator"]
     delay = link["ladder"][-1]["params"]["actuation_delay"]["delay"]
