@@ -23,7 +23,8 @@ import harness  # noqa: F401  (the tests' helpers on the path)
 from sysid_lab import Lab  # noqa: E402  (the tests' lab helper: a dev Panda and short lab runs)
 
 FACTOR = 1.5
-SCENARIOS = ("real_arm_like", "link_side_sensor", "link_side_tau_only", "wrist_friction")
+SCENARIOS = ("real_arm_like", "link_side_sensor", "link_side_tau_only", "wrist_friction", "sensor_gains", "hysteresis",
+             "drift", "cogging")
 
 
 def report(document: dict, round_: int, seconds: float | None = None) -> None:

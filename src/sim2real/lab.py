@@ -27,6 +27,14 @@ joint order or a ``{joint: value}`` map):
   part would be) and its centre of mass moved (``com_offset``: ``{joint: [x, y, z]}`` m in the body
   frame), as a real arm's links differ from their CAD values.
 * ``torque_bias`` ``{bias}`` N*m and ``torque_gain`` ``{gain}``: sensor side, see below.
+* ``hysteretic_friction`` ``{level, presliding_rad}``: Dahl friction in the drive, level * z with
+  z' = (1 - z sign(dq)) dq / presliding_rad, a passive torque whose state is integrated along the simulated
+  motion (:func:`dahl_step`): hysteresis around every reversal, which no static friction law follows.
+* ``cogging`` ``{amplitude, period_rad?}``: a detent torque amplitude * sin(2 pi q / period_rad), a function of
+  the joint's position that the fit library has no effect for.
+* ``torque_drift`` ``{amplitude, time_constant_s?}``: the torque sensor warms up, its offset drifting as
+  level * (1 - exp(-t / time_constant_s)) with a level drawn anew in every run (0.5 to 1.5 x amplitude, either
+  sign): nothing of the motion explains it.
 
 Column semantics of the written runs:
 
@@ -78,6 +86,9 @@ from sim2real.files import merge_settings, read_validated_yaml, write_yaml
 EFFECTS = (
     "viscous_friction",
     "coulomb_friction",
+    "hysteretic_friction",
+    "cogging",
+    "torque_drift",
     "rotor_inertia",
     "actuation_delay",
     "payload",
@@ -358,14 +369,82 @@ def _joint_friction(effects: Mapping[str, Any], joints: Sequence[str], path: Pat
 
 
 def passive_friction(qd: np.ndarray, friction: Mapping[str, Any]) -> np.ndarray | None:
-    """The lab's friction applied as a passive torque (Gaz + Stribeck), along qd; None when there is none."""
+    """The lab's friction applied as a passive torque (Gaz + Stribeck + the hysteretic friction's present state),
+    along qd; None when there is none."""
     out = None
     if friction["gaz"] is not None:
         out = gaz_friction(qd, *friction["gaz"])
     if friction["stribeck"] is not None:
         hump = stribeck_friction(qd, *friction["stribeck"])
         out = hump if out is None else out + hump
+    if friction.get("dahl") is not None:
+        level, _ = friction["dahl"]
+        memory = level * friction["dahl_state"]
+        out = memory if out is None else out + memory
     return out
+
+
+def dahl_step(state: np.ndarray, displacement: np.ndarray, presliding: np.ndarray) -> np.ndarray:
+    """Dahl's friction state after a displacement (z' = (1 - z sign(dq)) dq / presliding, |z| <= 1): the friction
+    torque level * z rises along the motion from its value at the last reversal towards the sliding level, over a
+    few presliding lengths, and keeps its sign until the motion has reversed far enough (hysteresis)."""
+    return np.clip(state + (1.0 - state * np.sign(displacement)) * displacement / presliding, -1.0, 1.0)
+
+
+def _hysteretic_friction(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None,
+                         truth: dict[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:
+    """``hysteretic_friction``'s (level N*m, presliding length rad) per joint, or None; recorded in ``truth``."""
+    hidden = effects.get("hysteretic_friction")
+    if not hidden:
+        return None
+    where = "hysteretic_friction"
+    level = _per_joint(hidden["level"], joints, f"{where}/level", path)
+    presliding = _per_joint(hidden["presliding_rad"], joints, f"{where}/presliding_rad", path)
+    if np.any(level < 0) or np.any(~(presliding > 0)):
+        raise InputError(path, where, "a level is negative or a presliding length is not positive",
+                         "give levels >= 0 N*m and presliding lengths > 0 rad")
+    truth[where] = {"level": dict(zip(joints, level.tolist())), "presliding_rad": dict(zip(joints, presliding.tolist()))}
+    return level, presliding
+
+
+def _cogging(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None,
+             truth: dict[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:
+    """``cogging``'s (amplitude N*m, period rad) per joint, or None: a detent torque amplitude*sin(2 pi q / period)
+    that the joint's own position decides (a motor's cogging, a harmonic drive's ripple); recorded in ``truth``."""
+    hidden = effects.get("cogging")
+    if not hidden:
+        return None
+    amplitude = _per_joint(hidden["amplitude"], joints, "cogging/amplitude", path)
+    period = _per_joint(hidden.get("period_rad", 1.0), joints, "cogging/period_rad", path)
+    if np.any((amplitude != 0) & ~(period > 0)) or not np.all(np.isfinite(period)):
+        raise InputError(path, "cogging/period_rad", "a joint with an amplitude has no positive period",
+                         "give a period > 0 rad for every joint whose amplitude is not zero")
+    period = np.where(amplitude != 0, period, 1.0)  # joints without a ripple keep a harmless period
+    truth["cogging"] = {"amplitude": dict(zip(joints, amplitude.tolist())), "period_rad": dict(zip(joints, period.tolist()))}
+    return amplitude, period
+
+
+def cogging_torque(q: np.ndarray, cogging: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    amplitude, period = cogging
+    return amplitude * np.sin(2.0 * np.pi * q / period)
+
+
+def _torque_drift(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None, seed: int,
+                  truth: dict[str, Any], time: np.ndarray) -> np.ndarray | None:
+    """``torque_drift``: each joint's torque sensor warms up, its offset drifting as level * (1 - exp(-t/tau)),
+    the level a different draw in every run (between 0.5 and 1.5 times ``amplitude``, either sign), like a
+    sensor whose offset settles anew each time the arm starts. (N, n) or None."""
+    hidden = effects.get("torque_drift")
+    if not hidden:
+        return None
+    amplitude = _per_joint(hidden["amplitude"], joints, "torque_drift/amplitude", path)
+    tau = float(hidden.get("time_constant_s", 5.0))
+    if not tau > 0:
+        raise InputError(path, "torque_drift/time_constant_s", "is not positive", "give a warm-up time constant > 0 s")
+    draw = np.random.default_rng(seed + 104729)
+    level = amplitude * draw.uniform(0.5, 1.5, size=len(joints)) * draw.choice([-1.0, 1.0], size=len(joints))
+    truth["torque_drift"] = {"amplitude": dict(zip(joints, amplitude.tolist())), "time_constant_s": tau}
+    return level[None, :] * (1.0 - np.exp(-(time - time[0])[:, None] / tau))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -495,7 +574,12 @@ def simulate_run(
         steps = len(time)
 
     friction = _joint_friction(effects, joints, path, truth)
-    passive = friction["gaz"] is not None or friction["stribeck"] is not None
+    dahl = _hysteretic_friction(effects, joints, path, truth)
+    if dahl is not None:
+        friction["dahl"], friction["dahl_state"] = dahl, np.zeros(len(joints))
+    cogging = _cogging(effects, joints, path, truth)
+    drift = _torque_drift(effects, joints, path, seed, truth, time)
+    passive = friction["gaz"] is not None or friction["stribeck"] is not None or dahl is not None
     after = friction["after"]
     delay_steps = 0
     if "actuation_delay" in effects:
@@ -546,8 +630,11 @@ def simulate_run(
         out_q[k], out_qd[k], out_applied[k] = q_meas, qd_meas, applied
         real_data.ctrl[ctrl_index] = applied
         if link_side:
-            if passive:
-                real_data.qfrc_applied[dadr_r] = -passive_friction(real_data.qvel[dadr_r], friction)
+            if passive or cogging is not None:
+                torque = np.zeros(n) if not passive else -passive_friction(real_data.qvel[dadr_r], friction)
+                if cogging is not None:
+                    torque = torque + cogging_torque(real_data.qpos[qadr_r], cogging)
+                real_data.qfrc_applied[dadr_r] = torque
             mujoco.mj_forward(real, real_data)  # the acceleration the step below integrates
             link_data.qpos[:] = real_data.qpos
             link_data.qvel[:] = real_data.qvel
@@ -559,12 +646,20 @@ def simulate_run(
                 # link's inverse dynamics plus their share of the friction (the arm's motion is unchanged).
                 out_link[k] += after * _friction_now(real_data, qd_true, friction, dof_of)
         for _ in range(substeps):
-            if passive:
-                real_data.qfrc_applied[dadr_r] = -passive_friction(real_data.qvel[dadr_r], friction)
+            before = real_data.qpos[qadr_r].copy()
+            if passive or cogging is not None:
+                torque = np.zeros(n) if not passive else -passive_friction(real_data.qvel[dadr_r], friction)
+                if cogging is not None:
+                    torque = torque + cogging_torque(real_data.qpos[qadr_r], cogging)
+                real_data.qfrc_applied[dadr_r] = torque
             mujoco.mj_step(real, real_data)
+            if dahl is not None:  # the friction's memory follows the motion the step made
+                friction["dahl_state"] = dahl_step(friction["dahl_state"], real_data.qpos[qadr_r] - before, dahl[1])
 
     seen = out_link if link_side else out_applied
     tau_sensor = gain * seen + bias + float(sensors["torque_noise_std"]) * rng.standard_normal((steps, n))
+    if drift is not None:
+        tau_sensor = tau_sensor + drift
     signals = {"q": out_q, "qd": out_qd, "tau": tau_sensor, "tau_cmd": out_cmd, "q_cmd": q_des}
     columns = set(scenario["columns"])
     jitter = float(sensors.get("stamp_jitter_s", 0.0))
@@ -645,6 +740,10 @@ def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, ou
     if "actuation_delay" in effects:
         truth["actuation_delay"] = {"delay_s": round(float(effects["actuation_delay"]["delay_s"]) / dt) * dt}
     _gains_and_biases(effects, joints, Path(lab_config), truth)
+    _hysteretic_friction(effects, joints, Path(lab_config), truth)
+    _cogging(effects, joints, Path(lab_config), truth)
+    if "torque_drift" in effects:
+        _torque_drift(effects, joints, Path(lab_config), 0, truth, np.zeros(1))
     write_yaml(output, {
         "scenario": scenario,
         "joints": joints,

@@ -21,6 +21,7 @@ from sim2real.identification.effects.asymmetric_friction import AsymmetricFricti
 from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals
 from sim2real.identification.effects.command_bias import CommandBias
 from sim2real.identification.effects.coulomb_friction import CoulombFriction
+from sim2real.identification.effects.hysteretic_friction import HystereticFriction
 from sim2real.identification.effects.link_inertia import LinkInertia
 from sim2real.identification.effects.payload import Payload
 from sim2real.identification.effects.rotor_inertia import RotorInertia
@@ -37,6 +38,7 @@ EFFECTS: dict[str, Effect] = {
         CoulombFriction(),
         AsymmetricFriction(),
         StribeckFriction(),
+        HystereticFriction(),
         RotorInertia(),
         ActuationDelay(),
         Payload(),
