@@ -1,6 +1,6 @@
-"""Every command the README shows works (issue 21).
+"""Every command the README and the pages of docs/ show works (issues 21 and 31).
 
-The command list comes from the README itself: each line of its ``bash`` blocks (continuations joined,
+The command list comes from the README and docs/*.md themselves (in that order): each line of their ``bash`` blocks (continuations joined,
 ``&&`` chains split, comments dropped) must match one entry of COVERAGE, which says how this test runs
 it or why it cannot here; a command the README gains without an entry fails the test. The commands run
 as written, in the order the README gives them, in a copy of the project at fast settings (coarse
@@ -26,7 +26,9 @@ import yaml
 from buildtree import copy_repo, make_fast
 
 ROOT = Path(__file__).resolve().parents[1]
-README = (ROOT / "README.md").read_text(encoding="utf-8")
+# The README first, then every page of docs/: what a newcomer reads, and every command they may type.
+README = "\n".join(path.read_text(encoding="utf-8")
+                   for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))])
 pytestmark = pytest.mark.slow
 
 RUN, HELP, SKIP = "run", "help", "skip"
