@@ -211,7 +211,7 @@ def test_link_side_sensor_is_applied_torque_minus_the_drive_terms(dev, case):
     """Noise-free link-side tau against the real arm's forward dynamics at the logged true state: the applied
     torque minus rotor inertia * qacc, plus the joint's damping, frictionloss and Gaz torques (all negative
     work on the rotor), which the full model's forward dynamics computes independently of the lab's link model."""
-    from sim2real.lab import _apply_spec_effects, arm_spec, compile_arm
+    from sim2real.lab.arm import _apply_spec_effects, arm_spec, compile_arm
 
     config = load_lab_config(dev["lab"])
     joints = config["joints"]
@@ -343,7 +343,7 @@ def _rigid_body_torque(mjcf, joints, effects, signals) -> np.ndarray:
 
 
 def _with_effects(spec, joints, effects):
-    from sim2real.lab import _apply_spec_effects
+    from sim2real.lab.arm import _apply_spec_effects
 
     _apply_spec_effects(spec, joints, effects, None)
     return spec

@@ -74,9 +74,9 @@ def test_a_warm_up_drift_ends_unexplained_and_the_report_says_it_drifts_with_tim
 
 
 def test_a_cogging_ripple_puts_the_ceiling_well_below_the_last_rung_on_its_joint(lab):
-    """A position ripple on panda_joint4 (the lab's ``cogging``), which the library has no effect for: the loop
+    """A position ripple on panda_joint4 (the lab's ``ripple``), which the library has no effect for: the loop
     stops short of the floor there, and the ceiling says a function of the motion would go well below it."""
-    last = lab.follow("cogging")[-1]
+    last = lab.follow("ripple")[-1]
     row = last["diagnosis"]["model_free"]["per_joint"]["panda_joint4"]
     assert row["kind"] == "motion", row
     assert row["ceiling_rmse"] < 0.85 * row["rung_rmse"], row

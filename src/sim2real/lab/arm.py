@@ -1,0 +1,147 @@
+"""The torque-driven arm built from the MJCF (the lab's and the gap report's replay), and the hidden effects that
+live in the model itself (link inertias, payload, armature, damping, dry friction, gains and offsets)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from sim2real.errors import InputError
+from sim2real.lab.config import _per_joint, _per_joint_vectors
+
+
+def arm_spec(mjcf_path: str | Path, joints: Sequence[str]) -> mujoco.MjSpec:
+    """The MJCF as a torque-driven arm: unmeasured joints welded, one motor per measured joint.
+
+    Existing actuators, equalities and tendons are removed (they involve the welded gripper or
+    implement position control); contacts are disabled (free-space motion). Used by the lab and by
+    the gap report's replay so both drive the robot the same way: ``ctrl`` = joint torque.
+    """
+    mjcf_path = Path(mjcf_path)
+    try:
+        spec = mujoco.MjSpec.from_file(str(mjcf_path))
+    except Exception as exc:
+        raise InputError(mjcf_path, None, f"MuJoCo cannot load it ({exc})", "rebuild the MJCF") from exc
+    names = [j.name for j in spec.joints]
+    unknown = [j for j in joints if j not in names]
+    if unknown:
+        raise InputError(mjcf_path, f"joint(s) {', '.join(unknown)}", "not in the MJCF", f"use {', '.join(names)}")
+    for actuator in list(spec.actuators):
+        spec.delete(actuator)
+    for equality in list(spec.equalities):
+        spec.delete(equality)
+    for tendon in list(spec.tendons):
+        spec.delete(tendon)
+    for sensor in list(spec.sensors):
+        spec.delete(sensor)
+    for joint in list(spec.joints):
+        if joint.name not in joints:
+            spec.delete(joint)
+    for key in list(spec.keys):
+        spec.delete(key)
+    for body in spec.bodies:
+        body.gravcomp = 0.0
+    for name in joints:
+        actuator = spec.add_actuator()
+        actuator.name = f"motor_{name}"
+        actuator.target = name
+        actuator.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        actuator.ctrllimited = 0
+        actuator.forcelimited = 0
+        actuator.set_to_motor()
+        spec.joint(name).actfrclimited = 0
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    return spec
+
+
+def compile_arm(spec: mujoco.MjSpec, joints: Sequence[str]) -> tuple[mujoco.MjModel, np.ndarray, np.ndarray]:
+    """Compile; return the model and the qpos/dof indices of the joints in the caller's order."""
+    model = spec.compile()
+    qadr = np.array([model.jnt_qposadr[model.joint(j).id] for j in joints])
+    dadr = np.array([model.jnt_dofadr[model.joint(j).id] for j in joints])
+    if model.nq != len(joints) or model.nv != len(joints):
+        raise InputError(None, "MJCF", f"arm has nq={model.nq}, nv={model.nv} for {len(joints)} measured joints",
+                         "measure every 1-DoF joint of the arm (others are welded)")
+    return model, qadr, dadr
+
+
+def _apply_spec_effects(spec: mujoco.MjSpec, joints: Sequence[str], effects: Mapping[str, Any],
+                        path: Path | None) -> dict[str, Any]:
+    """Effects that live in the model itself; returns the resolved hidden values for truth.yaml."""
+    truth: dict[str, Any] = {}
+    if "viscous_friction" in effects:
+        values = _per_joint(effects["viscous_friction"]["coefficient"], joints, "viscous_friction", path)
+        for j, v in zip(joints, values):
+            # MuJoCo 4 joint damping is a polynomial in velocity: only the linear term is viscous.
+            damping = np.array(spec.joint(j).damping, dtype=float).reshape(-1)
+            damping[0] += v
+            spec.joint(j).damping = damping
+        truth["viscous_friction"] = {"coefficient": dict(zip(joints, values.tolist()))}
+    coulomb = effects.get("coulomb_friction")
+    if coulomb and coulomb.get("model", "sign") == "sign":
+        values = _per_joint(coulomb["coefficient"], joints, "coulomb_friction", path)
+        for j, v in zip(joints, values):
+            spec.joint(j).frictionloss = spec.joint(j).frictionloss + v
+        truth["coulomb_friction"] = {"model": "sign", "coefficient": dict(zip(joints, values.tolist()))}
+    if "rotor_inertia" in effects:
+        values = _per_joint(effects["rotor_inertia"]["armature"], joints, "rotor_inertia", path)
+        for j, v in zip(joints, values):
+            spec.joint(j).armature = spec.joint(j).armature + v
+        truth["rotor_inertia"] = {"armature": dict(zip(joints, values.tolist()))}
+    if "link_inertia" in effects:
+        link = effects["link_inertia"]
+        moving = [spec.joint(j).parent for j in joints]
+        scales = _per_joint(link.get("scale", 1.0), joints, "link_inertia/scale", path)
+        scales = scales * _per_joint(link.get("mass_scale", 1.0), joints, "link_inertia/mass_scale", path)
+        if np.any(scales <= 0):
+            raise InputError(path, "link_inertia/mass_scale", "a mass scale is not positive", "give factors > 0")
+        offsets = _per_joint_vectors(link.get("com_offset", {}), joints, "link_inertia/com_offset", path)
+        for body, scale, offset in zip(moving, scales, offsets):
+            body.mass = body.mass * scale
+            body.inertia = np.asarray(body.inertia) * scale
+            if np.all(np.isfinite(body.fullinertia)):
+                body.fullinertia = np.asarray(body.fullinertia) * scale
+            body.ipos = np.asarray(body.ipos) + offset
+        truth["link_inertia"] = {
+            "mass_scale": {b.name: float(s) for b, s in zip(moving, scales)},
+            "com_offset": {b.name: o.tolist() for b, o in zip(moving, offsets) if np.any(o)},
+        }
+    if "payload" in effects:
+        payload = effects["payload"]
+        body_name = payload.get("body") or spec.joint(joints[-1]).parent.name
+        parent = spec.body(body_name)
+        if parent is None:
+            raise InputError(path, "payload/body", f"no body '{body_name}'", "name a body of the MJCF")
+        com = np.asarray(payload.get("com", [0.0, 0.0, 0.0]), dtype=float)
+        mass = float(payload["mass"])
+        radius = float(payload.get("radius", 0.03))
+        child = parent.add_body()
+        child.name = "lab_payload"
+        child.pos = com
+        child.mass = mass
+        child.inertia = np.full(3, 0.4 * mass * radius**2)  # solid sphere
+        child.explicitinertial = True
+        truth["payload"] = {"mass": mass, "com": com.tolist(), "body": body_name, "radius": radius}
+    return truth
+
+
+# Per-joint gains and offsets: (effect, its key, the value when absent). The motor's act on the command
+# before the joint, the sensor's on the measured torque after it.
+GAINS_AND_BIASES = (("actuator_gain", "gain", 1.0), ("command_bias", "bias", 0.0),
+                    ("torque_gain", "gain", 1.0), ("torque_bias", "bias", 0.0))
+
+
+def _gains_and_biases(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None,
+                      truth: dict[str, Any]) -> dict[str, np.ndarray]:
+    """Each of :data:`GAINS_AND_BIASES` per joint; the hidden ones are recorded in ``truth``."""
+    out = {}
+    for name, key, absent in GAINS_AND_BIASES:
+        out[name] = np.full(len(joints), absent)
+        if name in effects:
+            out[name] = _per_joint(effects[name][key], joints, name, path)
+            truth[name] = {key: dict(zip(joints, out[name].tolist()))}
+    return out

@@ -1,0 +1,295 @@
+"""One run of a scenario: the excitation, the controller on the nominal model, the real arm with its hidden
+effects, the sensors (:func:`simulate_run`), and the files it writes (:func:`run_lab_scenario_run`, truth.yaml)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from sim2real.errors import InputError
+from sim2real.files import write_yaml
+from sim2real.lab.arm import _apply_spec_effects, _gains_and_biases, arm_spec, compile_arm
+from sim2real.lab.config import EFFECTS, _per_joint, load_lab_config, read_excitation, scenario_runs
+from sim2real.lab.hidden import (
+    _cogging, _hysteretic_friction, _joint_friction, _torque_drift, cogging_torque, dahl_step, passive_friction,
+)
+
+
+def fourier_excitation(
+    time: np.ndarray, lower: np.ndarray, upper: np.ndarray, velocity_limit: np.ndarray, settings: Mapping[str, Any],
+    seed: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Finite Fourier series q(t) = q0 + sum_l a_l/(w l) sin(w l t) - b_l/(w l) cos(w l t), per joint.
+
+    Random coefficients (seeded) scaled so that |q - q0| stays within position_fraction of the half range
+    and |qd| within velocity_fraction of the velocity limit. Returns q, qd, qdd, each (N, n).
+    """
+    rng = np.random.default_rng(seed)
+    n = lower.size
+    harmonics = int(settings["harmonics"])
+    w = float(settings["base_frequency_rad_s"])
+    ell = np.arange(1, harmonics + 1)
+    a = rng.normal(size=(n, harmonics))
+    b = rng.normal(size=(n, harmonics))
+    wt = np.outer(time, w * ell)  # (N, L)
+    sin, cos = np.sin(wt), np.cos(wt)
+    # offsets chosen so the series is zero-mean; scale applied after
+    dq = (sin @ (a / (w * ell)).T) - (cos @ (b / (w * ell)).T)
+    dqd = cos @ a.T + sin @ b.T
+    dqdd = -(sin @ (a * w * ell).T) + cos @ (b * w * ell).T
+    q0 = 0.5 * (lower + upper)
+    half_range = 0.5 * (upper - lower)
+    scale_pos = settings["position_fraction"] * half_range / np.max(np.abs(dq), axis=0)
+    scale_vel = settings["velocity_fraction"] * velocity_limit / np.max(np.abs(dqd), axis=0)
+    scale = np.minimum(scale_pos, scale_vel)
+    return q0 + dq * scale, dqd * scale, dqdd * scale
+
+
+TORQUE_SENSORS = ("motor", "link")
+
+
+def _torque_sensor(scenario: Mapping[str, Any], path: Path | None) -> str:
+    """``sensors.torque_sensor`` of a scenario: ``motor`` (the default) or ``link``."""
+    where = str(scenario.get("sensors", {}).get("torque_sensor", "motor"))
+    if where not in TORQUE_SENSORS:
+        raise InputError(path, "sensors/torque_sensor", f"unknown torque sensor '{where}'",
+                         f"use one of {', '.join(TORQUE_SENSORS)}")
+    return where
+
+
+def _link_side_model(mjcf_path: str | Path, joints: Sequence[str], effects: Mapping[str, Any],
+                     path: Path | None) -> mujoco.MjModel:
+    """The real arm (hidden effects included) without its drive terms: no armature, damping or
+    frictionloss on the measured joints. Its inverse dynamics is the torque transmitted to the links."""
+    spec = arm_spec(mjcf_path, joints)
+    _apply_spec_effects(spec, joints, effects, path)
+    for name in joints:
+        joint = spec.joint(name)
+        joint.armature = 0.0
+        joint.damping = np.zeros_like(np.array(joint.damping, dtype=float).reshape(-1))
+        joint.frictionloss = 0.0
+    return compile_arm(spec, joints)[0]
+
+
+def _nominal_torque(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray, qd: np.ndarray,
+                    qdd: np.ndarray, qadr: np.ndarray, dadr: np.ndarray) -> np.ndarray:
+    data.qpos[qadr] = q
+    data.qvel[dadr] = qd
+    data.qacc[dadr] = qdd
+    mujoco.mj_inverse(model, data)
+    return data.qfrc_inverse[dadr].copy()
+
+
+def _friction_now(data: mujoco.MjData, qd: np.ndarray, friction: Mapping[str, Any],
+                  dof_of: Mapping[int, int]) -> np.ndarray:
+    """Each joint's friction torque at the forward-computed sample, along the velocity: the passive torques
+    at the true velocity plus MuJoCo's dry friction (frictionloss rows of the constraint solver)."""
+    out = passive_friction(qd, friction)
+    out = np.zeros(len(qd)) if out is None else out.copy()
+    for row in np.flatnonzero(data.efc_type[:data.nefc] == mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF):
+        joint = dof_of.get(int(data.efc_id[row]))
+        if joint is not None:
+            out[joint] -= data.efc_force[row]  # the constraint force opposes the motion
+    return out
+
+
+def simulate_run(
+    mjcf_path: str | Path, joints: Sequence[str], scenario: Mapping[str, Any], seed: int,
+    config_path: str | Path | None = None,
+    trajectory: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, Any]]:
+    """Simulate one run of a scenario: (time, {column kind: (N, n)}, resolved hidden values).
+
+    ``trajectory`` (time, q, qd, qdd at the scenario's rate): the desired motion to play instead of the
+    scenario's random Fourier series (a designed excitation, :func:`read_excitation`).
+    """
+    path = Path(config_path) if config_path else None
+    effects = dict(scenario.get("effects") or {})
+    unknown = [e for e in effects if e not in EFFECTS]
+    if unknown:
+        raise InputError(path, f"effects/{unknown[0]}", "unknown effect", f"use one of {', '.join(EFFECTS)}")
+
+    nominal_spec = arm_spec(mjcf_path, joints)
+    real_spec = arm_spec(mjcf_path, joints)
+    truth = _apply_spec_effects(real_spec, joints, effects, path)
+    rate = float(scenario["sample_rate_hz"])
+    substeps = int(scenario["substeps"])
+    dt = 1.0 / rate
+    nominal, qadr, dadr = compile_arm(nominal_spec, joints)
+    real, qadr_r, dadr_r = compile_arm(real_spec, joints)
+    for model in (nominal, real):
+        model.opt.timestep = dt / substeps
+    nominal_data, real_data = mujoco.MjData(nominal), mujoco.MjData(real)
+    n = len(joints)
+
+    lower = nominal.jnt_range[[nominal.joint(j).id for j in joints], 0]
+    upper = nominal.jnt_range[[nominal.joint(j).id for j in joints], 1]
+    vel_limit = _per_joint(scenario.get("velocity_limit", 2.0), joints, "velocity_limit", path)
+    if trajectory is None:
+        steps = int(round(float(scenario["duration_s"]) * rate))
+        time = np.arange(steps) * dt
+        q_des, qd_des, qdd_des = fourier_excitation(time, lower, upper, vel_limit, scenario["excitation"], seed)
+    else:
+        time, q_des, qd_des, qdd_des = trajectory
+        steps = len(time)
+
+    friction = _joint_friction(effects, joints, path, truth)
+    dahl = _hysteretic_friction(effects, joints, path, truth)
+    if dahl is not None:
+        friction["dahl"], friction["dahl_state"] = dahl, np.zeros(len(joints))
+    cogging = _cogging(effects, joints, path, truth)
+    drift = _torque_drift(effects, joints, path, seed, truth, time)
+    passive = friction["gaz"] is not None or friction["stribeck"] is not None or dahl is not None
+    after = friction["after"]
+    delay_steps = 0
+    if "actuation_delay" in effects:
+        delay_steps = int(round(float(effects["actuation_delay"]["delay_s"]) * rate))
+        truth["actuation_delay"] = {"delay_s": delay_steps * dt}
+    scales = _gains_and_biases(effects, joints, path, truth)
+    motor_gain, motor_bias = scales["actuator_gain"], scales["command_bias"]
+    gain, bias = scales["torque_gain"], scales["torque_bias"]
+
+    sensors = scenario["sensors"]
+    # A link-side torque sensor: the rigid-body inverse dynamics of the real arm without its drive terms,
+    # at each sample's true state and acceleration (two MuJoCo calls per sample, only when tau is logged).
+    link_side = _torque_sensor(scenario, path) == "link" and "tau" in scenario["columns"]
+    if link_side:
+        real_link = _link_side_model(mjcf_path, joints, effects, path)
+        link_data = mujoco.MjData(real_link)
+        dadr_l = np.array([real_link.jnt_dofadr[real_link.joint(j).id] for j in joints])
+        out_link = np.empty((steps, n))
+        dof_of = {int(d): i for i, d in enumerate(dadr_r)}
+    controller = scenario["controller"]
+    kp = _per_joint(controller["kp"], joints, "controller/kp", path)
+    kd = _per_joint(controller["kd"], joints, "controller/kd", path)
+    rng = np.random.default_rng(seed + 7919)  # sensor noise stream, independent of the excitation draw
+    resolution = float(sensors["encoder_resolution_rad"])
+    vel_noise = float(sensors["velocity_noise_std"])
+
+    real_data.qpos[qadr_r] = q_des[0]
+    real_data.qvel[dadr_r] = qd_des[0]
+    out_q = np.empty((steps, n))
+    out_qd = np.empty((steps, n))
+    out_cmd = np.empty((steps, n))
+    out_applied = np.empty((steps, n))
+    ctrl_index = np.array([real.actuator(f"motor_{j}").id for j in joints])
+    for k in range(steps):
+        q_true = real_data.qpos[qadr_r]
+        qd_true = real_data.qvel[dadr_r]
+        q_meas = np.round(q_true / resolution) * resolution if resolution > 0 else q_true.copy()
+        qd_meas = qd_true + vel_noise * rng.standard_normal(n)
+        if controller["type"] == "computed_torque":
+            acc = qdd_des[k] + kp * (q_des[k] - q_meas) + kd * (qd_des[k] - qd_meas)
+            cmd = _nominal_torque(nominal, nominal_data, q_meas, qd_meas, acc, qadr, dadr)
+        else:  # PD plus gravity compensation on the nominal model
+            gravity = _nominal_torque(nominal, nominal_data, q_meas, np.zeros(n), np.zeros(n), qadr, dadr)
+            cmd = kp * (q_des[k] - q_meas) + kd * (qd_des[k] - qd_meas) + gravity
+        out_cmd[k] = cmd
+        # Actuation delay: the motor applies an older command, through its own gain and offset.
+        applied = motor_gain * out_cmd[max(k - delay_steps, 0)] + motor_bias
+        out_q[k], out_qd[k], out_applied[k] = q_meas, qd_meas, applied
+        real_data.ctrl[ctrl_index] = applied
+        if link_side:
+            if passive or cogging is not None:
+                torque = np.zeros(n) if not passive else -passive_friction(real_data.qvel[dadr_r], friction)
+                if cogging is not None:
+                    torque = torque + cogging_torque(real_data.qpos[qadr_r], cogging)
+                real_data.qfrc_applied[dadr_r] = torque
+            mujoco.mj_forward(real, real_data)  # the acceleration the step below integrates
+            link_data.qpos[:] = real_data.qpos
+            link_data.qvel[:] = real_data.qvel
+            link_data.qacc[:] = real_data.qacc
+            mujoco.mj_inverse(real_link, link_data)
+            out_link[k] = link_data.qfrc_inverse[dadr_l]
+            if np.any(after > 0):
+                # Output bearings and seals sit between the sensor and the link: the sensor transmits the
+                # link's inverse dynamics plus their share of the friction (the arm's motion is unchanged).
+                out_link[k] += after * _friction_now(real_data, qd_true, friction, dof_of)
+        for _ in range(substeps):
+            before = real_data.qpos[qadr_r].copy()
+            if passive or cogging is not None:
+                torque = np.zeros(n) if not passive else -passive_friction(real_data.qvel[dadr_r], friction)
+                if cogging is not None:
+                    torque = torque + cogging_torque(real_data.qpos[qadr_r], cogging)
+                real_data.qfrc_applied[dadr_r] = torque
+            mujoco.mj_step(real, real_data)
+            if dahl is not None:  # the friction's memory follows the motion the step made
+                friction["dahl_state"] = dahl_step(friction["dahl_state"], real_data.qpos[qadr_r] - before, dahl[1])
+
+    seen = out_link if link_side else out_applied
+    tau_sensor = gain * seen + bias + float(sensors["torque_noise_std"]) * rng.standard_normal((steps, n))
+    if drift is not None:
+        tau_sensor = tau_sensor + drift
+    signals = {"q": out_q, "qd": out_qd, "tau": tau_sensor, "tau_cmd": out_cmd, "q_cmd": q_des}
+    columns = set(scenario["columns"])
+    jitter = float(sensors.get("stamp_jitter_s", 0.0))
+    if jitter > 0:
+        # Stamps wander around the sample instants; a real logger never writes them out of order.
+        stamps = time + jitter * rng.standard_normal(steps)
+        time = np.maximum.accumulate(np.clip(stamps, time - 0.45 * dt, time + 0.45 * dt))
+    return time, {k: v for k, v in signals.items() if k in columns}, truth
+
+
+def run_lab_scenario_run(
+    mjcf_path: str | Path, lab_config: str | Path, robot: str, scenario: str, run: str, output: str | Path,
+    excitation: str | Path | None = None,
+) -> None:
+    """Simulate one run of ``scenario`` and write it (table + metadata) to ``output``.
+
+    ``excitation``: the designed trajectory's CSV when the run names one (:func:`excitation_design`).
+    """
+    from sim2real.measurements import write_run
+
+    config = load_lab_config(lab_config)
+    runs = {r["name"]: r for r in scenario_runs(lab_config, scenario)}
+    if run not in runs:
+        raise InputError(lab_config, f"scenarios/{scenario}/runs", f"no run '{run}'", f"use {', '.join(runs)}")
+    settings = config["scenarios"][scenario]
+    trajectory = None
+    if excitation is not None:
+        trajectory = read_excitation(excitation, config["joints"], float(settings["sample_rate_hz"]),
+                                     f"scenarios/{scenario}/runs/{run}/excitation", lab_config)
+    time, signals, _ = simulate_run(mjcf_path, config["joints"], settings, int(runs[run]["seed"]), lab_config,
+                                    trajectory)
+    meta = {
+        "robot": robot,
+        "source": "synthetic",
+        "control_mode": "torque",
+        "sample_rate_hz": float(settings["sample_rate_hz"]),
+        **({"torque_sensor": _torque_sensor(settings, Path(lab_config))} if "tau" in signals else {}),
+        "notes": f"virtual lab scenario '{scenario}', run '{run}' (seed {runs[run]['seed']}"
+                 + (f", designed excitation '{runs[run]['excitation']}'" if excitation is not None else "") + "); "
+                 "hidden effects are in truth.yaml, which no comparison reads",
+    }
+    write_run(output, time, config["joints"], signals, meta)
+
+
+def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, output: str | Path) -> None:
+    """truth.yaml: the hidden effects with their resolved values, and the scenario's settings."""
+    config = load_lab_config(lab_config)
+    settings = config["scenarios"][scenario]
+    joints = config["joints"]
+    spec = arm_spec(mjcf_path, joints)
+    truth = _apply_spec_effects(spec, joints, settings.get("effects") or {}, Path(lab_config))
+    effects = settings.get("effects") or {}
+    _joint_friction(effects, joints, Path(lab_config), truth)
+    dt = 1.0 / float(settings["sample_rate_hz"])
+    if "actuation_delay" in effects:
+        truth["actuation_delay"] = {"delay_s": round(float(effects["actuation_delay"]["delay_s"]) / dt) * dt}
+    _gains_and_biases(effects, joints, Path(lab_config), truth)
+    _hysteretic_friction(effects, joints, Path(lab_config), truth)
+    _cogging(effects, joints, Path(lab_config), truth)
+    if "torque_drift" in effects:
+        _torque_drift(effects, joints, Path(lab_config), 0, truth, np.zeros(1))
+    write_yaml(output, {
+        "scenario": scenario,
+        "joints": joints,
+        "effects": truth,
+        "sensors": settings["sensors"],
+        "controller": settings["controller"],
+        "columns": list(settings["columns"]),
+    })
