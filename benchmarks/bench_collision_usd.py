@@ -43,7 +43,7 @@ def decompose_all(tree: Path, robot: str, cores: int) -> float:
 
 def usd_seconds(tree: Path, robot: str) -> tuple[float, float]:
     """(build_usd call in-process, the Snakemake rule's job incl. interpreter start) in seconds."""
-    from sim2real.collision import part_files
+    from sim2real.assets.collision import part_files
     from sim2real.assets.urdf import mesh_names
     from sim2real.assets.usd import build_usd
 

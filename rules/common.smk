@@ -4,7 +4,7 @@ import functools
 import glob
 import os
 
-import sim2real.collision as _sim2real_collision
+import sim2real.assets.collision as _sim2real_collision
 import sim2real.design_names as _sim2real_design_names
 import sim2real.measurements.campaigns as _sim2real_campaigns
 import sim2real.files as _sim2real_files

@@ -1,7 +1,7 @@
 """Snakemake script: URDF + meshes -> MJCF + scene.xml (sim2real.assets.mjcf.build_mjcf)."""
 
 from sim2real.cli import rule_entry
-from sim2real.collision import parts_by_uri
+from sim2real.assets.collision import parts_by_uri
 from sim2real.identification.effects import spec_edit_from_params
 from sim2real.assets.mjcf import build_mjcf
 

@@ -3,7 +3,7 @@
 import logging
 
 from sim2real.cli import rule_entry
-from sim2real.collision import parts_by_uri
+from sim2real.assets.collision import parts_by_uri
 from sim2real.assets.usd import build_usd
 
 with rule_entry(snakemake):

@@ -1,9 +1,9 @@
-"""Snakemake script: one mesh -> CoACD convex parts + parts.json (sim2real.collision.decompose)."""
+"""Snakemake script: one mesh -> CoACD convex parts + parts.json (sim2real.assets.collision.decompose)."""
 
 import logging
 
 from sim2real.cli import rule_entry
-from sim2real.collision import MeshSettings, decompose, write_timing
+from sim2real.assets.collision import MeshSettings, decompose, write_timing
 
 with rule_entry(snakemake):
     result = decompose(

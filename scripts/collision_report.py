@@ -3,7 +3,7 @@
 import logging
 
 from sim2real.cli import rule_entry
-from sim2real.collision import Tolerance, collision_report
+from sim2real.assets.collision import Tolerance, collision_report
 
 with rule_entry(snakemake):
     names = list(snakemake.params.names)

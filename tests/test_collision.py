@@ -13,7 +13,7 @@ import trimesh
 
 from buildtree import edit_yaml, run_snakemake
 from collision_usd_build import ROBOT, TARGETS, fast_panda_build
-from sim2real.collision import (
+from sim2real.assets.collision import (
     CoacdSettings,
     MeshSettings,
     Tolerance,

@@ -110,7 +110,7 @@ def stage(module: str) -> str:
     part = module.split(".")[1] if "." in module else module
     if part in SHARED:
         return "shared"
-    return "assets" if part == "collision" else part
+    return part
 
 
 def test_each_stage_imports_only_the_stages_below_it():
