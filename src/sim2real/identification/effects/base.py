@@ -209,3 +209,37 @@ class Effect:
 
     def calibration(self, values: dict[str, Any], calibration: dict[str, Any]) -> None:
         """Write the values URDF can hold into the calibration dict consumed by the Xacro (in place)."""
+
+
+class DiagonalEffect(Effect):
+    """A per-joint term ``value_j * feature_j`` whose total value (the nominal's, from the URDF or the MJCF, plus
+    the fit's) is never negative: rotor inertia on ``qdd``, viscous friction on ``qd``. A subclass names its
+    parameter (:attr:`parameters`, whose name is also the nominal model's key) and its :attr:`feature`."""
+
+    drive = True
+    feature: ClassVar[str]  # the Signals array the term is proportional to: "qd" or "qdd"
+    values_stacked = True
+
+    @property
+    def key(self) -> str:
+        return self.parameters[0].name
+
+    def _nominal(self, signals: Signals) -> np.ndarray:
+        return np.asarray(signals.nominal.get(self.key, np.zeros(signals.n)), dtype=float)
+
+    def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
+        return diagonal_columns(getattr(signals, self.feature)), [ColumnLabel(self.key, j) for j in signals.joint_names]
+
+    def theta_lower(self, signals, size):
+        return -self._nominal(signals)  # the total (nominal + fitted) is never negative
+
+    def values(self, theta, nonlinear, signals, state):
+        return {self.key: per_joint_dict(signals.joint_names, self._nominal(signals) + theta, 6)}
+
+    def evidence(self, residual, signals):
+        feature = getattr(signals, self.feature)
+        return {
+            "signature": self.signature,
+            "statistic": f"correlation of residual with {self.feature}",
+            "per_joint": per_joint_dict(signals.joint_names, correlation_per_joint(residual, feature), 3),
+        }
