@@ -50,6 +50,20 @@ def _grid(n: int) -> tuple[Figure, np.ndarray]:
     return fig, axes.flat
 
 
+def _label(ax: Any, joint: str, xlabel: str, ylabel: str) -> None:
+    """One joint's axes of a grid: its name, its units."""
+    ax.set_title(joint, fontsize=9)
+    ax.set_xlabel(xlabel, fontsize=8)
+    ax.set_ylabel(ylabel, fontsize=8)
+    ax.tick_params(labelsize=7)
+
+
+def _finish(fig: Figure, title: str, target: str | Path) -> None:
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    _save(fig, target)
+
+
 def _pick_run(comparisons: Sequence[Any]) -> Any:
     holdout = [c for c in comparisons if c.role == "holdout"]
     return (holdout or list(comparisons))[0]
@@ -66,14 +80,9 @@ def figure_torque(comparisons: Sequence[Any], target: str | Path) -> None:
     for j, (ax, joint) in enumerate(zip(axes, run.joint_names)):
         ax.plot(t, run.tau[:n_show:stride, j], lw=0.6, color="0.35", label=f"measured ({run.torque_source})")
         ax.plot(t, c.model_tau[:n_show:stride, j], lw=0.9, color="C3", label="model")
-        ax.set_title(joint, fontsize=9)
-        ax.set_xlabel("time [s]", fontsize=8)
-        ax.set_ylabel("torque [N m]", fontsize=8)
-        ax.tick_params(labelsize=7)
+        _label(ax, joint, "time [s]", "torque [N m]")
     axes[0].legend(fontsize=7)
-    fig.suptitle(f"Measured vs model torque, run '{run.name}'", fontsize=10)
-    fig.tight_layout()
-    _save(fig, target)
+    _finish(fig, f"Measured vs model torque, run '{run.name}'", target)
 
 
 def figure_residual_velocity(comparisons: Sequence[Any], target: str | Path) -> None:
@@ -87,13 +96,8 @@ def figure_residual_velocity(comparisons: Sequence[Any], target: str | Path) -> 
         ax.scatter(qd[::step, j], res[::step, j], s=1.5, color="C0", alpha=0.5, rasterized=True)
         ax.axhline(0, color="0.5", lw=0.5)
         ax.axvline(0, color="0.5", lw=0.5)
-        ax.set_title(joint, fontsize=9)
-        ax.set_xlabel("velocity [rad/s]", fontsize=8)
-        ax.set_ylabel("residual [N m]", fontsize=8)
-        ax.tick_params(labelsize=7)
-    fig.suptitle("Torque residual (measured - model) vs velocity", fontsize=10)
-    fig.tight_layout()
-    _save(fig, target)
+        _label(ax, joint, "velocity [rad/s]", "residual [N m]")
+    _finish(fig, "Torque residual (measured - model) vs velocity", target)
 
 
 SMOOTH_S = 1.0  # the residual against time is drawn with its moving mean over this window: a drift shows
@@ -117,14 +121,9 @@ def figure_residual_time(comparisons: Sequence[Any], target: str | Path) -> None
                         label=f"{c.run.name} ({c.role})")
     for ax, joint in zip(axes, joints):
         ax.axhline(0, color="0.5", lw=0.5)
-        ax.set_title(joint, fontsize=9)
-        ax.set_xlabel("time in run [s]", fontsize=8)
-        ax.set_ylabel("residual [N m]", fontsize=8)
-        ax.tick_params(labelsize=7)
+        _label(ax, joint, "time in run [s]", "residual [N m]")
     axes[0].legend(fontsize=6)
-    fig.suptitle(f"Torque residual (measured - model) against time, {SMOOTH_S:g} s moving mean", fontsize=10)
-    fig.tight_layout()
-    _save(fig, target)
+    _finish(fig, f"Torque residual (measured - model) against time, {SMOOTH_S:g} s moving mean", target)
 
 
 def figure_regimes(gap: Mapping[str, Any], target: str | Path) -> None:
