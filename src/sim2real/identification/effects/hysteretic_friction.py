@@ -34,24 +34,32 @@ DEFAULT_PRESLIDING_RAD = 0.02  # start value of the refinement
 
 
 def dahl_state(q: np.ndarray, qd: np.ndarray, segments: Sequence[slice], presliding: np.ndarray) -> np.ndarray:
-    """(N, n) Dahl state ``z`` along the measured positions, run by run (see the module docstring)."""
+    """(N, n) Dahl state ``z`` along the measured positions, run by run (see the module docstring).
+
+    Only the state at each reversal is carried from one stretch to the next (a few scalars per joint); the
+    samples of every stretch are computed at once."""
     z = np.zeros_like(q, dtype=float)
     for seg in segments:
+        position, direction = q[seg], np.sign(qd[seg])
         for j in range(q.shape[1]):
-            position = q[seg, j]
-            direction = np.sign(qd[seg, j])
-            # a sample at rest keeps the direction it had (the motion has not reversed yet)
-            moving = np.flatnonzero(direction)
+            moving = np.flatnonzero(direction[:, j])
             if not moving.size:
                 continue
-            filled = direction[moving][np.maximum(np.searchsorted(moving, np.arange(direction.size), "right") - 1, 0)]
+            # a sample at rest keeps the direction it had (the motion has not reversed yet)
+            filled = direction[moving, j][np.maximum(np.searchsorted(moving, np.arange(len(direction)), "right") - 1, 0)]
             starts = np.concatenate([[0], np.flatnonzero(filled[1:] != filled[:-1]) + 1])
-            state = filled[0]
-            out = z[seg, j]
-            for a, b in zip(starts, [*starts[1:], filled.size], strict=True):
-                s = filled[a]
-                out[a:b] = s - (s - state) * np.exp(-np.abs(position[a:b] - position[a]) / presliding[j])
-                state = out[b - 1]
+            stops = np.append(starts[1:], len(filled))
+            stretch = np.repeat(np.arange(starts.size), stops - starts)
+            origin = position[starts, j]
+            # the state where each stretch starts: where the one before it ended
+            decay = np.exp(-np.abs(position[stops - 1, j] - origin) / presliding[j])
+            sign = filled[starts]
+            begin = np.empty(starts.size)
+            state = sign[0]
+            for k in range(starts.size):
+                begin[k] = state
+                state = sign[k] - (sign[k] - state) * decay[k]
+            z[seg, j] = filled - (filled - begin[stretch]) * np.exp(-np.abs(position[:, j] - origin[stretch]) / presliding[j])
     return z
 
 
