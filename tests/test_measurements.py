@@ -396,3 +396,24 @@ def test_absurd_stamp_or_rate_is_refused_before_the_grid(tmp_path, edit):
     assert "log.csv: column 'time'" in message and "grid points" in message and "Fix:" in message
     if edit == "absurd_stamp":
         assert "row 2999" in message and "largest gap 1e+300 s" in message
+
+
+def test_the_torque_sensor_is_one_typed_value_checked_once():
+    """Where tau is measured: one default, one check for every caller (the prepared runs and the fit's stacked
+    runs alike); runs that mix sensor positions are refused, naming them."""
+    from sim2real.identification.fitting import stack_runs
+    from sim2real.measurements import DEFAULT_TORQUE_SENSOR, TORQUE_SENSORS, measured_after_drive, torque_sensor_of
+
+    assert DEFAULT_TORQUE_SENSOR == "motor" and TORQUE_SENSORS == ("motor", "link")
+    run = {"name": "a", "torque_source": "tau", "torque_sensor": "link"}
+    assert torque_sensor_of([run, {**run, "name": "b"}]) == "link"
+    assert torque_sensor_of([{"name": "c", "torque_source": "tau_cmd"}]) == DEFAULT_TORQUE_SENSOR
+    with pytest.raises(InputError, match=r"mix torque sensor positions: a \(link\), b \(motor\)"):
+        torque_sensor_of([run, {**run, "name": "b", "torque_sensor": "motor"}])
+    t = np.arange(200) * 0.01
+    stacked = [{"name": n, "time": t, **{k: np.zeros((200, 1)) for k in ("q", "qd", "qdd", "tau")},
+                "torque_source": "tau", "has_commands": False, "noise_floor": np.ones(1), "torque_sensor": s}
+               for n, s in (("a", "link"), ("b", "motor"))]
+    with pytest.raises(InputError, match="mix torque sensor positions"):
+        stack_runs(stacked, ["j"])
+    assert measured_after_drive("tau", "link") and not measured_after_drive("tau_cmd", "link")

@@ -42,9 +42,8 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects import EFFECTS, Signals, get_effect
-from sim2real.errors import InputError
 from sim2real.identification.fitting import NominalModel, TorqueData, link_side, run_from_prepared, stack_runs
-from sim2real.measurements import PreparedRun, command_floor_of
+from sim2real.measurements import DEFAULT_TORQUE_SENSOR, PreparedRun, TorqueSensor, command_floor_of
 
 LINK_MODES: dict[str, str] = {
     "separate": "the runs log the measured torque (tau) and the command (tau_cmd): the actuator link is judged "
@@ -70,7 +69,7 @@ def link_mode(runs: Sequence[PreparedRun]) -> str:
     return "sensor_only" if has_sensor else "commands_only"
 
 
-def effect_link(name: str, torque_sensor: str = "motor") -> str:
+def effect_link(name: str, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR) -> str:
     """The link where an effect is expected. The drive's effects (rotor inertia, joint friction and damping)
     sit between the motor and the link: behind a motor-side sensor they are the body's, in front of a
     link-side sensor (``torque_sensor: link``) the actuator's. This is a prior that words the report:
@@ -79,7 +78,8 @@ def effect_link(name: str, torque_sensor: str = "motor") -> str:
     return "actuator" if effect.drive and torque_sensor == "link" else effect.link
 
 
-def effects_of_link(effect_names: Sequence[str], link: str, torque_sensor: str = "motor") -> list[str]:
+def effects_of_link(effect_names: Sequence[str], link: str, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR,
+                    ) -> list[str]:
     """The effects of ``link`` among ``effect_names``, in their order.
 
     A drive effect is fitted on the body link whatever the sensor: behind a link-side sensor the body's
@@ -90,7 +90,7 @@ def effects_of_link(effect_names: Sequence[str], link: str, torque_sensor: str =
             if effect_link(name, torque_sensor) == link or (get_effect(name).drive and link == "body")]
 
 
-def candidates_of_link(link: str, torque_sensor: str = "motor") -> list[str]:
+def candidates_of_link(link: str, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR) -> list[str]:
     """The library's effects the diagnosis tries on ``link`` (``combined``: all of them).
 
     The sensor's position is a prior, not a veto: every effect the judged signal can show is tried. The
@@ -115,16 +115,6 @@ def drive_verdict_note(link: str, effect: str, torque_sensor: str) -> str:
                 "the data contradict the metadata. If the sensor measures after the gearbox, set "
                 "`torque_sensor: link` in the runs' metadata YAML.")
     return ""
-
-
-def torque_sensor(runs: Sequence[PreparedRun]) -> str:
-    """Where the runs' ``tau`` is measured (their metadata ``torque_sensor``); one place for all runs."""
-    places = {run.torque_sensor for run in runs if run.torque_source == "tau"}
-    if len(places) > 1:
-        listing = ", ".join(f"{run.name}: {run.torque_sensor}" for run in runs if run.torque_source == "tau")
-        raise InputError(None, "torque_sensor", f"the runs mix torque sensor positions ({listing})",
-                         "set the same `torque_sensor` (motor or link) in every run's metadata YAML")
-    return places.pop() if places else "motor"
 
 
 def actuator_data(runs: Sequence[PreparedRun], joint_names: Sequence[str]) -> tuple[TorqueData, np.ndarray]:
@@ -160,7 +150,7 @@ def actuator_signals(data: TorqueData, commands: np.ndarray, nominal: NominalMod
 
 
 def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[Sequence[str]],
-                 sensor: str = "motor") -> dict[str, Any]:
+                 sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR) -> dict[str, Any]:
     """What the runs can tell apart (``links`` of ladder.json): the mode in words, then the facts.
 
     ``confounded``: the pairs the diagnosis found predicting the same torque on these data; ``sensor``:

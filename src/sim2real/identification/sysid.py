@@ -34,7 +34,7 @@ from sim2real.identification.fitting import (  # noqa: F401  (re-exported: the p
 from sim2real.blas import one_blas_thread
 from sim2real.cache import FitCache
 from sim2real.identification.inertial import program_store
-from sim2real.measurements import PreparedRun, noise_floor_of
+from sim2real.measurements import PreparedRun, noise_floor_of, torque_sensor_of
 from sim2real.stats import rmse
 
 
@@ -244,7 +244,7 @@ def fit_model(
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
     joints = nominal.joint_names
     mode = links.link_mode([*runs["fit"], *runs["holdout"]])
-    sensor = links.torque_sensor([*runs["fit"], *runs["holdout"]])
+    sensor = torque_sensor_of([*runs["fit"], *runs["holdout"]])
     body_link = "combined" if mode == "commands_only" else "body"
     body_effects = (list(effect_names) if mode == "commands_only"
                     else links.effects_of_link(effect_names, "body", sensor))

@@ -16,8 +16,9 @@ from sim2real.measurements.prepare import (  # noqa: F401
     load_prepared_runs, prepare_for_model, prepare_run, prepare_runs, with_command_floor,
 )
 from sim2real.measurements.runs import (  # noqa: F401
-    SIGNAL_KINDS, MeasurementEntry, PreparedRun, Run, check_run, load_measurement_list, load_run,
-    measurement_settings, read_run, read_runs, write_run,
+    DEFAULT_TORQUE_SENSOR, SIGNAL_KINDS, TORQUE_SENSORS, MeasurementEntry, PreparedRun, Run, TorqueSensor,
+    check_run, load_measurement_list, load_run, measured_after_drive, measurement_settings, read_run, read_runs,
+    torque_sensor_of, write_run,
 )
 from sim2real.measurements.store import (  # noqa: F401
     FIT_ARRAYS, PREPARED_SUFFIX, read_prepared_runs, runs_for_model, write_prepared_runs,

@@ -15,7 +15,7 @@ import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.files import read_validated_yaml
-from sim2real.measurements import write_run
+from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR, write_run
 
 DEFAULT_JOINT_TOPIC = "/joint_states"
 
@@ -26,13 +26,13 @@ def ros2_topics(path: str | Path) -> dict[str, str | None]:
     return {
         "joint_topic": ros2.get("joint_topic", DEFAULT_JOINT_TOPIC),
         "command_topic": ros2.get("command_topic"),
-        "torque_sensor": ros2.get("torque_sensor", "motor"),
+        "torque_sensor": ros2.get("torque_sensor", DEFAULT_TORQUE_SENSOR),
     }
 
 
 def mcap_to_run(
     bag_path: str | Path, output: str | Path, robot: str, joint_topic: str = DEFAULT_JOINT_TOPIC,
-    command_topic: str | None = None, joints: Sequence[str] | None = None, torque_sensor: str = "motor",
+    command_topic: str | None = None, joints: Sequence[str] | None = None, torque_sensor: str = DEFAULT_TORQUE_SENSOR,
 ) -> Path:
     """Convert a ROS 2 bag (MCAP) to a measurement run (table + metadata) at ``output``.
 

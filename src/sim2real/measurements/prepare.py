@@ -28,7 +28,7 @@ import numpy as np
 from sim2real.errors import InputError
 from sim2real.measurements.noise import command_white_noise, white_noise_sigma
 from sim2real.measurements.runs import (
-    DEFAULT_CUTOFF_HZ, DEFAULT_FILTER_ORDER, MAX_GRID_PER_SAMPLE, MIN_SAMPLES, MeasurementEntry,
+    DEFAULT_CUTOFF_HZ, DEFAULT_FILTER_ORDER, DEFAULT_TORQUE_SENSOR, MAX_GRID_PER_SAMPLE, MIN_SAMPLES, MeasurementEntry,
     PreparedRun, Run, _row_label, check_run, read_runs,
 )
 
@@ -124,7 +124,8 @@ def prepare_run(
         tau_cmd=None if tau_cmd is None else tau_cmd[sl], q_cmd=None if q_cmd is None else q_cmd[sl],
         filter=filter_info, qd_measured=None if qd_measured is None else qd_measured[sl], contact=contact,
         raw_torque_sigma=white_noise_sigma(raw_torque[keep_raw]),
-        torque_sensor=str(run.meta.get("torque_sensor", "motor")) if run.tau is not None else "motor",
+        torque_sensor=(str(run.meta.get("torque_sensor", DEFAULT_TORQUE_SENSOR)) if run.tau is not None
+                       else DEFAULT_TORQUE_SENSOR),
     )
 
 

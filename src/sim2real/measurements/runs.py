@@ -19,7 +19,7 @@ import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -30,6 +30,12 @@ if TYPE_CHECKING:
     import pandas as pd
 
 SIGNAL_KINDS = ("q", "qd", "tau", "tau_cmd", "q_cmd")
+# Where a run's measured torque ``tau`` is taken (metadata ``torque_sensor``): at the motor's output, before the
+# joint's rotor inertia and friction (a motor-current estimate, the default), or after the gearbox (link-side:
+# the Panda's tau_J, a KUKA iiwa's sensors).
+TorqueSensor = Literal["motor", "link"]
+TORQUE_SENSORS: tuple[TorqueSensor, ...] = ("motor", "link")
+DEFAULT_TORQUE_SENSOR: TorqueSensor = "motor"
 MIN_DURATION_S = 1.0
 MIN_SAMPLES = 100
 # A uniform grid more than this many times denser than the logged samples means a gap, a stamp in other
@@ -74,7 +80,7 @@ class PreparedRun:
     tau_cmd: np.ndarray | None
     q_cmd: np.ndarray | None
     filter: dict
-    torque_sensor: str = "motor"  # where tau is measured (metadata `torque_sensor`): "motor" or "link"
+    torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR  # where tau is measured (metadata `torque_sensor`)
     qd_measured: np.ndarray | None = None  # logged velocity on the grid (unfiltered), if any
     contact: np.ndarray | None = None
     raw_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per-joint white-noise std
@@ -88,6 +94,30 @@ class MeasurementEntry:
     name: str
     path: Path
     role: str  # "fit" | "holdout"
+
+
+def _field(run: Any, name: str, default: Any = None) -> Any:
+    return run.get(name, default) if isinstance(run, Mapping) else getattr(run, name, default)
+
+
+def torque_sensor_of(runs: Sequence[Any]) -> TorqueSensor:
+    """Where the ``tau`` of ``runs`` (prepared runs, or the mappings the fit stacks) is measured: one place for all
+    of them, checked here once. Runs that mix sensor positions are refused: one arm's sensor is fitted together."""
+    measured = [run for run in runs if _field(run, "torque_source") == "tau"]
+    places = {_field(run, "torque_sensor", DEFAULT_TORQUE_SENSOR) for run in measured}
+    if len(places) > 1:
+        listing = ", ".join(f"{_field(run, 'name')} ({_field(run, 'torque_sensor', DEFAULT_TORQUE_SENSOR)})"
+                            for run in measured)
+        raise InputError(None, "torque_sensor", f"the runs mix torque sensor positions: {listing}",
+                         "fit runs of one arm's sensor together: every run's metadata `torque_sensor` the same "
+                         "(motor or link)")
+    return places.pop() if places else DEFAULT_TORQUE_SENSOR
+
+
+def measured_after_drive(torque_source: str, torque_sensor: str) -> bool:
+    """Whether the judged torque is measured after the drive (a link-side sensor's ``tau``): it then does not hold
+    the drive's rotor inertia and friction."""
+    return torque_source == "tau" and torque_sensor == "link"
 
 
 def _read_table(path: Path) -> pd.DataFrame:

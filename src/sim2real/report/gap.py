@@ -38,7 +38,7 @@ from sim2real.cache import FitCache
 from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.errors import InputError
 from sim2real.files import relative_path, validate, write_json
-from sim2real.measurements import PreparedRun, noise_floor_of, runs_for_model
+from sim2real.measurements import PreparedRun, measured_after_drive, noise_floor_of, runs_for_model
 from sim2real.report.metrics import TorqueComparison, per_joint_dict, torque_metrics
 from sim2real.report.regimes import where_it_fails
 from sim2real.report.replay import ReplayModels, ladder_position_rmse, model_armature, state_domain
@@ -121,7 +121,7 @@ def compute_gap(
     comparisons = []
     for e, p in zip(entries, prepared):
         model_tau = model.inverse_dynamics(p.q, p.qd, p.qdd)
-        if p.torque_source == "tau" and p.torque_sensor == "link":  # measured after the drive: the links alone
+        if measured_after_drive(p.torque_source, p.torque_sensor):  # the links alone: no drive terms
             model_tau = model_tau - model.drive_torque(p.qd, p.qdd)
         comparisons.append(TorqueComparison(run=p, role=e.role, model_tau=model_tau, residual=p.tau - model_tau,
                                             gravity=model.gravity(p.q)))

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR
 from sim2real.report.regimes import REGIME_LABELS
 
 # Where the runs' tau is measured (run metadata `torque_sensor`), as gap.md says it.
@@ -291,7 +292,7 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
         links = gap["links"]
         lines += ["", "## What these runs can tell apart", "", f"{links['text'][0].upper()}{links['text'][1:]}.", ""]
         if links["mode"] != "commands_only":
-            lines += [SENSOR_TEXT[links.get("torque_sensor", "motor")], ""]
+            lines += [SENSOR_TEXT[links.get("torque_sensor", DEFAULT_TORQUE_SENSOR)], ""]
         if links.get("metadata_note"):
             lines += [f"**The data contradict the metadata:** {links['metadata_note']}", ""]
         for fact in links["can_tell"]:

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.errors import InputError
+from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR, TorqueSensor, measured_after_drive, torque_sensor_of
 
 
 def kept_segments(segments: Sequence[slice], rows: np.ndarray) -> list[slice]:
@@ -39,7 +40,7 @@ class TorqueData:
     torque_source: str  # "tau" (sensor) or "tau_cmd" (command)
     has_commands: bool
     noise_floor: np.ndarray  # per joint, RMS of torque no model can explain
-    torque_sensor: str = "motor"  # where tau is measured: "motor" (before the drive's terms) or "link" (after)
+    torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR  # where tau is measured (sim2real.measurements.runs)
 
     @property
     def n_samples(self) -> int:
@@ -71,13 +72,7 @@ def stack_runs(
             None, "runs", f"runs mix judged torque sources {sorted(sources)}",
             "give every run the same torque columns (all tau, or all tau_cmd only)",
         )
-    sensors = {r.get("torque_sensor", "motor") for r in runs}
-    if len(sensors) > 1:
-        names = ", ".join(f"{r['name']} ({r.get('torque_sensor', 'motor')})" for r in runs)
-        raise InputError(
-            None, "runs", f"runs mix torque sensor positions: {names}",
-            "fit runs of one arm's sensor together: every run's metadata `torque_sensor` the same (motor or link)",
-        )
+    sensor = torque_sensor_of(runs)
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("time", "q", "qd", "qdd", "tau")}
     segments, floors, counts, names = [], [], [], []
     start = 0
@@ -100,7 +95,7 @@ def stack_runs(
     return TorqueData(
         list(joint_names), *(_stacked(parts[k]) for k in ("time", "q", "qd", "qdd", "tau")),
         segments=segments, run_names=names, torque_source=sources.pop(),
-        has_commands=all(bool(r.get("has_commands")) for r in runs), noise_floor=noise, torque_sensor=sensors.pop(),
+        has_commands=all(bool(r.get("has_commands")) for r in runs), noise_floor=noise, torque_sensor=sensor,
     )
 
 
@@ -116,11 +111,11 @@ def run_from_prepared(prepared: Any, noise_floor: np.ndarray) -> dict[str, Any]:
         "name": prepared.name, "time": prepared.time, "q": prepared.q, "qd": prepared.qd, "qdd": prepared.qdd,
         "tau": prepared.tau, "torque_source": prepared.torque_source,
         "has_commands": prepared.tau_cmd is not None, "noise_floor": noise_floor,
-        "torque_sensor": getattr(prepared, "torque_sensor", "motor"),
+        "torque_sensor": prepared.torque_sensor,
     }
 
 
 def link_side(data: TorqueData) -> bool:
     """The judged torque is measured after the drive (a link-side sensor): it does not hold the drive's terms."""
-    return data.torque_source == "tau" and data.torque_sensor == "link"
+    return measured_after_drive(data.torque_source, data.torque_sensor)
 
