@@ -127,7 +127,10 @@ class _ConsistentProgram:
         getattr(self.problem, "_solver_cache", {}).clear()
         started = time.perf_counter()
         try:
-            self.problem.solve(solver=cp.CLARABEL)
+            # One thread: Clarabel's factorisation (faer on rayon) would otherwise start a thread pool that a forked
+            # worker (the diagnosis fits its candidates on forked processes) inherits without its threads and waits
+            # on forever; and one thread gives the same bits on any number of cores.
+            self.problem.solve(solver=cp.CLARABEL, max_threads=1)
         except cp.error.SolverError:
             self.problem.solve(solver=cp.SCS, eps=1e-7, max_iters=20000)
         elapsed = time.perf_counter() - started
