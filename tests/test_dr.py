@@ -384,6 +384,7 @@ def test_coverage_reads_the_sysid_params_shape(tmp_path: Path, mjcf: dict[str, P
 @pytest.mark.slow
 def test_snakemake_builds_dr_json_and_summary_reproducibly(tmp_path: Path, mjcf: dict[str, Path]) -> None:
     for relative in ["rules/common.smk", "rules/dr.smk", "scripts/dr_resolve.py", "scripts/dr_summary.py",
+                     "schemas/config.schema.yaml",
                      "report/dr_summary.rst", "schemas/dr.schema.json", "configs/config.yaml", "configs/panda/dr.yaml", "configs/ur5/dr.yaml",
                      # the Panda is identified (measurements + model ladder): its coverage is checked
                      "configs/panda/measurements.yaml", "configs/panda/model.yaml"]:
@@ -396,7 +397,7 @@ def test_snakemake_builds_dr_json_and_summary_reproducibly(tmp_path: Path, mjcf:
     (tmp_path / "results/panda/sysid/params.yaml").write_text("coulomb_friction:\n  panda_joint4: {value: 0.3, ci: [0.25, 0.35]}\n")
     (tmp_path / "Snakefile").write_text(
         'configfile: "configs/config.yaml"\ninclude: "rules/common.smk"\ninclude: "rules/dr.smk"\n'
-        "rule all:\n    default_target: True\n    input: all_targets(),\n"
+        "rule all:\n    default_target: True\n    input: [t for robot in ROBOTS for t in dr_targets(robot)],\n"
     )
     snakemake = [str(Path(sys.executable).parent / "snakemake"), "-c2", "--snakefile", str(tmp_path / "Snakefile"),
                  "--directory", str(tmp_path)]

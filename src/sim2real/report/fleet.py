@@ -377,8 +377,7 @@ def build_fleet(
     ``report`` (gap.md), ``ladder`` (sysid ladder.json path), ``params`` (sysid params.yaml path)."""
     import json
 
-    from sim2real.report.gap import os_relpath
-    from sim2real.files import read_yaml, validate, write_json, write_text
+    from sim2real.files import read_yaml, relative_path, validate, write_json, write_text
 
     loaded = []
     for item in campaigns:
@@ -388,6 +387,6 @@ def build_fleet(
     fleet = json.loads(json.dumps(fleet))
     validate(fleet, "fleet.schema.json", "fleet.json")
     figure_parameters(fleet, figure)
-    write_text(fleet_md, render_fleet_markdown(fleet, Path(os_relpath(figure, Path(fleet_md).parent)).as_posix()))
+    write_text(fleet_md, render_fleet_markdown(fleet, relative_path(figure, Path(fleet_md).parent)))
     write_json(fleet_json, fleet)
     return fleet
