@@ -57,8 +57,10 @@ def _describes_the_current_model(tree: Path, nominal: dict, report: dict) -> Non
     for joint, value in last["metrics"]["torque_rmse"]["per_joint"].items():
         assert report["metrics"]["torque_rmse"]["per_joint"][joint] == pytest.approx(value, rel=1e-5), joint
     # the nominal's metrics and where it fails, as the nominal model's report had them, move under "nominal"
-    assert report["nominal"]["metrics"]["torque_rmse"] == nominal["metrics"]["torque_rmse"]
-    assert report["nominal"]["where"]["worst_windows"] == nominal["where"]["worst_windows"]
+    assert report["nominal"]["metrics"]["torque_rmse"] == nominal["nominal"]["metrics"]["torque_rmse"]
+    assert report["nominal"]["where"]["worst_windows"] == nominal["nominal"]["where"]["worst_windows"]
+    # the nominal model's own report judged it as its last (only) rung: on the holdout, as the ladder does
+    assert nominal["metrics"]["model"]["effects"] == []
     # the worst windows are the current model's, on the holdout runs: a fraction of the nominal's error
     windows = report["where"]["worst_windows"]
     assert {w["run"] for w in windows} <= {r["name"] for r in report["runs"] if r["role"] == "holdout"}
