@@ -59,6 +59,9 @@ def test_following_the_diagnosis_lowers_the_error_to_the_noise_floor(lab, scenar
             prior = rung["consistency"]["inertia_prior"]
             assert prior["chosen_by"].startswith("cross-validation") and prior["weight"] in prior["grid"]
             assert len(prior["scores"]) == len(prior["grid"])
+            assert prior["inside_searched_range"], (rung["effects"], prior["grid"], prior["scores"])  # issue 30
+        # issue 30: the model the loop ends with keeps every link plausible
+        assert not last["ladder"][-1]["params"]["link_inertia"]["implausible_bodies"]
     rmse = [overall(r) for r in last["ladder"]]
     assert rmse == sorted(rmse, reverse=True), f"the error falls rung by rung: {rmse}"
     floor = last["noise_floor"]["torque_rmse"]["overall"]
