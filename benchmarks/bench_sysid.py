@@ -160,7 +160,7 @@ class BenchLab:
 def torque_data(run: Run) -> sysid.TorqueData:
     """One run prepared (filtered, trimmed) and stacked on our fit grid."""
     prepared = prepare_run(run)
-    return sysid.stack_runs([sysid.run_from_prepared(prepared, noise_floor_of(prepared))], JOINTS, FIT_RATE_HZ)
+    return sysid.stack_runs([sysid.RunSamples.of(prepared, noise_floor_of(prepared))], JOINTS, FIT_RATE_HZ)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -695,7 +695,7 @@ def section_consistent(ctx: Context) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         urdf, prepared = prepared_scenario_runs(Path(tmp), "real_arm_like")
         nominal = fitting.load_nominal(urdf, PANDA_JOINTS)
-        by_role = {role: [fitting.run_from_prepared(run, noise_floor_of(run)) for run in runs]
+        by_role = {role: [fitting.RunSamples.of(run, noise_floor_of(run)) for run in runs]
                    for role, runs in prepared.items()}
         settings = {**fitting.DEFAULT_SETTINGS, "bootstrap_replicates": 0}
         fit_data = fitting.stack_runs(by_role["fit"], PANDA_JOINTS, settings["fit_rate_hz"])

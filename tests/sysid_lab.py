@@ -114,7 +114,7 @@ class Lab:
             entries, prepared, _ = load_prepared_runs(self.measurement_list(scenario), PANDA_JOINTS, "/")
             by_role: dict[str, list[dict[str, Any]]] = {"fit": [], "holdout": []}
             for entry, run in zip(entries, prepared, strict=True):
-                by_role[entry.role].append(sysid.run_from_prepared(run, noise_floor_of(run)))
+                by_role[entry.role].append(sysid.RunSamples.of(run, noise_floor_of(run)))
             self._data[scenario] = (
                 sysid.stack_runs(by_role["fit"], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]),
                 sysid.stack_runs(by_role["holdout"], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]),

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.assets.dynamics import RigidBodyModel
+from sim2real.identification.fitting import RunSamples
 
 PANDA_URDF = (
     Path(__file__).resolve().parents[1]
@@ -58,8 +59,8 @@ def make_run(
     urdf: Path = PANDA_URDF,
     joints: list[str] | None = None,
     armature: float = 0.1,
-) -> dict:
-    """One run as the mapping sim2real.identification.sysid.stack_runs takes; ``hidden`` maps effect -> value."""
+) -> RunSamples:
+    """One run as sim2real.identification.fitting.stack_runs takes it; ``hidden`` maps effect -> value."""
     joints = joints or PANDA_JOINTS
     model = RigidBodyModel(urdf, joints, armature={j: armature for j in joints})
     t, q, qd, qdd = fourier_trajectory(model, duration, rate, seed)
@@ -91,8 +92,5 @@ def make_run(
         tau = np.column_stack([np.interp(t + d, t, tau[:, j]) for j in range(tau.shape[1])])
     rng = np.random.default_rng(seed + 1000)
     tau = tau + rng.normal(scale=noise, size=tau.shape)
-    return {
-        "name": name, "time": t, "q": q, "qd": qd, "qdd": qdd, "tau": tau,
-        "torque_source": "tau_cmd" if "actuation_delay" in hidden else "tau",
-        "has_commands": "actuation_delay" in hidden, "noise_floor": np.full(len(joints), noise),
-    }
+    return RunSamples(name, t, q, qd, qdd, tau, torque_source="tau_cmd" if "actuation_delay" in hidden else "tau",
+                      has_commands="actuation_delay" in hidden, noise_floor=np.full(len(joints), noise))

@@ -140,7 +140,7 @@ def shipped(name: str) -> Any:
 @given(doc=broken(shipped("configs/panda/model.yaml"), st.sampled_from(["link_inertia", "payload", "magic"])))
 def test_model_yaml(tmp_path_factory: pytest.TempPathFactory, doc: Any) -> None:
     from sim2real.identification.effects import EFFECTS
-    from sim2real.identification.sysid import load_model_config
+    from sim2real.identification.documents import load_model_config
 
     path = dump(tmp_path_factory.mktemp("model") / "model.yaml", doc)
 

@@ -3,11 +3,14 @@ the MJCF gets its sliding level with the hysteresis honestly left out."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import mujoco
 import numpy as np
 import pytest
 
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
+from sim2real.identification.fitting import RunSamples
 from sim2real.identification import sysid
 from sim2real.identification.effects import apply_to_spec, get_effect
 from sim2real.identification.effects.hysteretic_friction import dahl_state
@@ -38,12 +41,11 @@ def test_the_state_follows_dahls_law_along_the_measured_positions():
     assert np.array_equal(twice[t.size:], z)
 
 
-def _dahl_run(name: str, seed: int, level: float, presliding: float) -> dict:
+def _dahl_run(name: str, seed: int, level: float, presliding: float) -> RunSamples:
     run = make_run(name, {}, seed, duration=12.0, noise=0.01)
-    z = np.column_stack([euler_dahl(run["q"][:, j], np.sign(run["qd"][0, j]) or 1.0, presliding)
+    z = np.column_stack([euler_dahl(run.q[:, j], np.sign(run.qd[0, j]) or 1.0, presliding)
                          for j in range(len(PANDA_JOINTS))])
-    run["tau"] = run["tau"] + level * z
-    return run
+    return dataclasses.replace(run, tau=run.tau + level * z)
 
 
 def test_the_fit_recovers_the_level_and_the_presliding_length():

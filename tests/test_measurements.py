@@ -252,7 +252,7 @@ def _two_logged_runs(tmp_path):
     urdf, mjcf = build_dev_panda(tmp_path / "panda")
     for file, seed in (("a.csv", 1), ("b.parquet", 2)):
         run = make_run(file, {}, seed, duration=4.0)
-        write_run(tmp_path / file, run["time"], PANDA_JOINTS, {"q": run["q"], "tau": run["tau"]}, META)
+        write_run(tmp_path / file, run.time, PANDA_JOINTS, {"q": run.q, "tau": run.tau}, META)
     listing = tmp_path / "measurements.yaml"
     listing.write_text(yaml.safe_dump({"runs": [{"name": "a", "path": "a.csv", "role": "fit"},
                                                 {"name": "b", "path": "b.parquet", "role": "holdout"}]}))
@@ -401,19 +401,20 @@ def test_absurd_stamp_or_rate_is_refused_before_the_grid(tmp_path, edit):
 def test_the_torque_sensor_is_one_typed_value_checked_once():
     """Where tau is measured: one default, one check for every caller (the prepared runs and the fit's stacked
     runs alike); runs that mix sensor positions are refused, naming them."""
-    from sim2real.identification.fitting import stack_runs
+    from sim2real.identification.fitting import RunSamples, stack_runs
     from sim2real.measurements import DEFAULT_TORQUE_SENSOR, TORQUE_SENSORS, measured_after_drive, torque_sensor_of
 
     assert DEFAULT_TORQUE_SENSOR == "motor" and TORQUE_SENSORS == ("motor", "link")
-    run = {"name": "a", "torque_source": "tau", "torque_sensor": "link"}
-    assert torque_sensor_of([run, {**run, "name": "b"}]) == "link"
-    assert torque_sensor_of([{"name": "c", "torque_source": "tau_cmd"}]) == DEFAULT_TORQUE_SENSOR
-    with pytest.raises(InputError, match=r"mix torque sensor positions: a \(link\), b \(motor\)"):
-        torque_sensor_of([run, {**run, "name": "b", "torque_sensor": "motor"}])
     t = np.arange(200) * 0.01
-    stacked = [{"name": n, "time": t, **{k: np.zeros((200, 1)) for k in ("q", "qd", "qdd", "tau")},
-                "torque_source": "tau", "has_commands": False, "noise_floor": np.ones(1), "torque_sensor": s}
-               for n, s in (("a", "link"), ("b", "motor"))]
+    zeros = np.zeros((200, 1))
+
+    def run(name, sensor=DEFAULT_TORQUE_SENSOR, source="tau"):
+        return RunSamples(name, t, zeros, zeros, zeros, zeros, source, False, np.ones(1), sensor)
+
+    assert torque_sensor_of([run("a", "link"), run("b", "link")]) == "link"
+    assert torque_sensor_of([run("c", "link", source="tau_cmd")]) == DEFAULT_TORQUE_SENSOR
+    with pytest.raises(InputError, match=r"mix torque sensor positions: a \(link\), b \(motor\)"):
+        torque_sensor_of([run("a", "link"), run("b", "motor")])
     with pytest.raises(InputError, match="mix torque sensor positions"):
-        stack_runs(stacked, ["j"])
+        stack_runs([run("a", "link"), run("b", "motor")], ["j"])
     assert measured_after_drive("tau", "link") and not measured_after_drive("tau_cmd", "link")

@@ -233,12 +233,12 @@ def test_ladder_falls_rung_by_rung_and_is_deterministic(nominal):
 def _write_real_log(path, run, with_repeats=True):
     """A real-log style table: only time, q, qd, tau; irregular stamps, repeated samples."""
     rng = np.random.default_rng(0)
-    keep = np.sort(rng.choice(len(run["time"]), size=int(0.8 * len(run["time"])), replace=False))
-    table = {"time": run["time"][keep] + rng.uniform(0, 2e-4, size=len(keep))}
+    keep = np.sort(rng.choice(len(run.time), size=int(0.8 * len(run.time)), replace=False))
+    table = {"time": run.time[keep] + rng.uniform(0, 2e-4, size=len(keep))}
     for j, joint in enumerate(PANDA_JOINTS):
-        table[f"q.{joint}"] = run["q"][keep, j]
-        table[f"qd.{joint}"] = run["qd"][keep, j] + rng.normal(scale=0.01, size=len(keep))
-        table[f"tau.{joint}"] = run["tau"][keep, j]
+        table[f"q.{joint}"] = run.q[keep, j]
+        table[f"qd.{joint}"] = run.qd[keep, j] + rng.normal(scale=0.01, size=len(keep))
+        table[f"tau.{joint}"] = run.tau[keep, j]
     frame = pd.DataFrame(table)
     if with_repeats:
         frame = pd.concat([frame, frame.iloc[::7]]).sort_values("time", kind="stable")

@@ -15,7 +15,8 @@ import yaml
 from collision_usd_build import ROBOT, fast_panda_build
 from sim2real.assets.collision import part_files
 from sim2real.assets.urdf_model import read_urdf
-from sim2real.assets.usd import axis_frame, build_usd, principal_inertia
+from sim2real.assets.usd import build_usd
+from sim2real.assets.usd_bodies import axis_frame, principal_inertia
 from sim2real.assets.usd_validation import CLASSIC_CHECKS, PACKAGE_ONLY_VALIDATORS, PHYSICS_VALIDATORS, compliance_errors, validator_names
 from sim2real.assets.urdf import mesh_names
 

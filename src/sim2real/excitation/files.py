@@ -156,7 +156,7 @@ def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path
     A name ``separate-<a>-vs-<b>`` designs the run that tells the confounded candidates a and b of
     ``ladder`` (results/{robot}/sysid/ladder.json) apart, with the file's default settings (or its own entry).
     """
-    from sim2real.identification.sysid import load_model_config
+    from sim2real.identification.documents import load_model_config
 
     pair = confounded_pair(name)
     design = load_design(config, name, allow_default=pair is not None)

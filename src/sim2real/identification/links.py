@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects import EFFECTS, Signals, get_effect
-from sim2real.identification.fitting import NominalModel, TorqueData, link_side, run_from_prepared, stack_runs
+from sim2real.identification.fitting import NominalModel, RunSamples, TorqueData, link_side, stack_runs
 from sim2real.measurements import DEFAULT_TORQUE_SENSOR, PreparedRun, TorqueSensor, command_floor_of
 
 LINK_MODES: dict[str, str] = {
@@ -123,9 +123,9 @@ def actuator_data(runs: Sequence[PreparedRun], joint_names: Sequence[str]) -> tu
     judged, commands = [], []
     for run in runs:
         assert run.tau_cmd is not None
-        record = run_from_prepared(run, command_floor_of(run))
-        judged.append(record)
-        commands.append({**record, "tau": run.tau_cmd})
+        floor = command_floor_of(run)
+        judged.append(RunSamples.of(run, floor))
+        commands.append(RunSamples.of(run, floor, tau=run.tau_cmd))
     rate = ACTUATOR_FIT_SETTINGS["fit_rate_hz"]
     return stack_runs(judged, joint_names, rate), stack_runs(commands, joint_names, rate).tau
 

@@ -6,8 +6,8 @@ new effect's nonlinear parameters) fitted on the ``role: fit`` runs and judged o
 ``role: holdout`` runs, then the diagnosis of the last rung. :func:`fit_model` runs it on each link
 of the model (:mod:`sim2real.identification.links`: the actuator and the body, judged apart when the runs log
 both the measured and the commanded torque). It returns the ``ladder.json`` content;
-:func:`params_document` and :func:`sim2real.identification.effects.calibration_from_params` give params.yaml and
-calibration.yaml; :func:`run_sysid` is the files-in, files-out entry point of the rule.
+:func:`~sim2real.identification.documents.params_document` and :func:`sim2real.identification.effects.calibration_from_params`
+give params.yaml and calibration.yaml; :func:`run_sysid` is the files-in, files-out entry point of the rule.
 The fitting core's names are re-exported here (``sysid.fit``, ``sysid.TorqueData``, ...).
 """
 
@@ -23,35 +23,22 @@ import numpy as np
 from sim2real.identification import links
 from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, candidates_to_try, model_free_ceiling
 from sim2real.identification.diagnosis import diagnose as run_diagnosis
+from sim2real.identification.documents import (  # noqa: F401  (re-exported: the rule's documents)
+    load_model_config, merge_link_values, params_document, round_floats, write_model_residuals,
+)
 from sim2real.identification.effects import Signals, get_effect
 from sim2real.errors import InputError
 from sim2real.forked import Forked
 from sim2real.identification.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
     DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
     joint_weights,
-    kept_segments, load_nominal, make_signals, predict, resolve_armature, run_from_prepared, stack_runs,
+    kept_segments, load_nominal, make_signals, predict, resolve_armature, RunSamples, stack_runs,
 )
 from sim2real.blas import one_blas_thread
 from sim2real.cache import FitCache
 from sim2real.identification.inertial import program_store
 from sim2real.measurements import PreparedRun, noise_floor_of, torque_sensor_of
 from sim2real.stats import rmse
-
-
-def round_floats(tree: Any, digits: int = 6) -> Any:
-    """Round every float to ``digits`` significant digits: stable, readable, byte-identical outputs."""
-    if isinstance(tree, dict):
-        return {str(k): round_floats(v, digits) for k, v in tree.items()}
-    if isinstance(tree, (list, tuple)):
-        return [round_floats(v, digits) for v in tree]
-    if isinstance(tree, (np.floating, float)):
-        value = float(tree)
-        return float(f"{value:.{digits}g}") if np.isfinite(value) else None
-    if isinstance(tree, np.integer):
-        return int(tree)
-    if isinstance(tree, np.bool_):
-        return bool(tree)
-    return tree
 
 
 def state_domain_status(data: TorqueData) -> dict[str, str]:
@@ -249,7 +236,7 @@ def fit_model(
     body_effects = (list(effect_names) if mode == "commands_only"
                     else links.effects_of_link(effect_names, "body", sensor))
     body_data = {
-        role: stack_runs([run_from_prepared(run, noise_floor_of(run)) for run in runs[role]], joints,
+        role: stack_runs([RunSamples.of(run, noise_floor_of(run)) for run in runs[role]], joints,
                          fit_settings["fit_rate_hz"])
         for role in ("fit", "holdout")
     }
@@ -335,98 +322,6 @@ def _note_drive(diagnosis: dict[str, Any] | None, link: str, sensor: str) -> Non
     if note:
         diagnosis["verdict"] += note
         diagnosis["sensor_note"] = note.strip()
-
-
-def merge_link_values(results: Sequence[FitResult], nominal: NominalModel) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Each effect's values for the assets, and the drive effects fitted on two links apart.
-
-    Behind a link-side sensor a drive effect may be fitted on the body link (its part after the sensor,
-    from zero) and on the actuator link (its part before it, from the URDF's value): the joint holds both,
-    so the calibrated value is their sum. Found on the body link alone, it adds to the URDF's value.
-    ``results``: the body link's last rung first (:func:`fit_model`).
-    """
-    effects: dict[str, Any] = {}
-    by_link: dict[str, Any] = {}
-    body = results[0]
-    for result in results[1:]:
-        effects.update(result.values)
-    for name, values in body.values.items():
-        spec = get_effect(name).parameters[0] if get_effect(name).parameters else None
-        if not (get_effect(name).drive and body.after_sensor) or spec is None or not spec.per_joint:
-            effects.setdefault(name, values)
-            continue
-        key = spec.name
-        # the URDF holds friction, damping and armature; other parameters start from zero
-        base = effects.get(name, {}).get(key) or dict(zip(nominal.joint_names, map(float, nominal.info.get(key, [])), strict=False))
-        merged = dict(effects.get(name) or values)
-        merged[key] = {j: float(base.get(j, 0.0)) + float(v) for j, v in values[key].items()}
-        by_link[name] = {"body": values, **({"actuator": effects[name]} if name in effects else {}),
-                         "why": "the body link's value acts after the link-side sensor; the joint holds the sum"}
-        effects[name] = merged
-    order = [name for result in results for name in result.effects]
-    return {name: effects[name] for name in dict.fromkeys(order) if name in effects}, by_link
-
-
-def params_document(
-    results: Sequence[FitResult], nominal: NominalModel, torque_source: str, robot: str
-) -> dict[str, Any]:
-    """params.yaml: the last rung's fitted values of every link (:func:`fit_model`), with their intervals.
-
-    ``torque_source``: the body link's judged torque (``tau`` or ``tau_cmd``; ladder.json's ``torque_source``).
-    """
-    effects, by_link = merge_link_values(results, nominal)
-    return round_floats({
-        "robot": robot,
-        "effects": effects,
-        **({"by_link": by_link} if by_link else {}),
-        "intervals": {name: values for result in results for name, values in result.intervals.items()},
-        "order": list(dict.fromkeys(name for result in results for name in result.effects)),
-        "joints": nominal.joint_names,
-        "torque_source": torque_source,
-        "last_link": nominal.info["last_link"],
-        "flange": nominal.info["flange"],
-        "uncertainty": "block bootstrap of the fit runs (blocks of time, all joints together), "
-        "percentile intervals with a small-sample correction for the number of blocks, conditional on the "
-        "nonlinear parameters",
-        "notes": [note for result in results for note in result.notes],
-    })
-
-
-def write_model_residuals(path: str | Path, current: Mapping[str, Any]) -> None:
-    """The body link's last rung on every run, at the fit's rate (:func:`fit_model`'s ``current_out``): time,
-    motion, judged torque and residual by role and run, what the gap report judges the current model by
-    (:func:`sim2real.report.gap.read_model_residuals`)."""
-    from sim2real.files import write_array_archive
-
-    header: dict[str, Any] = {"link": current["link"], "effects": current["effects"], "roles": {}}
-    members = []
-    for role in ("fit", "holdout"):
-        data, residual = current[role]
-        header.update({"joints": list(data.joint_names), "torque_source": data.torque_source,
-                       "torque_sensor": data.torque_sensor})
-        header["roles"][role] = {
-            "noise_floor": [float(v) for v in data.noise_floor],
-            "runs": [{"name": name, "start": seg.start, "stop": seg.stop}
-                     for name, seg in zip(data.run_names, data.segments, strict=True)]}
-        members += [(f"{role}/{name}", value) for name, value in (
-            ("time", data.time), ("q", data.q), ("qd", data.qd), ("qdd", data.qdd), ("tau", data.tau),
-            ("residual", residual))]
-    write_array_archive(path, members, header)
-
-
-def load_model_config(path: str | Path) -> dict[str, Any]:
-    """configs/{robot}/model.yaml, validated; ``effects`` as a list (empty = nominal model)."""
-    from sim2real.files import read_validated_yaml
-
-    data = read_validated_yaml(path, "model.schema.yaml") or {}
-    effects = list(data.get("effects") or [])
-    seen = set()
-    for i, name in enumerate(effects):
-        get_effect(name, str(path))
-        if name in seen:
-            raise InputError(path, f"effects/{i}", f"'{name}' is listed twice", "list each effect once")
-        seen.add(name)
-    return {"effects": effects, "fit": dict(data.get("fit") or {}), "diagnosis": dict(data.get("diagnosis") or {})}
 
 
 @one_blas_thread

@@ -19,7 +19,7 @@ import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import numpy as np
 
@@ -96,18 +96,20 @@ class MeasurementEntry:
     role: str  # "fit" | "holdout"
 
 
-def _field(run: Any, name: str, default: Any = None) -> Any:
-    return run.get(name, default) if isinstance(run, Mapping) else getattr(run, name, default)
+class _HasTorqueSensor(Protocol):
+    name: str
+    torque_source: str
+    torque_sensor: TorqueSensor
 
 
-def torque_sensor_of(runs: Sequence[Any]) -> TorqueSensor:
-    """Where the ``tau`` of ``runs`` (prepared runs, or the mappings the fit stacks) is measured: one place for all
-    of them, checked here once. Runs that mix sensor positions are refused: one arm's sensor is fitted together."""
-    measured = [run for run in runs if _field(run, "torque_source") == "tau"]
-    places = {_field(run, "torque_sensor", DEFAULT_TORQUE_SENSOR) for run in measured}
+def torque_sensor_of(runs: Sequence[_HasTorqueSensor]) -> TorqueSensor:
+    """Where the ``tau`` of ``runs`` (prepared runs, or the fit's :class:`~sim2real.identification.fitting.RunSamples`)
+    is measured: one place for all of them, checked here once. Runs that mix sensor positions are refused: one arm's
+    sensor is fitted together."""
+    measured = [run for run in runs if run.torque_source == "tau"]
+    places = {run.torque_sensor for run in measured}
     if len(places) > 1:
-        listing = ", ".join(f"{_field(run, 'name')} ({_field(run, 'torque_sensor', DEFAULT_TORQUE_SENSOR)})"
-                            for run in measured)
+        listing = ", ".join(f"{run.name} ({run.torque_sensor})" for run in measured)
         raise InputError(None, "torque_sensor", f"the runs mix torque sensor positions: {listing}",
                          "fit runs of one arm's sensor together: every run's metadata `torque_sensor` the same "
                          "(motor or link)")

@@ -25,7 +25,7 @@ parameters ``theta_e``, ``nl_e`` its few nonlinear parameters (a friction smooth
 The ladder (:mod:`sim2real.identification.sysid`) and the diagnosis (:mod:`sim2real.identification.diagnosis`) both call this
 package; it imports neither. Its modules, each importing only those above it:
 
-* :mod:`~sim2real.identification.fitting.data`: the torque data (:class:`TorqueData`, :func:`stack_runs`);
+* :mod:`~sim2real.identification.fitting.data`: the torque data (:class:`RunSamples` stacked by :func:`stack_runs` into :class:`TorqueData`);
 * :mod:`~sim2real.identification.fitting.nominal`: the nominal model (:func:`load_nominal`) and its signals;
 * :mod:`~sim2real.identification.fitting.problem`: the design at given nonlinear parameters (``_Problem``), shared by
   the fit, its consistent variant and the bootstrap, and the fitted values (:class:`FitResult`);
@@ -45,7 +45,7 @@ from sim2real.identification.fitting.bootstrap import (  # noqa: F401  (re-expor
     DELAY_STEP_S, _block_bootstrap, _intervals, _prune, replicate_intervals, small_sample_stretch,
 )
 from sim2real.identification.fitting.data import (  # noqa: F401  (re-exported: the package's names)
-    TorqueData, kept_segments, link_side, run_from_prepared, stack_runs,
+    RunSamples, TorqueData, kept_segments, link_side, stack_runs,
 )
 from sim2real.identification.fitting.scoring import (  # noqa: F401  (re-exported: the package's names)
     MIN_FLOOR_FRACTION, floor_units, holdout_metrics, joint_weights, predict,

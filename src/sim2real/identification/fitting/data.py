@@ -1,16 +1,19 @@
-"""Torque data: runs stacked along time on a uniform grid per run (:class:`TorqueData`), and where the
-judged torque is measured (:func:`link_side`)."""
+"""Torque data: runs (:class:`RunSamples`, a prepared run with its noise floor) stacked along time on a uniform grid
+per run (:class:`TorqueData`), and where the judged torque is measured (:func:`link_side`)."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR, TorqueSensor, measured_after_drive, torque_sensor_of
+
+if TYPE_CHECKING:
+    from sim2real.measurements.runs import PreparedRun
 
 
 def kept_segments(segments: Sequence[slice], rows: np.ndarray) -> list[slice]:
@@ -56,17 +59,39 @@ class TorqueData:
         )
 
 
-def stack_runs(
-    runs: Sequence[Mapping[str, Any]], joint_names: Sequence[str], fit_rate_hz: float | None = None
-) -> TorqueData:
-    """Stack runs given as mappings with time, q, qd, qdd, tau, torque_source, has_commands, noise_floor, name.
+@dataclass(frozen=True)
+class RunSamples:
+    """One run's samples as the fit stacks them: the judged torque, where it is measured and its noise floor."""
+
+    name: str
+    time: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau: np.ndarray  # judged torque
+    torque_source: str  # "tau" (sensor) or "tau_cmd" (command)
+    has_commands: bool
+    noise_floor: np.ndarray  # per joint
+    torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR
+
+    @classmethod
+    def of(cls, prepared: PreparedRun, noise_floor: np.ndarray, tau: np.ndarray | None = None) -> RunSamples:
+        """A prepared run with the floor its link is judged against; ``tau``: another judged torque (the
+        actuator link's command), the measured one by default."""
+        return cls(prepared.name, prepared.time, prepared.q, prepared.qd, prepared.qdd,
+                   prepared.tau if tau is None else tau, prepared.torque_source, prepared.tau_cmd is not None,
+                   noise_floor, prepared.torque_sensor)
+
+
+def stack_runs(runs: Sequence[RunSamples], joint_names: Sequence[str], fit_rate_hz: float | None = None) -> TorqueData:
+    """Stack runs along time, each on its own uniform grid.
 
     Each run is decimated to at most ``fit_rate_hz`` (every k-th sample: the signals are already
     zero-phase filtered, the torque noise stays white). Noise floors combine as an RMS over samples.
     """
     if not runs:
         raise InputError(None, "runs", "no runs to fit or judge", "list runs with role fit and holdout in measurements.yaml")
-    sources = {r["torque_source"] for r in runs}
+    sources = {r.torque_source for r in runs}
     if len(sources) > 1:
         raise InputError(
             None, "runs", f"runs mix judged torque sources {sorted(sources)}",
@@ -77,25 +102,25 @@ def stack_runs(
     segments, floors, counts, names = [], [], [], []
     start = 0
     for run in runs:
-        time = np.asarray(run["time"], dtype=float)
+        time = np.asarray(run.time, dtype=float)
         step = 1
         if fit_rate_hz and len(time) > 1:
             rate = 1.0 / float(np.median(np.diff(time)))
             step = max(1, int(round(rate / fit_rate_hz)))
         for key in parts:
-            parts[key].append(np.asarray(run[key], dtype=float)[::step])
+            parts[key].append(np.asarray(getattr(run, key), dtype=float)[::step])
         count = len(parts["time"][-1])
         segments.append(slice(start, start + count))
         start += count
-        floors.append(np.asarray(run["noise_floor"], dtype=float))
+        floors.append(np.asarray(run.noise_floor, dtype=float))
         counts.append(count)
-        names.append(str(run["name"]))
+        names.append(str(run.name))
     weights = np.asarray(counts, dtype=float)
     noise = np.sqrt(np.average(np.vstack(floors) ** 2, axis=0, weights=weights))
     return TorqueData(
         list(joint_names), *(_stacked(parts[k]) for k in ("time", "q", "qd", "qdd", "tau")),
         segments=segments, run_names=names, torque_source=sources.pop(),
-        has_commands=all(bool(r.get("has_commands")) for r in runs), noise_floor=noise, torque_sensor=sensor,
+        has_commands=all(r.has_commands for r in runs), noise_floor=noise, torque_sensor=sensor,
     )
 
 
@@ -103,16 +128,6 @@ def _stacked(parts: list[np.ndarray]) -> np.ndarray:
     """The runs' arrays one after the other; one run's own array when it is already contiguous (the actuator
     link takes a 10-minute run at 1 kHz as it is, not a copy of it: the same values and layout)."""
     return np.ascontiguousarray(parts[0]) if len(parts) == 1 else np.concatenate(parts)
-
-
-def run_from_prepared(prepared: Any, noise_floor: np.ndarray) -> dict[str, Any]:
-    """A :class:`sim2real.measurements.PreparedRun` as the mapping :func:`stack_runs` takes."""
-    return {
-        "name": prepared.name, "time": prepared.time, "q": prepared.q, "qd": prepared.qd, "qdd": prepared.qdd,
-        "tau": prepared.tau, "torque_source": prepared.torque_source,
-        "has_commands": prepared.tau_cmd is not None, "noise_floor": noise_floor,
-        "torque_sensor": prepared.torque_sensor,
-    }
 
 
 def link_side(data: TorqueData) -> bool:
