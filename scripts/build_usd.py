@@ -4,14 +4,14 @@ import logging
 
 from sim2real.cli import rule_entry
 from sim2real.assets.collision import parts_by_uri
+from sim2real.assets.meshes import BuiltMeshes
 from sim2real.assets.usd import build_usd
 
 with rule_entry(snakemake):
     summary = build_usd(
         snakemake.input.urdf,
         snakemake.input.config,
-        list(snakemake.input.visual),
-        parts_by_uri(snakemake.params.collision_dirs),
+        BuiltMeshes.of(list(snakemake.input.visual), parts_by_uri(snakemake.params.collision_dirs)),
         snakemake.output.usda,
         snakemake.output.geometry,
     )

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from sim2real.errors import InputError
-from sim2real.assets.meshes import convert_collision_mesh, convert_visual_mesh
+from sim2real.assets.meshes import BuiltMeshes, convert_collision_mesh, convert_visual_mesh
 from sim2real.assets.mjcf import build_mjcf
 from sim2real.assets.urdf import build_urdf, mesh_names, resolve_package_uri
 
@@ -47,7 +47,7 @@ class Built:
             self.collision[uri] = [out]
         self.xml = self.dir / "mjcf" / f"{robot}.xml"
         self.scene = self.dir / "mjcf" / "scene.xml"
-        build_mjcf(self.urdf, self.config, self.visual_dirs, self.collision, self.xml, self.scene)
+        build_mjcf(self.urdf, self.config, BuiltMeshes.of(self.visual_dirs, self.collision), self.xml, self.scene)
         self.model = mujoco.MjModel.from_xml_path(str(self.scene))
         self.urdf_root = ET.parse(self.urdf).getroot()
 
@@ -191,7 +191,7 @@ def test_panda_mimic_finger_is_an_equality(built: dict[str, Built]) -> None:
 def test_rebuild_is_byte_identical(built: dict[str, Built]) -> None:
     b = built["ur5"]
     again = b.dir / "mjcf" / "again.xml"
-    build_mjcf(b.urdf, b.config, b.visual_dirs, b.collision, again, b.dir / "mjcf" / "again_scene.xml")
+    build_mjcf(b.urdf, b.config, BuiltMeshes.of(b.visual_dirs, b.collision), again, b.dir / "mjcf" / "again_scene.xml")
     assert again.read_text() == b.xml.read_text()
 
 
@@ -206,7 +206,7 @@ def test_several_collision_parts_and_spec_edit(built: dict[str, Built], tmp_path
         spec.joint("elbow_joint").damping = [7.0, 0.0, 0.0]
 
     out = b.dir / "variant" / "mjcf"
-    build_mjcf(b.urdf, b.config, b.visual_dirs, collision, out / "ur5.xml", out / "scene.xml", spec_edit=heavier_damping)
+    build_mjcf(b.urdf, b.config, BuiltMeshes.of(b.visual_dirs, collision), out / "ur5.xml", out / "scene.xml", spec_edit=heavier_damping)
     model = mujoco.MjModel.from_xml_path(str(out / "scene.xml"))
     collision_geoms = sum(1 for g in range(model.ngeom) if model.geom_group[g] == 3)
     assert collision_geoms == sum(1 for g in range(b.model.ngeom) if b.model.geom_group[g] == 3) + 1
@@ -222,5 +222,5 @@ def test_bad_robot_config_is_named_and_leaves_no_output(built: dict[str, Built],
     bad.write_text(yaml.safe_dump(config))
     out = tmp_path / "mjcf"
     with pytest.raises(InputError, match=r"robot\.yaml: actuators\[3\]\.joints 'gripper_\*': matches no actuated joint"):
-        build_mjcf(b.urdf, bad, b.visual_dirs, b.collision, out / "ur5.xml", out / "scene.xml")
+        build_mjcf(b.urdf, bad, BuiltMeshes.of(b.visual_dirs, b.collision), out / "ur5.xml", out / "scene.xml")
     assert not out.exists() or list(out.iterdir()) == []

@@ -14,6 +14,7 @@ import yaml
 
 from collision_usd_build import ROBOT, fast_panda_build
 from sim2real.assets.collision import part_files
+from sim2real.assets.meshes import BuiltMeshes
 from sim2real.assets.urdf_model import read_urdf
 from sim2real.assets.usd import build_usd
 from sim2real.assets.usd_bodies import axis_frame, principal_inertia
@@ -40,7 +41,7 @@ def build_again(tree: Path, out_dir: Path) -> tuple[Path, Path]:
     visual = [results / "meshes" / "visual" / n for n in names["visual"]]
     collision = {uri: part_files(results / "collision" / n) for n, uri in names["collision"].items()}
     out = (out_dir / f"{ROBOT}.usda", out_dir / f"{ROBOT}_geometry.usda")
-    build_usd(results / f"{ROBOT}.urdf", tree / "configs" / ROBOT / "robot.yaml", visual, collision, *out)
+    build_usd(results / f"{ROBOT}.urdf", tree / "configs" / ROBOT / "robot.yaml", BuiltMeshes.of(visual, collision), *out)
     return out
 
 

@@ -11,11 +11,13 @@ Outputs are deterministic (fixed number format, sorted vertex table) and written
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from sim2real.assets.urdf import mesh_name
 from sim2real.errors import InputError
 from sim2real.files import atomic_dir, atomic_path, write_json
 
@@ -194,3 +196,21 @@ def convert_collision_mesh(stl_path: str | Path, out_path: str | Path, source_ur
         raise InputError(label, None, "is neither a binary nor an ASCII STL (or has no triangles)", "re-export the mesh as STL")
     with atomic_path(out_path) as tmp:
         tmp.write_bytes(payload)
+
+
+@dataclass(frozen=True)
+class BuiltMeshes:
+    """The built meshes the asset writers (MJCF, USD) place: each visual mesh's directory of parts (``parts.json``
+    inside) by mesh name, and each URDF collision mesh URI's files (one STL, or CoACD's convex parts)."""
+
+    visual: dict[str, Path]
+    collision: Mapping[str, Sequence[str | Path]]
+
+    @classmethod
+    def of(cls, visual_dirs: Mapping[str, str | Path] | Sequence[str | Path],
+           collision: Mapping[str, Sequence[str | Path]]) -> BuiltMeshes:
+        """``visual_dirs``: a list of directories (a directory's name is its mesh name, the URI's file stem) or a
+        mapping URI -> directory."""
+        if isinstance(visual_dirs, Mapping):
+            return cls({mesh_name(uri): Path(d) for uri, d in visual_dirs.items()}, collision)
+        return cls({Path(d).name: Path(d) for d in visual_dirs}, collision)

@@ -22,11 +22,12 @@ import mujoco
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.files import atomic_path, read_validated_yaml, relative_path, write_text
-from sim2real.assets.meshes import read_parts
+from sim2real.files import atomic_path, relative_path, write_text
+from sim2real.assets.meshes import BuiltMeshes, read_parts
+from sim2real.assets.robot_config import first_match, read_robot_config
 from sim2real.assets.urdf import mesh_name
+from sim2real.assets.urdf_model import float_list
 
-ROBOT_SCHEMA = "robot.schema.yaml"
 VISUAL_CLASS = "visual"
 COLLISION_CLASS = "collision"
 INTEGRATORS = {
@@ -47,7 +48,7 @@ class UrdfGeometry:
 
 
 def _floats(text: str | None, default: Sequence[float]) -> tuple[float, ...]:
-    return tuple(float(v) for v in text.split()) if text else tuple(default)
+    return tuple(float(v) for v in float_list(text, default))
 
 
 def rpy_to_quat(rpy: Sequence[float]) -> tuple[float, float, float, float]:
@@ -96,18 +97,10 @@ def _import_urdf_without_geometry(urdf_path: Path) -> tuple[mujoco.MjSpec, ET.El
     return spec, root
 
 
-def _matching(name: str, patterns: Mapping[str, object]) -> object | None:
-    for pattern, value in patterns.items():
-        if fnmatch.fnmatchcase(name, pattern):
-            return value
-    return None
-
-
 def build_mjcf(
     urdf_path: str | Path,
     robot_config_path: str | Path,
-    visual_dirs: Mapping[str, str | Path] | Sequence[str | Path],
-    collision_meshes: Mapping[str, Sequence[str | Path]],
+    meshes: BuiltMeshes,
     out_xml: str | Path,
     out_scene: str | Path,
     *,
@@ -115,21 +108,14 @@ def build_mjcf(
 ) -> None:
     """Build ``out_xml`` (robot) and ``out_scene`` (floor, light, ``<include>`` of the robot).
 
-    ``visual_dirs``: converted visual mesh directories (``parts.json`` inside), either a list (the
-    directory name is the mesh name = URI file stem) or a mapping URI -> directory.
-    ``collision_meshes``: URDF collision mesh URI -> list of mesh files (one STL, or several convex
-    parts); each file becomes one collision geom. ``spec_edit`` is applied last, before saving.
+    ``meshes``: the visual parts and the collision files; each collision file becomes one collision geom.
+    ``spec_edit`` is applied last, before saving.
     Both files are written atomically and only after the model compiles.
     """
     urdf_path, out_xml, out_scene = Path(urdf_path), Path(out_xml), Path(out_scene)
-    config = read_validated_yaml(robot_config_path, ROBOT_SCHEMA)
+    config = read_robot_config(robot_config_path)
     out_dir = out_xml.parent
     out_dir.mkdir(parents=True, exist_ok=True)
-
-    if isinstance(visual_dirs, Mapping):
-        visual_by_name = {mesh_name(uri): Path(d) for uri, d in visual_dirs.items()}
-    else:
-        visual_by_name = {Path(d).name: Path(d) for d in visual_dirs}
 
     spec, root = _import_urdf_without_geometry(urdf_path)
     spec.modelname = root.get("name", spec.modelname)
@@ -140,7 +126,7 @@ def build_mjcf(
     _add_attachment_site(spec, config, robot_config_path)
     _add_home_keyframe(spec, config, robot_config_path)  # compiles the geometry-free tree: cheap
     visual_class, collision_class = _add_default_classes(spec)
-    _add_geometry(spec, root, urdf_path, visual_by_name, collision_meshes, out_dir, visual_class, collision_class)
+    _add_geometry(spec, root, urdf_path, meshes.visual, meshes.collision, out_dir, visual_class, collision_class)
     if spec_edit is not None:
         spec_edit(spec)
 
@@ -287,7 +273,7 @@ def _set_joint_dynamics(spec: mujoco.MjSpec, root: ET.Element, config: Mapping, 
         friction = float(dynamics.get("friction", 0)) if dynamics is not None else 0.0
         mj_joint.damping = [damping, 0.0, 0.0]  # MuJoCo 4: polynomial damping, linear term first
         mj_joint.frictionloss = friction
-        value = _matching(name, armature)
+        value = first_match(name, armature)
         if value is not None:
             mj_joint.armature = float(value)  # type: ignore[arg-type]
 

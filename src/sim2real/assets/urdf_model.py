@@ -19,7 +19,8 @@ RAD_PER_DEG = math.pi / 180.0
 AXIS_TOKENS = ("X", "Y", "Z")
 
 
-def _floats(text: str | None, default: Sequence[float]) -> np.ndarray:
+def float_list(text: str | None, default: Sequence[float]) -> np.ndarray:
+    """A URDF attribute of numbers (``xyz``, ``rpy``, ``scale``, ``size``), ``default`` where it is absent."""
     return np.array([float(v) for v in text.split()] if text else list(default), dtype=float)
 
 
@@ -44,8 +45,8 @@ def transform(rotation: np.ndarray | None = None, translation: Sequence[float] |
 
 def origin_transform(element: ET.Element | None) -> np.ndarray:
     origin = element.find("origin") if element is not None else None
-    xyz = _floats(origin.get("xyz") if origin is not None else None, (0, 0, 0))
-    rpy = _floats(origin.get("rpy") if origin is not None else None, (0, 0, 0))
+    xyz = float_list(origin.get("xyz") if origin is not None else None, (0, 0, 0))
+    rpy = float_list(origin.get("rpy") if origin is not None else None, (0, 0, 0))
     return transform(rpy_matrix(rpy), xyz)
 
 
@@ -123,10 +124,10 @@ def read_urdf(urdf_path: str | Path) -> UrdfModel:
                 shape = geometry[0]
                 pose = origin_transform(item)
                 if shape.tag == "mesh":
-                    scale = tuple(_floats(shape.get("scale"), (1, 1, 1)))
+                    scale = tuple(float_list(shape.get("scale"), (1, 1, 1)))
                     link.geometries.append(Geometry(kind, "mesh", pose, uri=shape.get("filename", ""), scale=scale))  # type: ignore[arg-type]
                 elif shape.tag == "box":
-                    link.geometries.append(Geometry(kind, "box", pose, size=tuple(_floats(shape.get("size"), (0, 0, 0)))))
+                    link.geometries.append(Geometry(kind, "box", pose, size=tuple(float_list(shape.get("size"), (0, 0, 0)))))
                 elif shape.tag == "cylinder":
                     link.geometries.append(Geometry(kind, "cylinder", pose, size=(float(shape.get("radius", 0)), float(shape.get("length", 0)))))
                 elif shape.tag == "sphere":
@@ -140,7 +141,7 @@ def read_urdf(urdf_path: str | Path) -> UrdfModel:
         def limit_value(key: str, limit: ET.Element | None = limit) -> float | None:
             return float(limit.get(key)) if limit is not None and limit.get(key) is not None else None  # type: ignore[arg-type]
 
-        axis = _floats(element.find("axis").get("xyz") if element.find("axis") is not None else None, (1, 0, 0))  # type: ignore[union-attr]
+        axis = float_list(element.find("axis").get("xyz") if element.find("axis") is not None else None, (1, 0, 0))  # type: ignore[union-attr]
         joint = Joint(
             name=element.get("name", ""), type=element.get("type", ""),
             parent=element.find("parent").get("link", ""), child=element.find("child").get("link", ""),  # type: ignore[union-attr]

@@ -22,7 +22,6 @@ is read back by USD's validators (:mod:`sim2real.assets.usd_validation`) before 
 from __future__ import annotations
 
 import contextlib
-import fnmatch
 import os
 import re
 import shutil
@@ -36,13 +35,13 @@ import numpy as np
 import trimesh
 
 from sim2real.assets.meshes import read_parts
-from sim2real.assets.mjcf import ROBOT_SCHEMA
+from sim2real.assets.meshes import BuiltMeshes
+from sim2real.assets.robot_config import first_match, read_robot_config
 from sim2real.assets.urdf import mesh_name
 from sim2real.assets.urdf_model import RAD_PER_DEG, Geometry, UrdfModel, read_urdf, transform
 from sim2real.assets.usd_bodies import Body, DriveGains, axis_frame, drive_gains, fold_bodies, matrix_to_quat, principal_inertia
 from sim2real.assets.usd_validation import compliance_errors
 from sim2real.errors import InputError
-from sim2real.files import read_validated_yaml
 
 GEOMETRY_ROOT = "/Geometry"
 
@@ -159,34 +158,28 @@ def _material(stage: Any, looks: str, rgba: tuple[float, ...], cache: dict[tuple
 def build_usd(
     urdf_path: str | Path,
     robot_config_path: str | Path,
-    visual_dirs: Mapping[str, str | Path] | Sequence[str | Path],
-    collision_meshes: Mapping[str, Sequence[str | Path]],
+    meshes: BuiltMeshes,
     out_usda: str | Path,
     out_geometry: str | Path,
 ) -> dict[str, Any]:
     """Write the robot layer ``out_usda`` and the geometry layer ``out_geometry`` (same directory).
 
-    ``visual_dirs``: built visual mesh directories (name = URI file stem), list or URI -> directory.
-    ``collision_meshes``: URDF collision mesh URI -> convex part files (or one mesh file).
+    ``meshes``: the visual parts and the collision files (CoACD's convex parts, or one mesh file).
     Returns a summary (bodies, joints, drives). Both layers pass USD's registered validators
     (:func:`compliance_errors`) before they replace the outputs.
     """
     urdf_path, out_usda, out_geometry = Path(urdf_path), Path(out_usda), Path(out_geometry)
     if out_usda.parent.resolve() != out_geometry.parent.resolve():
         raise InputError(out_geometry, None, "must sit beside the robot layer", f"write it into {out_usda.parent}")
-    config = read_validated_yaml(robot_config_path, ROBOT_SCHEMA)
+    config = read_robot_config(robot_config_path)
     model = read_urdf(urdf_path)
     bodies, body_of = fold_bodies(model)
     gains = drive_gains(model, config, robot_config_path)
     home = dict(config.get("home") or {})
     armature_patterns = dict(config.get("armature") or {})
-    if isinstance(visual_dirs, Mapping):
-        visual_by_name = {mesh_name(uri): Path(d) for uri, d in visual_dirs.items()}
-    else:
-        visual_by_name = {Path(d).name: Path(d) for d in visual_dirs}
 
     with _staging_dir(out_usda, out_geometry) as (tmp_usda, tmp_geometry):
-        summary = _author(model, bodies, body_of, gains, home, armature_patterns, visual_by_name, collision_meshes,
+        summary = _author(model, bodies, body_of, gains, home, armature_patterns, meshes.visual, meshes.collision,
                           urdf_path, tmp_usda, tmp_geometry)
     return summary
 
@@ -312,7 +305,7 @@ def _author(
             if joint.type != "continuous" and joint.lower is not None and joint.upper is not None:
                 usd_joint.CreateLowerLimitAttr(float(joint.lower * to_usd))
                 usd_joint.CreateUpperLimitAttr(float(joint.upper * to_usd))
-            armature = _matching(joint.name, armature_patterns)
+            armature = first_match(joint.name, armature_patterns)
             if armature is not None:
                 prim = usd_joint.GetPrim()
                 for attr in ("newton:armature", "physxJoint:armature"):  # solver-specific, no core schema
@@ -333,13 +326,6 @@ def _author(
     geometry_stage.GetRootLayer().Save()
     stage.GetRootLayer().Save()
     return {"bodies": list(bodies), "joints": summary_joints}
-
-
-def _matching(name: str, patterns: Mapping[str, Any]) -> Any:
-    for pattern, value in patterns.items():
-        if fnmatch.fnmatchcase(name, pattern):
-            return value
-    return None
 
 
 def _primitive(stage: Any, path: str, item: Geometry) -> Any:

@@ -24,7 +24,8 @@ from sim2real.identification.fitting import load_nominal  # noqa: E402
 from sim2real.errors import InputError  # noqa: E402
 from sim2real.design_names import confounded_pair  # noqa: E402
 from sim2real.excitation.separation import Separation, fitted_candidates  # noqa: E402
-from sim2real.files import atomic_path, read_validated_yaml, write_json, write_text  # noqa: E402
+from sim2real.files import atomic_path, write_json, write_text  # noqa: E402
+from sim2real.assets.robot_config import read_robot_config  # noqa: E402
 
 PNG_METADATA = {"Software": None}
 
@@ -160,7 +161,7 @@ def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path
 
     pair = confounded_pair(name)
     design = load_design(config, name, allow_default=pair is not None)
-    robot_settings = read_validated_yaml(robot_config, "robot.schema.yaml")
+    robot_settings = read_robot_config(robot_config)
     effects = load_model_config(model_config)["effects"] if model_config and Path(model_config).exists() else []
     nominal = load_nominal(urdf, design.joints, robot_settings.get("armature"), robot_settings.get("flange"))
     separation = None

@@ -4,7 +4,6 @@ link's signals (:func:`make_signals`)."""
 
 from __future__ import annotations
 
-import fnmatch
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -15,6 +14,7 @@ import numpy as np
 import pinocchio as pin
 
 from sim2real.assets.dynamics import RigidBodyModel
+from sim2real.assets.robot_config import first_match
 from sim2real.identification.effects import Signals
 from sim2real.errors import InputError
 from sim2real.cache import FitCache, digest
@@ -25,10 +25,9 @@ def resolve_armature(patterns: Mapping[str, float] | None, joint_names: Sequence
     """robot.yaml ``armature`` (joint name or glob -> value; first match wins) per joint."""
     out: dict[str, float] = {}
     for joint in joint_names:
-        for pattern, value in (patterns or {}).items():
-            if fnmatch.fnmatchcase(joint, pattern):
-                out[joint] = float(value)
-                break
+        value = first_match(joint, patterns or {})
+        if value is not None:
+            out[joint] = float(value)
     return out
 
 

@@ -1,0 +1,26 @@
+"""configs/{robot}/robot.yaml: read against its schema, and its joint patterns (``armature``, ``home``,
+``actuators``: a joint name or glob -> value, the first matching pattern wins)."""
+
+from __future__ import annotations
+
+import fnmatch
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from sim2real.files import read_validated_yaml
+
+ROBOT_SCHEMA = "robot.schema.yaml"
+
+
+def read_robot_config(path: str | Path) -> Any:
+    """robot.yaml, validated against ``schemas/robot.schema.yaml`` (an error names the file, the key and the fix)."""
+    return read_validated_yaml(path, ROBOT_SCHEMA)
+
+
+def first_match(name: str, patterns: Mapping[str, Any]) -> Any | None:
+    """The value of the first pattern (a name or a glob) that ``name`` matches, None when none does."""
+    for pattern, value in patterns.items():
+        if fnmatch.fnmatchcase(name, pattern):
+            return value
+    return None
