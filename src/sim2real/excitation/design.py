@@ -239,7 +239,7 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
     judge: Identification | Separation = ident if separation is None else separation
 
     def f(x: np.ndarray) -> np.ndarray:
-        return np.array([judge.state_gradient(*objective_grid.state(x), objective)[0]])
+        return np.array([judge.value(*objective_grid.state(x), objective)])
 
     def df(x: np.ndarray) -> np.ndarray:
         _, dq, dqd, dqdd = judge.state_gradient(*objective_grid.state(x), objective)

@@ -75,7 +75,7 @@ class Separation:
         terms = [effect.columns(signals, {}, nonlinear)[0] @ linear for effect, linear, nonlinear in self.effects]
         return (terms[0] - terms[1]) * self.row_weight
 
-    def value(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> float:
+    def value(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, objective: str = "separate") -> float:
         return -float(np.log(np.mean(np.sum(self.difference(q, qd, qdd) ** 2, axis=1)) + 1e-300))
 
     def state_gradient(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, objective: str = "separate"
