@@ -241,3 +241,46 @@ def test_gap_md_names_the_design_when_the_inertias_are_poorly_pinned() -> None:
     poorly = "\n".join(_identified_markdown(rung(3 * ILL_CONDITIONED), "panda"))
     assert "`snakemake results/panda/excitation/identification.csv`" in poorly
     assert "excitation/" not in "\n".join(_identified_markdown(rung(0.5 * ILL_CONDITIONED), "panda"))
+
+
+@pytest.mark.parametrize("objective", ["condition", "d_optimal"])
+def test_the_objective_gradient_is_the_derivative_of_the_objective(objective: str) -> None:
+    """The design's analytic gradient (Gram eigenpairs, not an SVD) against central differences of its value."""
+    from sim2real.excitation.information import objective_and_gradient, objective_value
+
+    rng = np.random.default_rng(3)
+    w = rng.normal(size=(300, 12)) * rng.uniform(0.1, 10.0, 12)
+    value, gradient = objective_and_gradient(w, objective)
+    assert value == pytest.approx(objective_value(w, objective), rel=1e-12)
+    for _ in range(3):
+        direction = rng.normal(size=w.shape)
+        step = 1e-6
+        numeric = (objective_value(w + step * direction, objective) - objective_value(w - step * direction, objective)) / (2 * step)
+        assert float(np.sum(gradient * direction)) == pytest.approx(numeric, rel=1e-5, abs=1e-8)
+
+
+def test_the_clearance_gradient_follows_the_distance(designed: Path) -> None:
+    """n'(J2 - J1) at the nearest contact against central differences of the distance, where a pair of geoms comes
+    within the search distance without touching (the distance is smooth there)."""
+    from sim2real.excitation.clearance import Clearance
+
+    joints = [f"panda_joint{i}" for i in range(1, 8)]
+    clearance = Clearance(designed / "results/panda/mjcf/panda.xml", joints,
+                          [{"name": "table", "type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}], 0.1)
+    rng = np.random.default_rng(0)
+    home = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+    checked = 0
+    for _ in range(200):
+        q = home + rng.normal(scale=0.8, size=7)
+        distance, pair = clearance.closest(q)
+        if pair is None or distance < 0.005:
+            continue
+        step = 1e-6
+        numeric = np.array([(clearance.closest(q + step * e)[0] - clearance.closest(q - step * e)[0]) / (2 * step)
+                            for e in np.eye(7)])
+        if np.abs(numeric).max() < 0.02:  # a pair whose distance barely moves: nothing to compare
+            continue
+        # mesh-mesh witness points are found to about a millimetre: a few 1e-3 of slack on top of 10 %
+        assert np.allclose(clearance.gradient(q), numeric, atol=0.005 + 0.1 * np.abs(numeric).max()), pair
+        checked += 1
+    assert checked >= 3
