@@ -1,11 +1,7 @@
-"""One fast Snakemake build of the Panda's collision parts, MJCF, USD and equivalence, shared by the
-collision/USD/equivalence/Newton tests (built once per test process, in a tmp copy of the project)."""
+"""The Panda targets the collision, USD, equivalence and Newton tests read from the suite's shared built tree
+(conftest.py's ``built_tree``: `snakemake all` at fast settings, built once for the suite)."""
 
 from __future__ import annotations
-
-from pathlib import Path
-
-from buildtree import copy_repo, make_fast, run_snakemake
 
 ROBOT = "panda"
 TARGETS = [
@@ -14,14 +10,3 @@ TARGETS = [
     f"results/{ROBOT}/usd/{ROBOT}.usda",
     f"results/{ROBOT}/equivalence.json",
 ]
-_BUILDS: dict[Path, Path] = {}
-
-
-def fast_panda_build(repo_root: Path, workdir: Path) -> Path:
-    """Project tree with the fast-settings Panda built (cached per repository for this process)."""
-    if repo_root not in _BUILDS:
-        tree = copy_repo(repo_root, workdir / "project")
-        make_fast(tree)
-        run_snakemake(tree, *TARGETS)
-        _BUILDS[repo_root] = tree
-    return _BUILDS[repo_root]

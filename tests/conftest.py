@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from readme import ReadmeRun
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -13,3 +17,18 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 def repo_root() -> Path:
     """The project checkout (read-only for tests: copy before editing)."""
     return REPO_ROOT
+
+
+@pytest.fixture(scope="session")
+def readme_run(tmp_path_factory: pytest.TempPathFactory) -> "ReadmeRun":
+    """The README's commands run as written in a fast copy of the project, once for the suite: the built tree
+    that tests needing one copy (readme.copy_built) rather than building their own."""
+    from readme import run_readme
+
+    return run_readme(REPO_ROOT, tmp_path_factory.mktemp("readme"))
+
+
+@pytest.fixture(scope="session")
+def built_tree(readme_run: "ReadmeRun") -> Path:
+    """The shared built tree (`snakemake all` at fast settings, and the rest of the README): read-only."""
+    return readme_run.tree

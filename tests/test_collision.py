@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from buildtree import edit_yaml, run_snakemake
-from collision_usd_build import ROBOT, TARGETS, fast_panda_build
+from collision_usd_build import ROBOT, TARGETS
 from sim2real.assets.collision import (
     CoacdSettings,
     MeshSettings,
@@ -34,8 +34,9 @@ FAST = MeshSettings(source="collision", coacd=CoacdSettings(threshold=0.3, max_c
 
 
 @pytest.fixture(scope="module")
-def built(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return fast_panda_build(repo_root, tmp_path_factory.mktemp("panda_build"))
+def built(built_tree: Path) -> Path:
+    """The suite's shared built tree (conftest): read-only."""
+    return built_tree
 
 
 def test_settings_merge_defaults_section_and_per_mesh_override() -> None:

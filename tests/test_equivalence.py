@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from collision_usd_build import ROBOT, fast_panda_build
+from collision_usd_build import ROBOT
 from sim2real.assets.equivalence import check_equivalence, mjcf_facts, urdf_facts, usd_facts
 from sim2real.errors import InputError
 
@@ -16,8 +16,9 @@ from pxr import Usd, UsdPhysics  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def built(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return fast_panda_build(repo_root, tmp_path_factory.mktemp("panda_build"))
+def built(built_tree: Path) -> Path:
+    """The suite's shared built tree (conftest): read-only."""
+    return built_tree
 
 
 def paths(tree: Path) -> tuple[Path, Path, Path]:

@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from buildtree import run_snakemake
-from collision_usd_build import fast_panda_build
+from readme import copy_built
 from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.errors import InputError
 from sim2real.excitation.config import load_designs
@@ -23,9 +23,10 @@ TARGET = "results/panda/excitation/identification.csv"
 
 
 @pytest.fixture(scope="module")
-def designed(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    tree = fast_panda_build(repo_root, tmp_path_factory.mktemp("excitation"))
-    run_snakemake(tree, TARGET)
+def designed(built_tree: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A copy of the shared built tree (its `snakemake all` designed the excitation): this module reruns the design."""
+    tree = copy_built(built_tree, tmp_path_factory.mktemp("excitation") / "project")
+    assert "Nothing to be done" in run_snakemake(tree, "-n", TARGET)
     return tree
 
 

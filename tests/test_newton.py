@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from collision_usd_build import ROBOT, fast_panda_build
+from collision_usd_build import ROBOT
 from sim2real.assets.equivalence import hold_in_mujoco, hold_in_newton
 from sim2real.assets.urdf_model import read_urdf
 
@@ -28,8 +28,9 @@ SAG_REL_TOL = 0.10
 
 
 @pytest.fixture(scope="module")
-def built(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return fast_panda_build(repo_root, tmp_path_factory.mktemp("panda_build"))
+def built(built_tree: Path) -> Path:
+    """The suite's shared built tree (conftest): read-only."""
+    return built_tree
 
 
 @pytest.fixture(scope="module")

@@ -1,12 +1,10 @@
 """Every command the README and the pages of docs/ show works (issues 21 and 31).
 
-The command list comes from the README and docs/*.md themselves (in that order): each line of their ``bash`` blocks (continuations joined,
-``&&`` chains split, comments dropped) must match one entry of COVERAGE, which says how this test runs
-it or why it cannot here; a command the README gains without an entry fails the test. The commands run
-as written, in the order the README gives them, in a copy of the project at fast settings (coarse
-CoACD, short lab runs, few bootstrap replicates) with this test's interpreter: the environment that
-``pip install -e '.[test]'`` made, which holds everything ``pip install -e .`` installs (checked below).
-The README's ``python`` block runs after them; its ``yaml`` blocks that name a file are that file.
+tests/readme.py reads the commands and says how each is covered (COVERAGE); the conftest's ``readme_run`` runs
+them as written, in order, in a fast copy of the project, once for the suite (the tests that need a built tree
+copy it). The environment is the one ``pip install -e '.[test]'`` made, which holds everything
+``pip install -e .`` installs (checked below). The README's ``python`` block runs after them; its ``yaml`` blocks
+that name a file are that file.
 """
 
 from __future__ import annotations
@@ -14,8 +12,6 @@ from __future__ import annotations
 import importlib.metadata
 import json
 import os
-import re
-import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -23,65 +19,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from buildtree import copy_repo, make_fast
+from readme import ReadmeRun, coverage, readme_blocks, readme_commands
 
 ROOT = Path(__file__).resolve().parents[1]
-# The README first, then every page of docs/: what a newcomer reads, and every command they may type.
-README = "\n".join(path.read_text(encoding="utf-8")
-                   for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))])
 pytestmark = pytest.mark.slow
-
-RUN, HELP, SKIP = "run", "help", "skip"
-# (pattern, how, why): the first entry whose pattern matches a README command decides.
-COVERAGE: list[tuple[str, str, str]] = [
-    (r"python3 -m venv \.venv", SKIP, "makes the environment this test runs in"),
-    (r"\.venv/bin/pip install (-q )?-e (\.|'\.\[test\]')", SKIP,
-     "installs the project: test_install_holds_what_the_readme_needs checks what it brings"),
-    (r"(\.venv/bin/)?python -m pytest", SKIP, "the suite this test is part of"),
-    (r"python -m mujoco\.viewer .*", SKIP, "needs a display"),
-    (r"snakemake all --profile profiles/(slurm|kubernetes)( .*)?", SKIP,
-     "needs a cluster: tests/test_slurm.py (local SLURM) and tests/test_scaleout.py (dry runs) cover them"),
-    (r"export SNAKEMAKE_STORAGE_S3_.*", SKIP, "credentials of the Kubernetes profile"),
-    (r"python benchmarks/(bench_build|bench_gap)\.py( panda)?", SKIP,
-     "minutes of cold builds and full-length lab runs; no smaller setting"),
-    (r"python benchmarks/(bench_collision_usd|bench_sysid|bench_fleet|bench_real_arm_loop|bench_excitation|bench_loop|fuzz_inputs)\.py", HELP,
-     "minutes at their smallest setting: their command line is checked (--help)"),
-    (r"python benchmarks/(bench_dr|bench_resources)\.py", RUN, "seconds, on the built results"),
-    (r"(\.venv/bin/)?snakemake [^|;&]*", RUN, "Snakemake targets"),
-    (r"cat results/\S+", RUN, "a built report"),
-]
-
-
-def readme_blocks(language: str) -> list[str]:
-    return re.findall(rf"^```{language}\n(.*?)^```", README, flags=re.MULTILINE | re.DOTALL)
-
-
-def readme_commands() -> list[str]:
-    """Every shell command of the README's bash blocks, in order."""
-    commands = []
-    for block in readme_blocks("bash"):
-        for line in block.replace("\\\n", " ").splitlines():
-            line = re.sub(r"(^|\s)#.*$", "", line).strip()
-            commands += [part.strip() for part in line.split("&&") if part.strip()]
-    return commands
-
-
-def coverage(command: str) -> tuple[str, str]:
-    for pattern, how, why in COVERAGE:
-        if re.fullmatch(pattern, command):
-            return how, why
-    raise AssertionError(f"README command not covered by tests/test_readme_commands.py: {command!r}; "
-                         "add an entry to COVERAGE (run it, or say why it cannot run here)")
-
-
-def argv(command: str) -> list[str]:
-    words = shlex.split(command)
-    program = words[0].removeprefix(".venv/bin/")
-    if program == "snakemake":
-        return [sys.executable, "-m", "snakemake", *words[1:]]
-    if program == "python":
-        return [sys.executable, *words[1:]]
-    return words
 
 
 def test_every_readme_command_is_covered() -> None:
@@ -118,19 +59,9 @@ def test_readme_yaml_blocks_are_the_files_they_name() -> None:
     assert named >= 1
 
 
-def test_readme_commands_run_as_written(tmp_path: Path) -> None:
-    tree = copy_repo(ROOT, tmp_path / "repo")
-    make_fast(tree, lab_duration_s=4.0)
+def test_readme_commands_run_as_written(readme_run: ReadmeRun) -> None:
+    tree, ran = readme_run.tree, readme_run.ran
     env = {**os.environ, "PYTHONHASHSEED": "0", "MPLBACKEND": "Agg"}
-    ran = []
-    for command in readme_commands():
-        how, _ = coverage(command)
-        if how == SKIP:
-            continue
-        args = argv(command) + (["--help"] if how == HELP else [])
-        done = subprocess.run(args, cwd=tree, capture_output=True, text=True, timeout=900, env=env)
-        assert done.returncode == 0, f"README command failed: {command}\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
-        ran.append(command)
     assert ".venv/bin/snakemake all" in ran and "snakemake results/fleet.md" in ran
     assert (tree / "results/report.html").stat().st_size > 100_000
     # the shipped demo's two campaigns of one arm are compared (4 s lab runs cannot resolve its drift:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from collision_usd_build import ROBOT, fast_panda_build
+from collision_usd_build import ROBOT
 from sim2real.assets.collision import part_files
 from sim2real.assets.meshes import BuiltMeshes
 from sim2real.assets.urdf_model import read_urdf
@@ -26,8 +26,9 @@ from pxr import Gf, Usd, UsdGeom, UsdPhysics, UsdShade  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def built(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return fast_panda_build(repo_root, tmp_path_factory.mktemp("panda_build"))
+def built(built_tree: Path) -> Path:
+    """The suite's shared built tree (conftest): read-only."""
+    return built_tree
 
 
 @pytest.fixture(scope="module")
