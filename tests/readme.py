@@ -18,8 +18,6 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-import pytest
-
 from buildtree import copy_repo, make_fast
 
 ROOT = Path(__file__).resolve().parents[1]
