@@ -9,6 +9,7 @@ import pytest
 
 if TYPE_CHECKING:
     from readme import ReadmeRun
+    from sysid_lab import Lab
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -32,3 +33,12 @@ def readme_run(tmp_path_factory: pytest.TempPathFactory) -> "ReadmeRun":
 def built_tree(readme_run: "ReadmeRun") -> Path:
     """The shared built tree (`snakemake all` at fast settings, and the rest of the README): read-only."""
     return readme_run.tree
+
+
+@pytest.fixture(scope="session")
+def shared_lab(tmp_path_factory: pytest.TempPathFactory) -> "Lab":
+    """One virtual lab for the suite's fits (tests/sysid_lab.py at its default settings): its runs are made once,
+    and a scenario followed by two test modules is followed once."""
+    from sysid_lab import Lab
+
+    return Lab(tmp_path_factory.mktemp("lab"))

@@ -22,23 +22,9 @@ ACTUATOR_SCENARIOS = {
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory) -> Lab:
-    return Lab(tmp_path_factory.mktemp("actuator_lab"))
-
-
-def follow_both_links(lab: Lab, scenario: str, with_sensor: bool = True, rounds: int = 6) -> list[dict]:
-    """The user's loop over both links: each round adds the top candidate of every link that asks for one."""
-    effects: list[str] = []
-    documents = [lab.model(scenario, effects, with_sensor)]
-    for _ in range(rounds):
-        sections = [documents[-1], documents[-1].get("actuator") or {}]
-        wanted = [s["diagnosis"]["candidates"][0]["effect"] for s in sections
-                  if s and s["diagnosis"]["status"] == "add_effect"]
-        if not wanted:
-            break
-        effects += wanted
-        documents.append(lab.model(scenario, effects, with_sensor))
-    return documents
+def lab(shared_lab: Lab) -> Lab:
+    """The suite's lab (conftest): runs made once, scenarios followed once."""
+    return shared_lab
 
 
 def floor(section: dict) -> float:
@@ -109,7 +95,7 @@ def test_without_the_sensor_the_report_says_what_the_commands_can_still_tell(lab
 
 
 def test_friction_and_a_delay_hidden_together_are_both_found_within_two_rounds(lab):
-    documents = follow_both_links(lab, "sensor_delay_and_friction")
+    documents = lab.follow("sensor_delay_and_friction")
     assert len(documents) <= 3, [d["diagnosis"]["verdict"] for d in documents]
     first = documents[0]
     assert first["diagnosis"]["candidates"][0]["effect"] == "coulomb_friction"
@@ -122,7 +108,7 @@ def test_friction_and_a_delay_hidden_together_are_both_found_within_two_rounds(l
 
 def test_on_an_arm_like_a_real_one_both_links_reach_their_noise_floor(lab):
     """Inertias off, a heavier hand, wrong armature, Gaz friction, stamp jitter, plus a delay and motor gains."""
-    documents = follow_both_links(lab, "real_arm_like_actuator")
+    documents = lab.follow("real_arm_like_actuator")
     last = documents[-1]
     for section in (last, last["actuator"]):
         assert section["diagnosis"]["status"] == "at_noise_floor", section["diagnosis"]["verdict"]
@@ -147,7 +133,7 @@ def test_behind_a_link_side_sensor_the_drive_is_found_on_the_actuator_link(lab, 
 
     from sim2real.report.gap import build_gap_report
 
-    documents = follow_both_links(lab, "link_side_sensor")
+    documents = lab.follow("link_side_sensor")  # as tests/test_trustworthy_loop.py: followed once
     first, last = documents[0], documents[-1]
     assert first["links"]["torque_sensor"] == "link"
     assert first["diagnosis"]["candidates"][0]["effect"] == "link_inertia"

@@ -20,8 +20,9 @@ REALISTIC = ["real_arm_like", "heavy_links_and_armature", "payload_and_armature"
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory) -> Lab:
-    return Lab(tmp_path_factory.mktemp("consistent_lab"))
+def lab(shared_lab: Lab) -> Lab:
+    """The suite's lab (conftest): runs made once, scenarios followed once."""
+    return shared_lab
 
 
 def follow_the_diagnosis(lab: Lab, scenario: str, rounds: int = 6) -> list[dict]:

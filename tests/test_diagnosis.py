@@ -13,8 +13,9 @@ SINGLE_EFFECTS = [
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory) -> Lab:
-    return Lab(tmp_path_factory.mktemp("sysid_lab"))
+def lab(shared_lab: Lab) -> Lab:
+    """The suite's lab (conftest): runs made once, scenarios followed once."""
+    return shared_lab
 
 
 @pytest.mark.parametrize("effect", SINGLE_EFFECTS)

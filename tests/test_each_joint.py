@@ -13,8 +13,9 @@ from sysid_lab import Lab
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory) -> Lab:
-    return Lab(tmp_path_factory.mktemp("each_joint_lab"))
+def lab(shared_lab: Lab) -> Lab:
+    """The suite's lab (conftest): runs made once, scenarios followed once."""
+    return shared_lab
 
 
 def test_a_friction_hidden_on_joint_7_alone_is_named_on_joint_7(lab):

@@ -21,8 +21,9 @@ FACTOR = 1.5
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory) -> Lab:
-    return Lab(tmp_path_factory.mktemp("trustworthy_lab"))
+def lab(shared_lab: Lab) -> Lab:
+    """The suite's lab (conftest): runs made once, scenarios followed once."""
+    return shared_lab
 
 
 @pytest.fixture(scope="module")
