@@ -41,7 +41,10 @@ def demo_effects() -> list[str]:
 
 
 def pinned_numbers(document: dict[str, Any]) -> dict[str, Any]:
-    """What the loop shows of a ladder.json: each rung's errors, each diagnosis's ranking and promises."""
+    """What the loop shows of a ladder.json: each rung's errors, each diagnosis's ranking and promises. Not a
+    candidate's trial coefficients: a candidate the data barely determine (a Stribeck law on a joint that hardly
+    slides) ends its trial fit anywhere along a flat valley, 30 % apart on two CPUs, with the same promise; the
+    coefficients of the candidate a user adds are pinned as the next rung's params."""
 
     def link(section: dict[str, Any]) -> dict[str, Any]:
         diagnosis = section.get("diagnosis", {})
@@ -52,7 +55,7 @@ def pinned_numbers(document: dict[str, Any]) -> dict[str, Any]:
                 "status": diagnosis.get("status"),
                 "verdict": diagnosis.get("verdict"),
                 "candidates": [{key: c[key] for key in ("effect", "explained", "explained_beyond_noise", "joints")}
-                               | {key: c["evidence"][key] for key in ("rmse_after", "x_floor_after", "coefficients")}
+                               | {key: c["evidence"][key] for key in ("rmse_after", "x_floor_after")}
                                for c in diagnosis.get("candidates", [])],
             },
         }
@@ -98,7 +101,7 @@ def test_the_comparison_fails_beyond_its_tolerance_and_on_any_word():
     last_digit = 10.0 ** (math.floor(math.log10(abs(value))) - 5)
     assert differences(expected, moved(last_digit)) == [], "one unit in the last printed digit is another CPU"
     assert differences(expected, moved(1e-4 * value)), "a number moved by 1e-4 of itself fails"
-    assert differences(expected, moved(-3 * last_digit))
+    assert differences(expected, moved(-1e-4 * value)), "either way"
     reworded = copy.deepcopy(expected)
     reworded["body"]["diagnosis"]["verdict"] += " "
     assert differences(expected, reworded)
