@@ -15,6 +15,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -106,7 +107,12 @@ def run_readme(root: Path, workdir: Path) -> ReadmeRun:
     return ReadmeRun(tree, ran)
 
 
-def copy_built(built: Path, dest: Path) -> Path:
-    """A copy of a built tree that Snakemake sees as built: file times and .snakemake's metadata kept."""
+def copy_built(built: Path, dest: Path, shipped: Sequence[str] = ()) -> Path:
+    """A copy of a built tree that Snakemake sees as built: file times and .snakemake's metadata kept.
+    ``shipped``: config files (relative paths) put back as the repository ships them, for a test that needs the
+    shipped lab runs or fit settings rather than the shared tree's fast ones (their files are written anew, so
+    Snakemake sees them changed and reruns what depends on them)."""
     shutil.copytree(built, dest, symlinks=True)
+    for name in shipped:
+        (dest / name).write_text((ROOT / name).read_text(encoding="utf-8"), encoding="utf-8")
     return dest

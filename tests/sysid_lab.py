@@ -19,7 +19,7 @@ import yaml
 from threadpoolctl import threadpool_limits
 
 from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
-from sim2real.identification import sysid
+from sim2real.identification import links, sysid
 from sim2real.cache import FitCache
 from sim2real.lab import run_lab_scenario_run, scenario_runs
 from sim2real.measurements import noise_floor_of, load_prepared_runs
@@ -43,6 +43,9 @@ class Lab:
         self.nominal = sysid.load_nominal(self.urdf, PANDA_JOINTS)
         self._data: dict[str, tuple[sysid.TorqueData, sysid.TorqueData]] = {}
         self._followed: dict[tuple[str, int], list[dict[str, Any]]] = {}
+        # Documents already fitted, by what was asked: the fits are deterministic, so a test asking again (another
+        # parameter of the same test, the first round of a scenario another test followed) gets a copy of the same.
+        self._documents: dict[tuple[Any, ...], dict[str, Any]] = {}
 
     def measurement_list(self, scenario: str) -> Path:
         out = self.dir / scenario
@@ -82,11 +85,14 @@ class Lab:
               cache: FitCache | None = None) -> dict[str, Any]:
         """ladder.json content of both links (``sysid.fit_model``); ``with_sensor=False`` drops tau; ``cache``:
         rungs and diagnoses of earlier rounds read back, as the sysid rule does."""
-        listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
-        with threadpool_limits(limits=1, user_api="blas"):  # one BLAS thread per worker, as in run_sysid
-            document, _ = sysid.fit_model(effects, self.nominal, self.prepared(listing), {"fit": FAST_FIT}, "panda",
-                                          workers=WORKERS, cache=cache)
-        return document
+        # the actuator link's settings too: a test may change them to see another way of fitting
+        key = ("model", scenario, tuple(effects), with_sensor, repr(sorted(links.ACTUATOR_FIT_SETTINGS.items())))
+        if key not in self._documents:
+            listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
+            with threadpool_limits(limits=1, user_api="blas"):  # one BLAS thread per worker, as in run_sysid
+                self._documents[key], _ = sysid.fit_model(effects, self.nominal, self.prepared(listing),
+                                                          {"fit": FAST_FIT}, "panda", workers=WORKERS, cache=cache)
+        return copy.deepcopy(self._documents[key])
 
     def follow(self, scenario: str, rounds: int = 7,
                report: Callable[[dict[str, Any], int, float], None] | None = None) -> list[dict[str, Any]]:
@@ -130,11 +136,14 @@ class Lab:
         return self._data[scenario]
 
     def ladder(self, scenario: str, effects: list[str], diagnose: bool = True) -> dict[str, Any]:
-        fit_data, holdout_data = self.data(scenario)
-        with threadpool_limits(limits=1, user_api="blas"):
-            document, _ = sysid.fit_ladder(effects, self.nominal, fit_data, holdout_data, {"fit": FAST_FIT}, "panda",
-                                           diagnose=diagnose, workers=WORKERS)
-        return document
+        key = ("ladder", scenario, tuple(effects), diagnose)
+        if key not in self._documents:
+            fit_data, holdout_data = self.data(scenario)
+            with threadpool_limits(limits=1, user_api="blas"):
+                self._documents[key], _ = sysid.fit_ladder(effects, self.nominal, fit_data, holdout_data,
+                                                           {"fit": FAST_FIT}, "panda", diagnose=diagnose,
+                                                           workers=WORKERS)
+        return copy.deepcopy(self._documents[key])
 
 
 def overall(rung: dict[str, Any]) -> float:

@@ -177,11 +177,11 @@ def test_behind_a_link_side_sensor_the_drive_is_found_on_the_actuator_link(lab, 
 def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added(lab, tmp_path):
     import json
 
-    from sim2real.identification import sysid
     from sim2real.report.gap import build_gap_report
 
-    def report(listing, effects, name):
-        document, _ = sysid.fit_model(effects, lab.nominal, lab.prepared(listing), {"fit": FAST_FIT}, "panda")
+    def report(scenario, effects, name, with_sensor=True):
+        listing = lab.measurement_list(scenario) if with_sensor else lab.without_sensor(scenario)
+        document = lab.model(scenario, effects, with_sensor=with_sensor)  # as the tests above fitted it
         out = tmp_path / name
         out.mkdir()
         (out / "ladder.json").write_text(json.dumps(document), encoding="utf-8")
@@ -190,13 +190,13 @@ def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added
                                out / "ladder.json", "/")
         return gap, (out / "gap.md").read_text(encoding="utf-8")
 
-    gap, markdown = report(lab.measurement_list("sensor_actuation_delay"), ["actuation_delay"], "sensor")
+    gap, markdown = report("sensor_actuation_delay", ["actuation_delay"], "sensor")
     nominal, delayed = (rung["metrics"]["position_rmse"]["overall"] for rung in gap["actuator"]["ladder"])
     assert delayed < 0.5 * nominal, (nominal, delayed)  # the state domain sees the delay too
     assert "## Actuator link (measured against commanded torque)" in markdown
     assert gap["actuator"]["diagnosis"]["verdict"] in markdown and gap["diagnosis"]["verdict"] in markdown
 
-    gap, markdown = report(lab.without_sensor("actuator_gain"), [], "commands")
+    gap, markdown = report("actuator_gain", [], "commands", with_sensor=False)
     assert gap["links"]["mode"] == "commands_only" and "actuator" not in gap
     assert "## What these runs can tell apart" in markdown
     assert "**Not told apart:** `actuator_gain`, `link_inertia`" in markdown

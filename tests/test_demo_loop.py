@@ -21,9 +21,9 @@ import pinocchio as pin
 import pytest
 import yaml
 
-from buildtree import copy_repo, make_fast, rules_run, run_snakemake
+from buildtree import rules_run, run_snakemake
+from readme import copy_built
 
-ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow
 
 
@@ -72,9 +72,10 @@ def _describes_the_current_model(tree: Path, nominal: dict, report: dict) -> Non
     assert "![Residual vs time](gap/residual_time.png)" in md
 
 
-def test_diagnose_add_one_line_refit_and_calibrate(tmp_path: Path) -> None:
-    tree = copy_repo(ROOT, tmp_path / "repo")
-    make_fast(tree)
+def test_diagnose_add_one_line_refit_and_calibrate(tmp_path: Path, built_tree: Path) -> None:
+    # The suite's built tree (its meshes and collision parts at fast settings) with the shipped lab runs and fit
+    # settings: the lab data is built again at the demo's length by the first report.
+    tree = copy_built(built_tree, tmp_path / "repo", shipped=("configs/panda/lab.yaml", "configs/panda/model.yaml"))
 
     nominal, log = _follow(tree, [])
     assert "lab_run" in rules_run(log), "the gap report builds the lab data it compares with"

@@ -193,60 +193,74 @@ def _gain_regime(before: np.ndarray, after: np.ndarray, qd: np.ndarray, qdd: np.
     return best
 
 
+def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any,
+                   holdout_residual: np.ndarray, noise_floor_factor: float) -> tuple[dict[str, Any], np.ndarray]:
+    """Joint ``j``'s row of :func:`model_free_ceiling` and its holdout residual after the better learner (the
+    rung's own where the joint is at its floor)."""
+    from threadpoolctl import threadpool_limits
+
+    floor = float(holdout_data.noise_floor[j])
+    rung = float(np.sqrt(np.mean(holdout_residual[:, j] ** 2)))
+    if floor > 0 and rung <= noise_floor_factor * floor:
+        # nothing above the floor for a learner to explain: the ceiling is the rung itself
+        return ({"rung_rmse": round(rung, 6), "ceiling_rmse": round(rung, 6), "rung_x_floor": round(rung / floor, 3),
+                 "ceiling_x_floor": round(rung / floor, 3), "ratio": 1.0, "explained_beyond_noise": 0.0,
+                 "kind": "at_floor", "fitted": False}, np.array(holdout_residual[:, j], dtype=float))
+    x_fit, names = motion_features(fit_data)
+    x_holdout, _ = motion_features(holdout_data)
+    train = _train_rows(fit_data.n_samples)
+    with threadpool_limits(limits=1, user_api="openmp"):
+        learner = _learner().fit(x_fit[train], fit_residual[train, j])
+        trees = holdout_residual[:, j] - learner.predict(x_holdout)
+        ripple = _harmonic_learner().fit(position_harmonics(fit_data.q[train, j]), fit_residual[train, j])
+        harmonics = holdout_residual[:, j] - ripple.predict(position_harmonics(holdout_data.q[:, j]))
+        periodic = float(np.mean(harmonics**2)) < float(np.mean(trees**2))
+        after = harmonics if periodic else trees
+        ceiling = float(np.sqrt(np.mean(after**2)))
+        row: dict[str, Any] = {
+            "rung_rmse": round(rung, 6), "ceiling_rmse": round(ceiling, 6),
+            "rung_x_floor": round(rung / floor, 3) if floor > 0 else None,
+            "ceiling_x_floor": round(ceiling / floor, 3) if floor > 0 else None,
+            "ratio": round(ceiling / rung, 4) if rung > 0 else 1.0,
+            "explained_beyond_noise": round(_excess_share(holdout_residual[:, j], after, floor), 4),
+        }
+        row["fitted"] = True
+        row["learner"] = "position harmonics" if periodic else "trees on the motion"
+        if ceiling < CLOSE_TO_RUNG * rung:
+            row["kind"] = "motion"
+            row["gains_most_with"] = ([f"position of {holdout_data.joint_names[j]} (periodic)"] if periodic
+                                      else _gains_most(learner, x_holdout, holdout_residual[:, j], names))
+            row["gains_most_in"] = _gain_regime(holdout_residual[:, j], after, holdout_data.qd[:, j],
+                                                holdout_data.qdd[:, j])
+        else:
+            row["kind"] = "not_motion"
+            shares = _beyond_motion(j, fit_data, fit_residual, holdout_data, holdout_residual, floor)
+            row["beyond_motion"] = shares
+            row["follows"] = _named(shares)
+    return row, after
+
+
 def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
-                       noise_floor_factor: float = 1.5) -> dict[str, Any]:
+                       noise_floor_factor: float = 1.5, workers: int = 1) -> dict[str, Any]:
     """The ceiling of ``diagnosis.model_free`` in gap.json (see the module docstring).
 
     ``fit_data``/``holdout_data``: :class:`sim2real.identification.fitting.TorqueData`; the residuals are the last rung's
     (judged minus predicted torque) on them. Joints within ``noise_floor_factor`` of their floor are
     ``at_floor``: nothing to explain, no learner fitted (``fitted`` false; the ceiling is the rung's).
+    ``workers``: processes the joints' learners are fitted on side by side (:func:`sim2real.forked.map_forked`:
+    each joint's numbers are those it has alone).
     """
-    from threadpoolctl import threadpool_limits
+    from sklearn.ensemble import HistGradientBoostingRegressor  # noqa: F401  (imported once, before the fork)
+    from sklearn.linear_model import RidgeCV  # noqa: F401
+
+    from sim2real.forked import map_forked
 
     joints = list(holdout_data.joint_names)
-    floor = np.asarray(holdout_data.noise_floor, dtype=float)
-    x_fit, names = motion_features(fit_data)
-    x_holdout, _ = motion_features(holdout_data)
-    after = np.array(holdout_residual, dtype=float)
-    train = _train_rows(fit_data.n_samples)
-    per_joint: dict[str, Any] = {}
-    with threadpool_limits(limits=1, user_api="openmp"):
-        for j, joint in enumerate(joints):
-            rung = float(np.sqrt(np.mean(holdout_residual[:, j] ** 2)))
-            if floor[j] > 0 and rung <= noise_floor_factor * floor[j]:
-                # nothing above the floor for a learner to explain: the ceiling is the rung itself
-                per_joint[joint] = {"rung_rmse": round(rung, 6), "ceiling_rmse": round(rung, 6),
-                                    "rung_x_floor": round(rung / floor[j], 3), "ceiling_x_floor": round(rung / floor[j], 3),
-                                    "ratio": 1.0, "explained_beyond_noise": 0.0, "kind": "at_floor", "fitted": False}
-                continue
-            learner = _learner().fit(x_fit[train], fit_residual[train, j])
-            trees = holdout_residual[:, j] - learner.predict(x_holdout)
-            ripple = _harmonic_learner().fit(position_harmonics(fit_data.q[train, j]), fit_residual[train, j])
-            harmonics = holdout_residual[:, j] - ripple.predict(position_harmonics(holdout_data.q[:, j]))
-            periodic = float(np.mean(harmonics**2)) < float(np.mean(trees**2))
-            after[:, j] = harmonics if periodic else trees
-            ceiling = float(np.sqrt(np.mean(after[:, j] ** 2)))
-            row: dict[str, Any] = {
-                "rung_rmse": round(rung, 6), "ceiling_rmse": round(ceiling, 6),
-                "rung_x_floor": round(rung / floor[j], 3) if floor[j] > 0 else None,
-                "ceiling_x_floor": round(ceiling / floor[j], 3) if floor[j] > 0 else None,
-                "ratio": round(ceiling / rung, 4) if rung > 0 else 1.0,
-                "explained_beyond_noise": round(_excess_share(holdout_residual[:, j], after[:, j], floor[j]), 4),
-            }
-            row["fitted"] = True
-            row["learner"] = "position harmonics" if periodic else "trees on the motion"
-            if ceiling < CLOSE_TO_RUNG * rung:
-                row["kind"] = "motion"
-                row["gains_most_with"] = ([f"position of {joint} (periodic)"] if periodic
-                                          else _gains_most(learner, x_holdout, holdout_residual[:, j], names))
-                row["gains_most_in"] = _gain_regime(holdout_residual[:, j], after[:, j], holdout_data.qd[:, j],
-                                                    holdout_data.qdd[:, j])
-            else:
-                row["kind"] = "not_motion"
-                shares = _beyond_motion(j, fit_data, fit_residual, holdout_data, holdout_residual, floor[j])
-                row["beyond_motion"] = shares
-                row["follows"] = _named(shares)
-            per_joint[joint] = row
+    rows = map_forked(_joint_ceiling, range(len(joints)), workers, {
+        "fit_data": fit_data, "fit_residual": fit_residual, "holdout_data": holdout_data,
+        "holdout_residual": holdout_residual, "noise_floor_factor": float(noise_floor_factor)})
+    per_joint = {joint: row for joint, (row, _) in zip(joints, rows, strict=True)}
+    after = np.column_stack([column for _, column in rows])
     overall = float(np.sqrt(np.mean(after**2)))
     return {
         "learner": LEARNER,
