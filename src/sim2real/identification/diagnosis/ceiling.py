@@ -19,6 +19,7 @@ The learner runs on one OpenMP thread with a fixed seed: the same numbers on eve
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Sequence
 from typing import Any
 
@@ -193,6 +194,10 @@ def _gain_regime(before: np.ndarray, after: np.ndarray, qd: np.ndarray, qdd: np.
     return best
 
 
+def _at_floor(rung: float, floor: float, noise_floor_factor: float) -> bool:
+    return floor > 0 and rung <= noise_floor_factor * floor
+
+
 def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any,
                    holdout_residual: np.ndarray, noise_floor_factor: float) -> tuple[dict[str, Any], np.ndarray]:
     """Joint ``j``'s row of :func:`model_free_ceiling` and its holdout residual after the better learner (the
@@ -201,7 +206,7 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
 
     floor = float(holdout_data.noise_floor[j])
     rung = float(np.sqrt(np.mean(holdout_residual[:, j] ** 2)))
-    if floor > 0 and rung <= noise_floor_factor * floor:
+    if _at_floor(rung, floor, noise_floor_factor):
         # nothing above the floor for a learner to explain: the ceiling is the rung itself
         return ({"rung_rmse": round(rung, 6), "ceiling_rmse": round(rung, 6), "rung_x_floor": round(rung / floor, 3),
                  "ceiling_x_floor": round(rung / floor, 3), "ratio": 1.0, "explained_beyond_noise": 0.0,
@@ -250,13 +255,15 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
     ``workers``: processes the joints' learners are fitted on side by side (:func:`sim2real.forked.map_forked`:
     each joint's numbers are those it has alone).
     """
-    from sklearn.ensemble import HistGradientBoostingRegressor  # noqa: F401  (imported once, before the fork)
-    from sklearn.linear_model import RidgeCV  # noqa: F401
-
     from sim2real.forked import map_forked
 
     joints = list(holdout_data.joint_names)
-    rows = map_forked(_joint_ceiling, range(len(joints)), workers, {
+    learned = [j for j in range(len(joints)) if not _at_floor(
+        float(np.sqrt(np.mean(holdout_residual[:, j] ** 2))), float(holdout_data.noise_floor[j]), noise_floor_factor)]
+    if learned:  # the learners' modules imported once, before the fork; a model at its floor needs neither
+        for module in ("sklearn.ensemble", "sklearn.linear_model"):
+            importlib.import_module(module)
+    rows = map_forked(_joint_ceiling, range(len(joints)), workers if learned else 1, {
         "fit_data": fit_data, "fit_residual": fit_residual, "holdout_data": holdout_data,
         "holdout_residual": holdout_residual, "noise_floor_factor": float(noise_floor_factor)})
     per_joint = {joint: row for joint, (row, _) in zip(joints, rows, strict=True)}
