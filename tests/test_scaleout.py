@@ -10,14 +10,15 @@ from pathlib import Path
 
 import yaml
 
+from buildtree import copy_repo
 from sim2real.resources import declared_resources, exceeded, measured_resources, resource_table, undeclared
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_RULES = {"collision_mesh", "collision_report", "lab_truth", "dr_resolve", "dr_summary", "fleet"}
 
 
-def _snakemake(*args: str, stdout_only: bool = False) -> str:
-    done = subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=ROOT, capture_output=True, text=True,
+def _snakemake(*args: str, stdout_only: bool = False, cwd: Path = ROOT) -> str:
+    done = subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=cwd, capture_output=True, text=True,
                           timeout=600, env={**os.environ, "PYTHONHASHSEED": "0"})
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return done.stdout if stdout_only else done.stdout + done.stderr
@@ -56,10 +57,12 @@ def test_declared_resources_cover_what_benchmarks_measured(tmp_path: Path) -> No
     assert table.splitlines()[2].startswith("| coacd |  | 1 | 2048 | 15 | 1 | 233.9 | 1433 |")
 
 
-def test_slurm_profile_plans_every_job_on_the_slurm_executor() -> None:
+def test_slurm_profile_plans_every_job_on_the_slurm_executor(tmp_path: Path) -> None:
     profile = yaml.safe_load((ROOT / "profiles/slurm/config.yaml").read_text())
     assert profile["executor"] == "slurm"
-    log = _snakemake("-n", "--profile", "profiles/slurm", "all")
+    # In a clean copy: a checkout where `snakemake all` has run plans nothing (the README's first command, then
+    # its second, in one clone).
+    log = _snakemake("-n", "--profile", "profiles/slurm", "all", cwd=copy_repo(ROOT, tmp_path / "repo"))
     assert "Using profiles profiles/slurm" in log
     assert re.search(r"^total\s+\d+", log, flags=re.MULTILINE)
     # what sbatch will be asked for comes from the rule (the dry run stops at the URDF checkpoint)
