@@ -369,6 +369,19 @@ def excitation_targets(robot):
     ]
 
 
+# ---- scheduling -------------------------------------------------------------------
+# The longest path of a cold build runs from a robot's CoACD jobs through its MJCF, its excitation design and the
+# lab runs that play it to the fits and the gap report. Of the jobs ready to run, Snakemake starts those of highest
+# priority first: the jobs of that path go before the CoACD jobs of robots that design no excitation, which
+# then fill the other core while the path runs.
+CHAIN_PRIORITY = 1
+
+
+def coacd_priority(wildcards):
+    """A robot's CoACD jobs are on the longest path when its MJCF gates an excitation design."""
+    return CHAIN_PRIORITY if excitation_targets(wildcards.robot) else 0
+
+
 # ---- the stages' final outputs (all_targets) ---------------------------------------
 
 

@@ -28,6 +28,7 @@ rule excitation:
         "results/{robot}/logs/excitation/{design}.log",
     benchmark:
         "results/{robot}/benchmarks/excitation/{design}.tsv"
+    priority: CHAIN_PRIORITY
     threads: 1
     resources:
         mem_mb=2048,

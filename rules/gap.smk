@@ -38,6 +38,7 @@ rule prepare_runs:
         "results/{robot}/logs/{campaign}prepare_runs.log",
     benchmark:
         "results/{robot}/benchmarks/{campaign}prepare_runs.tsv"
+    priority: CHAIN_PRIORITY
     threads: 1
     resources:
         mem_mb=1024,
@@ -90,6 +91,7 @@ rule gap_report:
     benchmark:
         "results/{robot}/benchmarks/{campaign}gap_report.tsv"
     # the figures are drawn in worker processes while the replays run (sim2real.report.GapFigures)
+    priority: CHAIN_PRIORITY
     threads: 2
     resources:
         mem_mb=1024,

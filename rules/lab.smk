@@ -18,6 +18,7 @@ rule lab_run:
         "results/{robot}/logs/lab_run/{scenario}/{run}.log",
     benchmark:
         "results/{robot}/benchmarks/lab_run/{scenario}/{run}.tsv"
+    priority: CHAIN_PRIORITY
     threads: 1
     resources:
         mem_mb=1024,

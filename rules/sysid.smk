@@ -23,6 +23,7 @@ rule sysid:
     benchmark:
         "results/{robot}/benchmarks/{campaign}sysid.tsv"
     # the diagnosis fits its candidates side by side (sim2real.identification.diagnosis.trial_fits)
+    priority: CHAIN_PRIORITY
     threads: 2
     resources:
         # forked workers share the parent's pages, but the benchmark sums every process's resident set
