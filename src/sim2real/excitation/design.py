@@ -401,8 +401,8 @@ def _sparse(matrix: np.ndarray) -> ca.DM:
 def _solve(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray, f, df, torque, torque_jac,
            rows: np.ndarray, usable: np.ndarray, clearance: Clearance, active: Sequence[float], least: float,
            x0: np.ndarray, max_iterations: int) -> tuple[np.ndarray, str, int]:
-    """One IPOPT pass from ``x0``: the torque rows ``rows`` (of the objective's samples) within ``usable``, the clearance
-    at the times ``active`` at least ``least``."""
+    """One IPOPT pass from ``x0``: the torque rows ``rows`` (of the objective's samples) within ``usable``, the
+    clearance at the times ``active`` at least ``least``."""
     x = ca.MX.sym("x", series.size)
     constraints, lower, upper = [], [], []
 

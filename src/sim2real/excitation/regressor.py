@@ -60,7 +60,8 @@ class SymbolicRegressor:
             joint.calc(data, pin.neutral(model)[joint.idx_q : joint.idx_q + joint.nq])
             subspace = np.asarray(data.S.matrix() if hasattr(data.S, "matrix") else data.S, dtype=float).ravel()
             revolute = bool(np.linalg.norm(subspace[3:]) > 0.5)
-            if joint.nq != 1 or subspace.size != 6 or np.linalg.norm(subspace[:3] if revolute else subspace[3:]) > 1e-12:
+            off_axis = subspace[:3] if revolute else subspace[3:]
+            if joint.nq != 1 or subspace.size != 6 or np.linalg.norm(off_axis) > 1e-12:
                 raise ValueError(f"joint {model.names[i + 1]} ({joint.shortname()}) is neither revolute nor prismatic")
             subspaces.append(ca.DM(subspace))
             transforms.append(_child_transform(np.linalg.inv(model.jointPlacements[i + 1].action),
