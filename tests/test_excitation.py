@@ -285,3 +285,82 @@ def test_the_clearance_gradient_follows_the_distance(designed: Path) -> None:
         assert np.allclose(clearance.gradient(q), numeric, atol=0.005 + 0.1 * np.abs(numeric).max()), pair
         checked += 1
     assert checked >= 3
+
+
+def _panda_nominal(tree: Path):
+    from sim2real.identification.fitting import load_nominal
+
+    joints = [f"panda_joint{i}" for i in range(1, 8)]
+    return load_nominal(tree / "results/panda/panda.urdf", joints, {"panda_joint*": 0.1}, "panda_link8")
+
+
+def _random_states(dynamics, count: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return (rng.uniform(dynamics.lower, dynamics.upper, (count, dynamics.n)), rng.normal(size=(count, dynamics.n)),
+            rng.normal(size=(count, dynamics.n)))
+
+
+def test_the_symbolic_regressor_and_its_gradient(designed: Path) -> None:
+    """The CasADi regressor is Pinocchio's, and its reverse-mode product against central differences of Pinocchio's."""
+    from sim2real.excitation.regressor import SymbolicRegressor
+
+    dynamics = _panda_nominal(designed).dynamics
+    q, qd, qdd = _random_states(dynamics, 30, 1)
+    symbolic = SymbolicRegressor(dynamics)
+    assert np.allclose(symbolic(q, qd, qdd), dynamics.regressor(q, qd, qdd), rtol=0, atol=1e-10)
+    weights = np.random.default_rng(2).normal(size=(len(q), dynamics.n, symbolic.width))
+    gradient = symbolic.contracted_gradient(q, qd, qdd, weights)
+    step = 1e-6
+    for which in range(3):
+        for j in range(dynamics.n):
+            plus, minus = [q.copy(), qd.copy(), qdd.copy()], [q.copy(), qd.copy(), qdd.copy()]
+            plus[which][:, j] += step
+            minus[which][:, j] -= step
+            moved = dynamics.regressor(*plus) - dynamics.regressor(*minus)
+            numeric = np.einsum("kjc,kjc->k", moved, weights) / (2 * step)
+            assert np.allclose(gradient[which][:, j], numeric, rtol=1e-6, atol=1e-6 * np.abs(numeric).max() + 1e-9)
+
+
+def test_the_torque_jacobian_is_the_derivative_of_the_torque(designed: Path) -> None:
+    """d tau / d x from Pinocchio's RNEA derivatives, chained through the Fourier basis, against central differences."""
+    from sim2real.excitation.design import _Grid, _torque_jacobian
+    from sim2real.excitation.fourier import FourierSeries, random_start
+
+    nominal = _panda_nominal(designed)
+    dynamics = nominal.dynamics
+    series = FourierSeries(2 * np.pi * 0.05, 10, dynamics.n)
+    start = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+    grid = _Grid(series, np.linspace(0.0, series.period, 48, endpoint=False), np.arange(dynamics.n), dynamics.n, start)
+    rng = np.random.default_rng(4)
+    x = 0.3 * random_start(series, rng)
+    jacobian = _torque_jacobian(nominal, *grid.state(x), grid).reshape(-1, series.size)
+    step = 1e-6
+    for _ in range(3):
+        direction = rng.normal(size=series.size)
+        numeric = (dynamics.inverse_dynamics(*grid.state(x + step * direction))
+                   - dynamics.inverse_dynamics(*grid.state(x - step * direction))).ravel() / (2 * step)
+        assert np.allclose(jacobian @ direction, numeric, rtol=1e-6, atol=1e-6 * np.abs(numeric).max())
+
+
+def test_the_state_gradient_is_the_derivative_of_the_objective(designed: Path) -> None:
+    """The identification objective's gradient (exact inertial part, differenced effects) against central differences
+    of its value along random state directions."""
+    from sim2real.excitation.information import Identification, identification_effects
+
+    nominal = _panda_nominal(designed)
+    dynamics = nominal.dynamics
+    effects = identification_effects(["link_inertia", "asymmetric_friction", "stribeck_friction", "rotor_inertia"])
+    ident = Identification(nominal, effects, np.full(7, 0.03), dynamics.lower, dynamics.upper, np.full(7, 1.0),
+                           np.full(7, 3.0))
+    q, qd, qdd = _random_states(dynamics, 120, 5)
+    rng = np.random.default_rng(6)
+    for objective in ("condition", "d_optimal"):
+        _, dq, dqd, dqdd = ident.state_gradient(q, qd, qdd, objective)
+        for _ in range(2):
+            directions = [rng.normal(size=q.shape) for _ in range(3)]
+            step = 1e-6
+            plus = [a + step * d for a, d in zip((q, qd, qdd), directions, strict=True)]
+            minus = [a - step * d for a, d in zip((q, qd, qdd), directions, strict=True)]
+            numeric = (ident.value(*plus, objective) - ident.value(*minus, objective)) / (2 * step)
+            analytic = sum(float(np.sum(g * d)) for g, d in zip((dq, dqd, dqdd), directions, strict=True))
+            assert analytic == pytest.approx(numeric, rel=1e-4, abs=1e-6)

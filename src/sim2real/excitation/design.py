@@ -2,10 +2,14 @@
 
 Decision variables: the Fourier coefficients of the excited joints (:mod:`.fourier`). Constraints:
 at rest at t = 0 (linear equalities), position, velocity and acceleration limits on a grid of one period
-(linear in the coefficients), joint torques of the nominal model within the usable effort (nonlinear,
-on the objective's samples), and the distance to collision (nonlinear, on the samples where it was found
-short: an active set, re-solved until MuJoCo finds none on a dense grid). The objective (:mod:`.information`)
-and the torques are evaluated by Pinocchio and enter the program as CasADi callbacks with their Jacobians.
+(linear in the coefficients, tightened by what a trigonometric polynomial can gain between the grid's
+points), joint torques of the nominal model within the usable effort (nonlinear, on the objective's samples
+where the torque comes near its limit), and the distance to collision (nonlinear, on the samples where it
+comes near the margin). The nonlinear rows are active sets: IPOPT's cost grows with its rows (a dense torque
+row per sample and joint cost more than the objective), so each pass carries the rows near their limits,
+and the pass is repeated from where it ended when a check of every row (torques on the objective's samples,
+MuJoCo on a grid four times the limits') finds one short. The objective (:mod:`.information`) and the
+torques enter the program as CasADi callbacks with exact Jacobians.
 
 The result is then checked at every sample of the written trajectory. Constraints imposed on a grid can be
 missed between its points by a hair; if any check fails, the motion is scaled towards the start pose (which
@@ -22,6 +26,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+import pinocchio as pin
 import scipy.sparse
 
 from sim2real.errors import InputError
@@ -33,12 +38,16 @@ from sim2real.excitation.separation import Separation
 from sim2real.identification.fitting import NominalModel
 
 ACTIVE_SET_ROUNDS = 3
+TORQUE_WATCH = 0.5  # torque rows above this fraction of the usable effort enter the program
+CLEARANCE_WATCH = 3.0  # clearance minima below this many margins enter the program ...
+CLEARANCE_SLACK = 0.2  # ... held this fraction of the margin above it, so the dense check between them passes
+CLEARANCE_SCAN = 4  # the clearance is scanned on a grid this many times the limits' grid
 CLEARANCE_SEARCH_M = 0.1  # distances are reported up to this; beyond it a pose is simply "clear"
 START_FILL = 0.5  # the initial guess uses this fraction of the tightest limit
 # The start is well inside thousands of limit rows: with IPOPT's default barrier (0.1) their log terms pull
 # the motion towards the start pose for many iterations (the D-optimal design came out worse than its start).
 MU_INIT = 1e-4
-FD_STEP = 1e-6
+LBFGS_HISTORY = 20  # pairs IPOPT's quasi-Newton Hessian keeps (default 6): a better condition number per iteration
 
 
 @dataclass
@@ -131,6 +140,13 @@ class _Grid:
                 full[:, j, slot * width : (slot + 1) * width] = basis
             self.maps.append(full)
 
+    @classmethod
+    def subset(cls, grid: _Grid, samples: np.ndarray) -> _Grid:
+        """The grid's samples ``samples`` only."""
+        out = cls.__new__(cls)
+        out.time, out.start, out.maps = grid.time[samples], grid.start, [m[samples] for m in grid.maps]
+        return out
+
     def state(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         q, qd, qdd = (m @ x for m in self.maps)
         return self.start + q, qd, qdd
@@ -142,21 +158,28 @@ class _Grid:
 
 def _torque_jacobian(nominal: NominalModel, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                      grid: _Grid) -> np.ndarray:
-    """d tau / d x (K*n, size): the nominal inverse dynamics differentiated per sample state, chained."""
-    count, n = q.shape
-    base = nominal.dynamics.inverse_dynamics(q, qd, qdd)
-    out = np.zeros((count, n, grid.maps[0].shape[2]))
-    for which, state_map in enumerate(grid.maps):
-        for j in range(n):
-            if not np.any(state_map[:, j]):
-                continue
-            states = [q, qd, qdd]
-            moved = states[which].copy()
-            moved[:, j] += FD_STEP
-            states[which] = moved
-            d_tau = (nominal.dynamics.inverse_dynamics(*states) - base) / FD_STEP  # (K, n): column j of dtau/dstate
-            out += d_tau[:, :, None] * state_map[:, j, None, :]
-    return out.reshape(count * n, -1)
+    """d tau / d x (K, n, size): Pinocchio's analytic RNEA derivatives (armature included) per sample, plus the URDF
+    damping, chained through the grid's maps (the Coulomb term's sign is flat)."""
+    dynamics = nominal.dynamics
+    pq, pqd, pqdd = (dynamics._to_pin(a) for a in (q, qd, qdd))
+    derivatives = np.empty((3, len(q), q.shape[1], q.shape[1]))  # Pinocchio's joint order
+    for k in range(len(q)):
+        derivatives[:, k] = pin.computeRNEADerivatives(dynamics.model, dynamics.data, pq[k], pqd[k], pqdd[k])
+    # Pinocchio fills the mass matrix's upper triangle only.
+    derivatives[2] = np.triu(derivatives[2]) + np.swapaxes(np.triu(derivatives[2], 1), 1, 2)
+    perm = dynamics._perm
+    derivatives = derivatives[:, :, perm][:, :, :, perm]
+    derivatives[1] += np.diag(dynamics.damping)
+    return sum(np.einsum("kjc,kcs->kjs", derivatives[which], grid.maps[which]) for which in range(3))
+
+
+def _tightening(series: FourierSeries, count: int) -> float:
+    """How far a limit on ``count`` samples of one period must sit inside the true one: a trigonometric polynomial of
+    degree L w has |p''| <= (L w)^2 |p - c| (Bernstein), and its extreme is within half a step h of a sample, so
+    |p - c| <= grid's |p - c| / (1 - (L w h)^2 / 8): imposing the grid's limits that much inside holds them
+    everywhere (the dense check then passes)."""
+    step = series.period / count
+    return min((series.harmonics * series.omega * step) ** 2 / 8.0, 0.5)  # a grid that coarse: half the range
 
 
 def _scaled_start(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray, seed: int) -> np.ndarray:
@@ -248,22 +271,34 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
     def torque(x: np.ndarray) -> np.ndarray:
         return dynamics.inverse_dynamics(*objective_grid.state(x)).ravel()
 
-    def torque_jac(x: np.ndarray) -> np.ndarray:
-        return _torque_jacobian(nominal, *objective_grid.state(x), objective_grid)
+    def torque_jac(x: np.ndarray, samples: np.ndarray) -> np.ndarray:
+        """The Jacobian's rows of ``samples`` only (the program carries the torques near their limits)."""
+        grid = _Grid.subset(objective_grid, samples)
+        return _torque_jacobian(nominal, *grid.state(x), grid).reshape(-1, series.size)
 
     x0 = _scaled_start(series, limit_grid, lim, excited, int(solver["seed"]))
     initial = x0.copy()
+    scan_grid = _Grid(series, np.linspace(0.0, period, CLEARANCE_SCAN * len(limit_grid.time), endpoint=False),
+                      excited, n, start)
+    usable = np.tile(lim.torque, len(objective_grid.time))
     active: list[float] = []  # times (one period) where the clearance is constrained
+    rows = np.zeros(0, dtype=int)  # torque rows (sample * n + joint) in the program
     x = x0
     status, iterations = "not run", 0
     for _ in range(ACTIVE_SET_ROUNDS + 1):
-        x, status, iterations = _solve(series, limit_grid, lim, excited, f, df, torque, torque_jac,
-                                       n, objective_grid, clearance, active, margin, x, int(solver["max_iterations"]))
-        short = _short_samples(clearance, limit_grid, x, margin)
-        log(f"IPOPT: {status} after {iterations} iterations; {len(short)} new samples short of clearance")
-        if not short:
+        rows = np.union1d(rows, np.flatnonzero(np.abs(torque(x)) >= TORQUE_WATCH * usable))
+        distances = clearance.distances(scan_grid.state(x)[0])
+        active = sorted(set(active) | set(_short_samples(distances, scan_grid, CLEARANCE_WATCH * margin)))
+        x, status, iterations = _solve(series, limit_grid, lim, excited, f, df, torque, torque_jac, rows, usable,
+                                       clearance, active, margin * (1.0 + CLEARANCE_SLACK), x,
+                                       int(solver["max_iterations"]))
+        over = np.setdiff1d(np.flatnonzero(np.abs(torque(x)) > usable), rows)
+        distances = clearance.distances(scan_grid.state(x)[0])
+        short = [t for t in _short_samples(distances, scan_grid, margin) if t not in active]
+        log(f"IPOPT: {status} after {iterations} iterations with {len(rows)} torque rows and {len(active)} clearance "
+            f"rows; {len(over)} torques over their limit and {len(short)} samples short of clearance elsewhere")
+        if not short and not len(over):
             break
-        active.extend(short)
 
     rate = float(settings["sample_rate_hz"])
     time = np.arange(int(round(float(settings["duration_s"]) * rate))) / rate
@@ -340,9 +375,8 @@ def _trajectory(series: FourierSeries, x: np.ndarray, time: np.ndarray, start: n
     return Trajectory(time, q, qd, qdd)
 
 
-def _short_samples(clearance: Clearance, grid: _Grid, x: np.ndarray, margin: float) -> list[float]:
+def _short_samples(distances: np.ndarray, grid: _Grid, margin: float) -> list[float]:
     """Times of the grid where the clearance is below the margin: one per run of consecutive samples (its worst)."""
-    distances = clearance.distances(grid.state(x)[0])
     short = distances < margin
     out = []
     k = 0
@@ -365,8 +399,10 @@ def _sparse(matrix: np.ndarray) -> ca.DM:
 
 
 def _solve(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray, f, df, torque, torque_jac,
-           n: int, objective_grid: _Grid, clearance: Clearance, active: Sequence[float], margin: float,
+           rows: np.ndarray, usable: np.ndarray, clearance: Clearance, active: Sequence[float], least: float,
            x0: np.ndarray, max_iterations: int) -> tuple[np.ndarray, str, int]:
+    """One IPOPT pass from ``x0``: the torque rows ``rows`` (of the objective's samples) within ``usable``, the
+    clearance at the times ``active`` at least ``least``."""
     x = ca.MX.sym("x", series.size)
     constraints, lower, upper = [], [], []
 
@@ -378,17 +414,23 @@ def _solve(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray,
     rest = series.rest_constraints()
     add(ca.mtimes(_sparse(rest), x), np.zeros(len(rest)), np.zeros(len(rest)))
     count = len(grid.time)
+    inside = _tightening(series, count)
     for state_map, lo, hi in ((grid.maps[0], lim.lower - grid.start, lim.upper - grid.start),
                               (grid.maps[1], -lim.velocity, lim.velocity),
                               (grid.maps[2], -lim.acceleration, lim.acceleration)):
-        rows = state_map[:, excited].reshape(-1, series.size)
-        add(ca.mtimes(_sparse(rows), x), np.tile(lo[excited], count), np.tile(hi[excited], count))
-    tau_count = len(objective_grid.time) * n
-    callbacks = [_Numeric("objective", series.size, 1, f, df),
-                 _Numeric("torque", series.size, tau_count, torque, torque_jac)]
-    add(callbacks[1](x), np.tile(-lim.torque, len(objective_grid.time)), np.tile(lim.torque, len(objective_grid.time)))
+        margin = inside * 0.5 * (hi - lo)[excited]
+        state_rows = state_map[:, excited].reshape(-1, series.size)
+        add(ca.mtimes(_sparse(state_rows), x), np.tile(lo[excited] + margin, count),
+            np.tile(hi[excited] - margin, count))
+    callbacks = [_Numeric("objective", series.size, 1, f, df)]
+    if len(rows):
+        samples, where = np.unique(rows // grid.maps[0].shape[1], return_inverse=True)
+        flat = where * grid.maps[0].shape[1] + rows % grid.maps[0].shape[1]  # the rows among those samples' rows
+        callbacks.append(_Numeric("torque", series.size, len(rows), lambda xv: torque(xv)[rows],
+                                  lambda xv: torque_jac(xv, samples)[flat]))
+        add(callbacks[-1](x), -usable[rows], usable[rows])
     if active:
-        active_grid = _Grid(series, np.asarray(active), excited, n, grid.start)
+        active_grid = _Grid(series, np.asarray(active), excited, grid.maps[0].shape[1], grid.start)
 
         def distance(xv: np.ndarray) -> np.ndarray:
             return clearance.distances(active_grid.state(xv)[0])
@@ -398,11 +440,12 @@ def _solve(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray,
             return np.stack([clearance.gradient(q[k]) @ active_grid.maps[0][k] for k in range(len(q))])
 
         callbacks.append(_Numeric("clearance", series.size, len(active), distance, distance_jac))
-        add(callbacks[2](x), np.full(len(active), margin), np.full(len(active), np.inf))
+        add(callbacks[-1](x), np.full(len(active), least), np.full(len(active), np.inf))
     nlp = {"x": x, "f": callbacks[0](x), "g": ca.densify(ca.vertcat(*constraints))}
     options = {"ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": max_iterations,
                "ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False, "ipopt.tol": 1e-6,
-               "ipopt.acceptable_tol": 1e-3, "ipopt.mu_init": MU_INIT, "ipopt.mu_strategy": "monotone"}
+               "ipopt.acceptable_tol": 1e-3, "ipopt.mu_init": MU_INIT, "ipopt.mu_strategy": "monotone",
+               "ipopt.limited_memory_max_history": LBFGS_HISTORY}
     solver = ca.nlpsol("excitation", "ipopt", nlp, options)
     result = solver(x0=x0, lbg=np.concatenate(lower), ubg=np.concatenate(upper))
     stats = solver.stats()

@@ -15,7 +15,8 @@ divided by that joint's noise floor (so a wrist 10x quieter weighs as much as a 
 - ``condition``: log of the condition number of W with unit-norm columns (invariant to the units).
 
 Both come with their gradient with respect to each sample's state: the columns of a sample depend on
-that sample alone, so one finite difference per state entry and sample gives it (batched).
+that sample alone. The inertial columns' part is exact (:mod:`.regressor`: CasADi's reverse mode on the
+regressor); the effects' few diagonal columns are differenced centrally, batched.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.linalg
 
+from sim2real.assets.dynamics import INERTIAL_PARAMS_PER_BODY
+from sim2real.excitation.regressor import SymbolicRegressor
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Effect, Signals
 from sim2real.identification.fitting import NominalModel
@@ -69,6 +72,8 @@ class Identification:
         diagonal = np.abs(np.diag(r))
         rank = int(np.sum(diagonal > BASE_TOLERANCE * diagonal[0]))
         self.base = np.sort(active[pivots[:rank]])  # base columns in their natural order
+        self.inertial_width = INERTIAL_PARAMS_PER_BODY * (self.dynamics.model.njoints - 1)
+        self._symbolic: SymbolicRegressor | None = None  # built when a gradient is first asked for
 
     @property
     def size(self) -> int:
@@ -90,14 +95,18 @@ class Identification:
     def full(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Every column (N, n, p): the inertial regressor, then each effect's columns."""
         signals = self._signals(q, qd, qdd)
-        blocks = [signals.regressor]
+        out = np.concatenate([signals.regressor, self._effect_columns(signals)], axis=2)
+        self._width = out.shape[2]
+        return out
+
+    def _effect_columns(self, signals: Signals) -> np.ndarray:
+        """The effects' columns (N, n, p - inertial), at their default nonlinear parameters."""
         nonlinear = getattr(self, "_nonlinear", None)
+        blocks = [np.zeros((len(signals.q), signals.n, 0))]
         for k, effect in enumerate(self.effects):
             init = nonlinear[k] if nonlinear is not None else effect.nonlinear_init(signals)
             blocks.append(effect.columns(signals, {}, init)[0])
-        out = np.concatenate(blocks, axis=2)
-        self._width = out.shape[2]
-        return out
+        return np.concatenate(blocks, axis=2)
 
     def columns(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """The weighted base columns (N, n, r): each joint's rows divided by its noise floor."""
@@ -117,15 +126,24 @@ class Identification:
         count, n = q.shape
         base = self.columns(q, qd, qdd)
         value, dw = objective_and_gradient(base.reshape(-1, self.size), objective)
-        dw = dw.reshape(base.shape)
-        # Perturb every state entry of every sample at once: 3n copies of the samples.
-        states = [np.repeat(a[None], 3 * n, axis=0) for a in (q, qd, qdd)]
-        for which in range(3):
-            for j in range(n):
-                states[which][which * n + j, :, j] += FD_STEP
-        moved = self.columns(*(s.reshape(-1, n) for s in states)).reshape(3 * n, count, n, self.size)
-        grad = np.einsum("scjr,cjr->sc", moved - base[None], dw) / FD_STEP  # (3n, N)
-        return value, grad[:n].T, grad[n : 2 * n].T, grad[2 * n :].T
+        weights = np.zeros((count, n, self.width))  # d objective / d every unweighted column
+        weights[:, :, self.base] = dw.reshape(base.shape) * self.row_weight[None, :, None]
+        if self._symbolic is None:
+            self._symbolic = SymbolicRegressor(self.dynamics)
+        grad = np.stack(self._symbolic.contracted_gradient(q, qd, qdd, weights[:, :, : self.inertial_width]))
+        effect_weights = weights[:, :, self.inertial_width :]
+        if np.any(effect_weights):
+            # Central differences of the effects' columns alone: 3n perturbations each way, every sample at once.
+            states = [np.repeat(a[None], 6 * n, axis=0) for a in (q, qd, qdd)]
+            for which in range(3):
+                for j in range(n):
+                    states[which][which * n + j, :, j] += FD_STEP
+                    states[which][3 * n + which * n + j, :, j] -= FD_STEP
+            signals = self._signals(*(s.reshape(-1, n) for s in states))
+            moved = self._effect_columns(signals).reshape(2, 3 * n, count, n, -1)
+            difference = np.einsum("scjr,cjr->sc", moved[0] - moved[1], effect_weights) / (2 * FD_STEP)
+            grad += difference.reshape(3, n, count).transpose(0, 2, 1)
+        return value, grad[0], grad[1], grad[2]
 
 
 def _unit_columns(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
