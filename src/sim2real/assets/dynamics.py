@@ -70,6 +70,7 @@ class RigidBodyModel:
         # Reduced-model joint order follows the URDF tree; map it to the caller's order.
         reduced_names = [self.model.names[i] for i in range(1, self.model.njoints)]
         self._perm = np.array([reduced_names.index(j) for j in self.joint_names])
+        self.pinocchio_index = self._perm  # the caller's joint r is Pinocchio's (reduced) joint pinocchio_index[r]
         self.n = len(self.joint_names)
         if armature:
             for name, value in armature.items():
@@ -102,6 +103,19 @@ class RigidBodyModel:
         tau = np.empty((q.shape[1], q.shape[0]), order="F")
         pin.rneaInParallel(1, pin.ModelPool(self.model, 1), pq.T, pqd.T, pqdd.T, tau)
         return tau.T[:, self._perm] + self.damping * qd + self.friction * np.sign(qd)
+
+    def inverse_dynamics_derivatives(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """d tau / d(q, qd, qdd) of :meth:`inverse_dynamics` (3, N, n, n), the caller's joint order: Pinocchio's analytic
+        RNEA derivatives (armature included) plus the URDF damping (the Coulomb term's sign is flat)."""
+        q, qd, qdd = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, qd, qdd))
+        pq, pqd, pqdd = self._to_pin(q), self._to_pin(qd), self._to_pin(qdd)
+        out = np.empty((3, len(q), self.n, self.n))  # Pinocchio's joint order
+        for k in range(len(q)):
+            out[:, k] = pin.computeRNEADerivatives(self.model, self.data, pq[k], pqd[k], pqdd[k])
+        out[2] = np.triu(out[2]) + np.swapaxes(np.triu(out[2], 1), 1, 2)  # Pinocchio fills M's upper triangle only
+        out = out[:, :, self._perm][:, :, :, self._perm]
+        out[1] += np.diag(self.damping)
+        return out
 
     def drive_torque(self, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """The drive's part of :meth:`inverse_dynamics` (N, n): armature * qdd + damping * qd + friction * sign(qd).

@@ -26,7 +26,6 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-import pinocchio as pin
 import scipy.sparse
 
 from sim2real.errors import InputError
@@ -42,7 +41,9 @@ TORQUE_WATCH = 0.5  # torque rows above this fraction of the usable effort enter
 CLEARANCE_WATCH = 3.0  # clearance minima below this many margins enter the program ...
 CLEARANCE_SLACK = 0.2  # ... held this fraction of the margin above it, so the dense check between them passes
 CLEARANCE_SCAN = 4  # the clearance is scanned on a grid this many times the limits' grid
-CLEARANCE_SEARCH_M = 0.1  # distances are reported up to this; beyond it a pose is simply "clear"
+# Distances are exact up to CLEARANCE_WATCH margins (at least CLEARANCE_SEARCH_M); farther, a pose is simply "clear".
+# MuJoCo finds every pair within that distance at every pose: a search of 10 cm took 20x as long as one of 3 cm.
+CLEARANCE_SEARCH_M = 0.02
 START_FILL = 0.5  # the initial guess uses this fraction of the tightest limit
 # The start is well inside thousands of limit rows: with IPOPT's default barrier (0.1) their log terms pull
 # the motion towards the start pose for many iterations (the D-optimal design came out worse than its start).
@@ -158,18 +159,9 @@ class _Grid:
 
 def _torque_jacobian(nominal: NominalModel, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                      grid: _Grid) -> np.ndarray:
-    """d tau / d x (K, n, size): Pinocchio's analytic RNEA derivatives (armature included) per sample, plus the URDF
-    damping, chained through the grid's maps (the Coulomb term's sign is flat)."""
-    dynamics = nominal.dynamics
-    pq, pqd, pqdd = (dynamics._to_pin(a) for a in (q, qd, qdd))
-    derivatives = np.empty((3, len(q), q.shape[1], q.shape[1]))  # Pinocchio's joint order
-    for k in range(len(q)):
-        derivatives[:, k] = pin.computeRNEADerivatives(dynamics.model, dynamics.data, pq[k], pqd[k], pqdd[k])
-    # Pinocchio fills the mass matrix's upper triangle only.
-    derivatives[2] = np.triu(derivatives[2]) + np.swapaxes(np.triu(derivatives[2], 1), 1, 2)
-    perm = dynamics._perm
-    derivatives = derivatives[:, :, perm][:, :, :, perm]
-    derivatives[1] += np.diag(dynamics.damping)
+    """d tau / d x (K, n, size): the nominal model's analytic inverse-dynamics derivatives per sample, chained through
+    the grid's maps."""
+    derivatives = nominal.dynamics.inverse_dynamics_derivatives(q, qd, qdd)
     return sum(np.einsum("kjc,kcs->kjs", derivatives[which], grid.maps[which]) for which in range(3))
 
 
@@ -234,7 +226,7 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
     lim = limits(design, dynamics.lower, dynamics.upper, dynamics.velocity_limit, dynamics.effort_limit, start,
                  dynamics.gravity(start)[0], urdf_path)
     margin = float(settings["margins"]["collision_m"])
-    clearance = Clearance(mjcf_path, joints, settings["obstacles"], max(CLEARANCE_SEARCH_M, 2 * margin),
+    clearance = Clearance(mjcf_path, joints, settings["obstacles"], max(CLEARANCE_SEARCH_M, CLEARANCE_WATCH * margin),
                           design.path, design.key("obstacles"))
     distance, pair = clearance.closest(start)
     if distance < margin:

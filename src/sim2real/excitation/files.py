@@ -116,8 +116,10 @@ def markdown(result: DesignResult, robot: str, outputs: Mapping[str, str]) -> st
         f"- Condition number of the identification regressor (unit-norm columns, each joint scaled by its noise "
         f"floor): **{s['condition_number']['initial']:.4g} -> {s['condition_number']['designed']:.4g}** "
         "(the initial guess is a random series scaled into the limits, as the lab's excitation is drawn).",
-        f"- Closest approach to collision: **{s['min_clearance_m'] * 1000:.1f} mm** ({s['closest_pair']}), "
-        f"margin {margins['collision_m'] * 1000:g} mm, checked by MuJoCo at every sample of a period on the built "
+        (f"- Closest approach to collision: **{s['min_clearance_m'] * 1000:.1f} mm** ({s['closest_pair']}), "
+         if s["closest_pair"] else f"- Closest approach to collision: more than **{s['min_clearance_m'] * 1000:.1f} "
+         "mm** (no two collision parts come that close), ")
+        + f"margin {margins['collision_m'] * 1000:g} mm, checked by MuJoCo at every sample of a period on the built "
         "MJCF's collision parts with the obstacles " + (", ".join(o["name"] for o in settings["obstacles"]) or "none")
         + ".",
         f"- Solver: IPOPT (CasADi), {s['solver']['status']} after {s['solver']['iterations']} iterations, "

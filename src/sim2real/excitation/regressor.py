@@ -11,7 +11,9 @@ mapped over the samples: one call for all of them, exact, instead of 3n perturbe
   constant matrix taken from ``pin.bodyRegressor`` on unit motions, applied to ``[a, v_r v_s]``;
 - row i, body b's columns: ``S_i' X* Y_b``, the joint axis S_i carried down to body b's frame dotted with Y_b.
 
-Only 1-DoF revolute and prismatic joints (any axis): those :class:`RigidBodyModel` accepts.
+Only 1-DoF revolute and prismatic joints (any axis): those :class:`RigidBodyModel` accepts. Written here because the
+``pin`` wheel ships neither Pinocchio's CasADi bindings nor derivatives of the regressor; it is checked against
+``pin.computeJointTorqueRegressor`` (tests/test_excitation.py).
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ class SymbolicRegressor:
         model = dynamics.model
         self.n = n = model.njoints - 1
         self.width = INERTIAL_PARAMS_PER_BODY * n
-        perm = dynamics._perm  # the caller's joint r is Pinocchio's joint perm[r]
+        perm = dynamics.pinocchio_index  # the caller's joint r is Pinocchio's joint perm[r]
         q, qd, qdd = (ca.SX.sym(name, n) for name in ("q", "qd", "qdd"))
         pq, pqd, pqdd = ([a[int(np.flatnonzero(perm == i)[0])] for i in range(n)] for a in (q, qd, qdd))
         parents = [int(model.parents[i]) - 1 for i in range(1, model.njoints)]  # -1: the world
