@@ -69,8 +69,8 @@ class RigidBodyModel:
         self.joint_names = list(joint_names)
         # Reduced-model joint order follows the URDF tree; map it to the caller's order.
         reduced_names = [self.model.names[i] for i in range(1, self.model.njoints)]
-        self._perm = np.array([reduced_names.index(j) for j in self.joint_names])
-        self.pinocchio_index = self._perm  # the caller's joint r is Pinocchio's (reduced) joint pinocchio_index[r]
+        # the caller's joint r is Pinocchio's (reduced) joint pinocchio_index[r]
+        self.pinocchio_index = np.array([reduced_names.index(j) for j in self.joint_names])
         self.n = len(self.joint_names)
         if armature:
             for name, value in armature.items():
@@ -86,12 +86,12 @@ class RigidBodyModel:
         self.body_names = reduced_names  # one moving body per joint, in tree order
 
     def _in_order(self, vec: np.ndarray) -> np.ndarray:
-        return np.asarray(vec, dtype=float)[self._perm].copy()
+        return np.asarray(vec, dtype=float)[self.pinocchio_index].copy()
 
     def _to_pin(self, x: np.ndarray) -> np.ndarray:
         """Samples (N, n) in the caller's joint order -> Pinocchio's, all at once (rows contiguous)."""
         out = np.empty_like(x)
-        out[:, self._perm] = x
+        out[:, self.pinocchio_index] = x
         return out
 
     def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
@@ -102,7 +102,7 @@ class RigidBodyModel:
         # Python call per sample). One thread: the fits that call it already share the rule's cores.
         tau = np.empty((q.shape[1], q.shape[0]), order="F")
         pin.rneaInParallel(1, pin.ModelPool(self.model, 1), pq.T, pqd.T, pqdd.T, tau)
-        return tau.T[:, self._perm] + self.damping * qd + self.friction * np.sign(qd)
+        return tau.T[:, self.pinocchio_index] + self.damping * qd + self.friction * np.sign(qd)
 
     def inverse_dynamics_derivatives(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """d tau / d(q, qd, qdd) of :meth:`inverse_dynamics` (3, N, n, n), the caller's joint order: Pinocchio's analytic
@@ -113,7 +113,7 @@ class RigidBodyModel:
         for k in range(len(q)):
             out[:, k] = pin.computeRNEADerivatives(self.model, self.data, pq[k], pqd[k], pqdd[k])
         out[2] = np.triu(out[2]) + np.swapaxes(np.triu(out[2], 1), 1, 2)  # Pinocchio fills M's upper triangle only
-        out = out[:, :, self._perm][:, :, :, self._perm]
+        out = out[:, :, self.pinocchio_index][:, :, :, self.pinocchio_index]
         out[1] += np.diag(self.damping)
         return out
 
@@ -131,7 +131,7 @@ class RigidBodyModel:
         out = np.empty_like(q)
         for k in range(q.shape[0]):
             out[k] = pin.computeGeneralizedGravity(self.model, self.data, pq[k])
-        return out[:, self._perm]
+        return out[:, self.pinocchio_index]
 
     def inertial_parameters(self) -> np.ndarray:
         """Dynamic parameters (10 per body, Pinocchio order) of the moving bodies, shape (n_bodies*10,)."""
@@ -143,5 +143,5 @@ class RigidBodyModel:
         pq, pqd, pqdd = self._to_pin(q), self._to_pin(qd), self._to_pin(qdd)
         out = np.empty((q.shape[0], self.n, INERTIAL_PARAMS_PER_BODY * (self.model.njoints - 1)))
         for k in range(q.shape[0]):
-            out[k] = np.asarray(pin.computeJointTorqueRegressor(self.model, self.data, pq[k], pqd[k], pqdd[k]))[self._perm]
+            out[k] = np.asarray(pin.computeJointTorqueRegressor(self.model, self.data, pq[k], pqd[k], pqdd[k]))[self.pinocchio_index]
         return out
