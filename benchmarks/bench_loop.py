@@ -12,9 +12,11 @@ logged for each ``--lengths`` (seconds; default 20 s, 2 min, 10 min), and one ro
 cumulative time of the functions that do them (nested stages overlap: the diagnosis holds its candidates'
 fits; on the one thread of this round the gap report draws its figures inside compute_gap, before the
 replays). Each rule runs in its own fresh process, as in the DAG; its peak memory is the maximum resident set
-of that process and of the workers it forked.
+of that process and of the workers it forked. ``--against REV``: the same cold rounds also with the package as it
+was at the commit REV (its ``src/``, on the same prepared runs, alternating with this code's, ``--cold-repeats``
+times each), and the ratio of the medians: issue 32 measures a cold 20 s round against its filing (ce27dde).
 
-    python benchmarks/bench_loop.py [--repeats 3] [--lengths 20 120 600] [--skip-demo]
+    python benchmarks/bench_loop.py [--repeats 3] [--lengths 20 120 600] [--skip-demo] [--against ce27dde]
 """
 
 from __future__ import annotations
@@ -26,7 +28,9 @@ import json
 import multiprocessing
 import pstats
 import resource
+import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -71,9 +75,12 @@ def stage_times(stats: pstats.Stats) -> dict[str, float]:
 RULES = ("prepare_runs", "sysid", "gap_report")
 
 
-def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiprocessing.Queue) -> None:
+def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiprocessing.Queue, src: str | None) -> None:
     """In a fresh process, as the DAG runs it: one rule's function under cProfile; stage times, wall time and
-    the peak resident set of the process and of the workers it forked."""
+    the peak resident set of the process and of the workers it forked. ``src``: the package from there (another
+    commit's) instead of the installed one."""
+    if src is not None:
+        sys.path.insert(0, src)
     from sim2real.report.gap import build_gap_report
     from sim2real.measurements import prepare_for_model, write_prepared_runs
     from sim2real.report.figures import FIGURES
@@ -101,14 +108,17 @@ def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiproc
     queue.put({"seconds": seconds, "stages": stage_times(pstats.Stats(profiler)), "peak_mib": peak_mib})
 
 
-def profiled_round(tree: Path, measurements: Path, out: Path) -> dict:
-    """The runs prepared, then one round (sysid, gap report), each rule in its own fresh process."""
+def profiled_round(tree: Path, measurements: Path, out: Path, src: Path | None = None, prepare: bool = True) -> dict:
+    """The runs prepared (unless ``prepare`` is false: they are in ``out`` already), then one cold round (sysid,
+    gap report, nothing kept from an earlier one), each rule in its own fresh process; ``src``: another commit's
+    package (:func:`one_rule`)."""
     out.mkdir(parents=True, exist_ok=True)
     context = multiprocessing.get_context("spawn")
-    rules = {}
-    for rule in RULES:
+    rules = {"prepare_runs": {"seconds": 0.0, "stages": dict.fromkeys(STAGES, 0.0), "peak_mib": 0.0}}
+    for rule in RULES if prepare else RULES[1:]:
         queue = context.Queue()
-        process = context.Process(target=one_rule, args=(rule, str(tree), str(measurements), str(out), queue))
+        process = context.Process(target=one_rule, args=(rule, str(tree), str(measurements), str(out), queue,
+                                                          None if src is None else str(src)))
         process.start()
         rules[rule] = queue.get()
         process.join()
@@ -151,6 +161,9 @@ def demo_rounds(tree: Path, repeats: int) -> None:
                   f"{t['sysid'] + t['gap_report']:.1f} s")
         print(f"    median round (sysid + gap_report): "
               f"{statistics.median(t['sysid'] + t['gap_report'] for t in times):.1f} s (target: under 5 s)")
+    medians = [statistics.median(t["sysid"] + t["gap_report"] for t in times) for times in rows.values()]
+    print(f"  a round that adds the line / a round that changes nothing: {medians[1] / medians[0]:.2f}x "
+          "(issue 32: at most 1.5x)")
 
 
 def lab_runs(tree: Path, length_s: float) -> Path:
@@ -170,11 +183,32 @@ def lab_runs(tree: Path, length_s: float) -> Path:
     return listing
 
 
+def compare_cold(tree: Path, listing: Path, out: Path, src: Path, rev: str, length: float, repeats: int,
+                 first: dict) -> None:
+    """Cold rounds on the same prepared runs, this code's and ``rev``'s in turn (``first``: this code's first), and
+    the ratio of their medians (sysid + gap report, each rule in a fresh process, cProfile on in both)."""
+    ours = [first["sysid_s"] + first["gap_s"]]
+    theirs = []
+    for k in range(repeats):
+        old = profiled_round(tree, listing, out / f"{rev}_{k}", src)  # its own prepared runs, timed apart
+        theirs.append(old["sysid_s"] + old["gap_s"])
+        if k + 1 < repeats:
+            (out / f"ours_{k}").mkdir(parents=True, exist_ok=True)
+            shutil.copy(out / "prepared_runs.npz", out / f"ours_{k}" / "prepared_runs.npz")
+            again = profiled_round(tree, listing, out / f"ours_{k}", prepare=False)
+            ours.append(again["sysid_s"] + again["gap_s"])
+    print(f"\ncold round on the {length:g} s log (sysid + gap report, cProfile on): this code "
+          f"{', '.join(f'{t:.1f}' for t in ours)} s, {rev} {', '.join(f'{t:.1f}' for t in theirs)} s; "
+          f"ratio of medians {statistics.median(ours) / statistics.median(theirs):.2f}x (issue 32: at most 0.5x)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--lengths", type=float, nargs="+", default=[20.0, 120.0, 600.0])
     parser.add_argument("--skip-demo", action="store_true")
+    parser.add_argument("--against", metavar="REV", help="also time the cold rounds with the package of this commit")
+    parser.add_argument("--cold-repeats", type=int, default=1, help="cold rounds of each code with --against")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tree = copy_repo(ROOT, Path(tmp) / "project")
@@ -184,10 +218,21 @@ def main() -> None:
             demo_rounds(tree, args.repeats)
         else:
             run_snakemake(tree, "results/panda/mjcf/panda.xml", "results/panda/panda.urdf", timeout=3600)
+        against = None
+        if args.against:
+            against = Path(tmp) / "against"
+            against.mkdir()
+            archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.against, "src", "schemas"], check=True,
+                                     capture_output=True).stdout
+            subprocess.run(["tar", "-x", "-C", str(against)], input=archive, check=True)
         results = {}
         for length in args.lengths:
             listing = lab_runs(tree, length)
-            results[length] = profiled_round(tree, listing, Path(tmp) / f"round_{int(length)}")
+            out = Path(tmp) / f"round_{int(length)}"
+            results[length] = profiled_round(tree, listing, out)
+            if against is not None:
+                compare_cold(tree, listing, out, against / "src", args.against, length, args.cold_repeats,
+                             results[length])
             r = results[length]
             peaks = r["peak_mib"]
             print(f"\nreal_arm_like, {length:g} s fit + {length:g} s holdout at 1 kHz: prepare runs {r['prepare_s']:.1f} s, "

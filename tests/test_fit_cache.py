@@ -104,49 +104,6 @@ def test_a_round_after_one_added_line_refits_only_the_new_rung_and_writes_the_sa
     assert fitted == [[], ["coulomb_friction"], ["coulomb_friction", "viscous_friction"]]
 
 
-def test_a_canonicalised_program_is_read_back_by_the_next_process_and_solves_to_the_same_bits(tmp_path, monkeypatch):
-    from sim2real.identification import inertial
-
-    rng = np.random.default_rng(3)
-    design = rng.normal(size=(400, 3, 6))
-    target = design @ np.array([0.5, -0.2, 0.1, 0.0, 0.3, -0.4]) + rng.normal(scale=0.1, size=(400, 3))
-    lower = np.array([-np.inf, 0.0, 0.0, -np.inf, 0.0, 0.0])  # two bounds bite: the solver has work to do
-    monkeypatch.setattr(inertial.program, "_PROGRAMS", {})
-    with inertial.program_store(tmp_path):
-        first = inertial.solve_consistent(design, target, lower, None, 0.0)
-    assert [p.name.split("-")[0] for p in tmp_path.iterdir()] == ["program"]
-    assert first.coefficients[1] == pytest.approx(0.0, abs=1e-6) and first.coefficients[4] > 0.2  # -0.2 held at 0
-
-    built = []
-    original = inertial.program._ConsistentProgram.__init__
-
-    def counted(self, *args, **kwargs):
-        built.append(args)
-        original(self, *args, **kwargs)
-
-    monkeypatch.setattr(inertial.program._ConsistentProgram, "__init__", counted)
-    monkeypatch.setattr(inertial.program, "_PROGRAMS", {})  # what a new process starts with
-    with inertial.program_store(tmp_path):
-        again = inertial.solve_consistent(design, target, lower, None, 0.0)
-    assert built == [] and again.coefficients.tobytes() == first.coefficients.tobytes()
-    monkeypatch.setattr(inertial.program, "_PROGRAMS", {})
-    inertial.solve_consistent(design, target, lower, None, 0.0)  # outside a store: built here, nothing kept
-    assert len(built) == 1 and len(list(tmp_path.iterdir())) == 1
-
-    # built ahead of its first solve (sim2real.identification.fitting.build_program: the diagnosis's candidates while the rung is
-    # fitted), in another store: read back, it solves to the same bits as the program its first solve built
-    ahead = tmp_path / "ahead"
-    monkeypatch.setattr(inertial.program, "_PROGRAMS", {})
-    with inertial.program_store(ahead):
-        inertial.build_program(6, lower, None)
-    assert len(list(ahead.iterdir())) == 1
-    built.clear()
-    monkeypatch.setattr(inertial.program, "_PROGRAMS", {})
-    with inertial.program_store(ahead):
-        read_back = inertial.solve_consistent(design, target, lower, None, 0.0)
-    assert built == [] and read_back.coefficients.tobytes() == first.coefficients.tobytes()
-
-
 def test_the_bodies_mesh_bounds_are_kept_and_follow_the_meshes(tmp_path, monkeypatch):
     """load_nominal reads the collision meshes (and imports trimesh) only when the URDF or a mesh changed."""
     from sim2real.identification.fitting import nominal as nominal_module

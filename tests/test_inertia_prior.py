@@ -109,3 +109,37 @@ def test_a_design_kept_as_blocks_chooses_and_solves_to_the_same_bits(anchor, mon
     assert chosen[0].weight == chosen[1].weight and chosen[0].scores == chosen[1].scores
     solved = [solve_consistent(d, target * weights, lower, block, chosen[0].weight * NOISE**2) for d in (whole, kept)]
     assert np.array_equal(solved[0].coefficients, solved[1].coefficients)
+
+
+def test_the_conic_form_solves_the_program_cvxpy_states(anchor):
+    """The consistent fit's conic form, written for Clarabel directly (inertial.conic), against the same program
+    written in cvxpy: two bodies (one with its ellipsoid), bounded and free columns, a weak and a strong pull."""
+    import cvxpy as cp
+
+    from sim2real.identification.inertial import bounding_ellipsoid, pseudo_inertia
+    from sim2real.identification.inertial.program import _ConsistentProgram, _CvxpyProgram
+
+    rng = np.random.default_rng(7)
+    anchors = np.stack([anchor, 1.3 * anchor])
+    # the second body's ellipsoid: points around its centre of mass, wide enough to hold the CAD body
+    com = anchor[1:4] / anchor[0]
+    points = com + rng.normal(scale=0.15, size=(200, 3))
+    block = InertialBlock(slice(0, 20), anchors, [None, bounding_ellipsoid(points)])
+    assert float(np.trace(pseudo_inertia(anchors[1]) @ block.ellipsoids[1])) >= 0
+    lower = np.concatenate([np.full(20, -np.inf), [0.0, 0.0, -np.inf, 0.5]])  # friction-like bounds; one bites
+    design = np.concatenate([rng.normal(size=(600, 1, 20)) / np.maximum(np.abs(np.tile(anchor, 2)), 0.05),
+                             rng.normal(size=(600, 1, 4))], axis=2)
+    truth = np.concatenate([0.2 * anchor, -0.1 * anchor, [0.3, -0.2, 0.1, 0.4]])
+    target = design @ truth + NOISE * rng.normal(size=(600, 1))
+    program = _ConsistentProgram(24, lower, block)
+    for weight in (1e-6, 1e-2):
+        term = program.prepare(design.reshape(600, 24), target.reshape(-1))
+        ours = program.solve_prepared(term, weight)
+        stated = _CvxpyProgram(24, lower, block)
+        stated.set(term.root, term.target_root, weight, 1.0 / term.scale)
+        stated.problem.solve(solver=cp.CLARABEL, tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11)
+        assert ours.status == "optimal" and stated.problem.status == "optimal"
+        theirs = np.asarray(stated.z.value) / term.scale
+        assert np.max(np.abs(ours.coefficients - theirs)) <= 1e-5 * np.max(np.abs(theirs))
+        assert ours.objective == pytest.approx(stated.problem.value, rel=1e-7)
+        assert ours.coefficients[21] == pytest.approx(0.0, abs=1e-7) and ours.coefficients[23] >= 0.5 - 1e-9

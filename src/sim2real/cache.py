@@ -155,14 +155,9 @@ class FitCache:
         assert self.directory is not None
         return self.directory / f"{kind}-{key[:40]}.pkl"
 
-    def prune(self, keep_programs: int = 32) -> None:
-        """Remove the fits this round did not use (the cache holds one round's fits, no more), and all but the
-        ``keep_programs`` last used canonicalised programs (``program-*``, :func:`sim2real.identification.inertial.program_store`):
-        a round that reads every fit back solves nothing, and the next one needs them again."""
+    def prune(self) -> None:
+        """Remove the fits this round did not use: the cache holds one round's fits, no more."""
         if self.directory is None or not self.directory.is_dir():
             return
-        files = sorted((p for p in self.directory.iterdir() if p.is_file()), key=lambda p: -p.stat().st_mtime)
-        programs = [p for p in files if p.name.startswith("program-")]
-        stale = [p for p in files if not p.name.startswith("program-") and p.stat().st_mtime < self.started - 1.0]
-        for path in stale + programs[keep_programs:]:
+        for path in [p for p in self.directory.iterdir() if p.is_file() and p.stat().st_mtime < self.started - 1.0]:
             path.unlink(missing_ok=True)

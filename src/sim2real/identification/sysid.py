@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification import links
-from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, candidates_to_try, model_free_ceiling
+from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, model_free_ceiling
 from sim2real.identification.diagnosis import diagnose as run_diagnosis
 from sim2real.identification.documents import (  # noqa: F401  (re-exported: the rule's documents)
     load_model_config, merge_link_values, params_document, round_floats, write_model_residuals,
@@ -30,13 +30,12 @@ from sim2real.identification.effects import Signals, get_effect
 from sim2real.errors import InputError
 from sim2real.forked import Forked
 from sim2real.identification.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
-    DEFAULT_SETTINGS, FitResult, NominalModel, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
+    DEFAULT_SETTINGS, FitResult, NominalModel, Refinements, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
     joint_weights,
     kept_segments, load_nominal, make_signals, predict, resolve_armature, RunSamples, stack_runs,
 )
 from sim2real.blas import one_blas_thread
 from sim2real.cache import FitCache
-from sim2real.identification.inertial import program_store
 from sim2real.measurements import PreparedRun, noise_floor_of, torque_sensor_of
 from sim2real.stats import rmse
 
@@ -92,21 +91,19 @@ def fit_ladder(
     cache = cache or FitCache(None)
     # Everything a rung depends on but its effects: a rung of an earlier round with the same is the same fit.
     inputs = cache.key(link, nominal, fit_data, holdout_data, fit_signals, holdout_signals)
+    # The diagnosis's trials keep their refinements: the rung of the candidate the user adds reads its back.
+    refinements = Refinements(cache, inputs) if cache.directory is not None else None
     rungs = []
     result = None
     residual = None
     for k in range(len(effect_names) + 1):
         effects = list(effect_names[:k])
         previous = result.nonlinear if result is not None else None
-        # While the last rung is fitted, its candidates' programs are built, to be read back by the diagnosis.
-        programs = ([[*effects, name] for name in candidates_to_try(
-            effects, holdout_data.torque_source, holdout_signals.forward, candidates)[0]]
-            if diagnose and cache.directory is not None and k == len(effect_names) else [])
         result, residual, carried, free = cache.get_or_compute(
             "rung", cache.key(inputs, effects, previous, fit_settings),
             functools.partial(_rung, effects, nominal, fit_data, holdout_data, previous, fit_settings,
                               fit_signals=fit_signals, holdout_signals=holdout_signals, workers=workers,
-                              programs=programs))
+                              refinements=refinements))
         metrics = {"torque_rmse": rmse(residual, holdout_data.joint_names)}
         x_floor = floor_units(residual, holdout_data.noise_floor)
         rung: dict[str, Any] = {
@@ -165,7 +162,7 @@ def fit_ladder(
         document["diagnosis"] = cache.get_or_compute("diagnosis", key, functools.partial(
             _diagnose_link, effect_names, nominal, fit_data, holdout_data, residual, fit_residual, diagnosis_settings,
             fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot, nonlinear_fixed=result.nonlinear,
-            candidates=candidates, link=link, workers=workers, current=result,
+            candidates=candidates, link=link, workers=workers, current=result, refinements=refinements,
         ))
     return round_floats(document), result
 
@@ -364,10 +361,9 @@ def run_sysid(
         if not by_role[role]:
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
-    with program_store(cache_dir):  # the consistent fit's canonicalised programs, kept beside the fits
-        current: dict[str, Any] = {}
-        document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot,
-                                      workers=threads, cache=cache, release_runs=True, current_out=current)
+    current: dict[str, Any] = {}
+    document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot,
+                                  workers=threads, cache=cache, release_runs=True, current_out=current)
     params = params_document(results, nominal, document["torque_source"], robot)
     write_json(ladder_json, document)
     write_yaml(params_yaml, params)

@@ -41,10 +41,21 @@ def _save(fig: Figure, target: str | Path) -> None:
     _pyplot().close(fig)
 
 
+# A grid's margins in inches (left, right, bottom, top; between axes across, down), for its fixed font sizes: laid
+# out once instead of by tight_layout, which draws every tick label of every axes to measure it (half a figure's time).
+GRID_MARGINS_IN = (0.72, 0.12, 0.42, 0.5, 0.74, 0.62)
+
+
 def _grid(n: int) -> tuple[Figure, np.ndarray]:
     cols = min(n, 4)
     rows = int(np.ceil(n / cols))
-    fig, axes = _pyplot().subplots(rows, cols, figsize=(3.6 * cols, 2.6 * rows), squeeze=False)
+    width, height = 3.6 * cols, 2.6 * rows
+    fig, axes = _pyplot().subplots(rows, cols, figsize=(width, height), squeeze=False)
+    left, right, bottom, top, across, down = GRID_MARGINS_IN
+    cell_w = (width - left - right - across * (cols - 1)) / cols
+    cell_h = (height - bottom - top - down * (rows - 1)) / rows
+    fig.subplots_adjust(left=left / width, right=1 - right / width, bottom=bottom / height, top=1 - top / height,
+                        wspace=across / cell_w, hspace=down / cell_h)
     for ax in axes.flat[n:]:
         ax.set_visible(False)
     return fig, axes.flat
@@ -60,7 +71,6 @@ def _label(ax: Any, joint: str, xlabel: str, ylabel: str) -> None:
 
 def _finish(fig: Figure, title: str, target: str | Path) -> None:
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
     _save(fig, target)
 
 

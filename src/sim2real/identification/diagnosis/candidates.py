@@ -198,14 +198,14 @@ def _trial_way(item: tuple[str, Mapping[str, Any]], model_effects: Sequence[str]
 
 def trial_fits(names: Sequence[str], workers: int, *, model_effects: Sequence[str], nominal: Any, fit_data: Any,
                holdout_data: Any, nonlinear_fixed: Mapping[str, np.ndarray] | None, settings: Mapping[str, Any] | None,
-               fit_signals: Signals, holdout_signals: Signals) -> dict[str, tuple[fitting.FitResult, np.ndarray]]:
+               fit_signals: Signals, holdout_signals: Signals, refinements: fitting.Refinements | None = None,
+               ) -> dict[str, tuple[fitting.FitResult, np.ndarray]]:
     """Each candidate of ``names`` fitted as its rung will be: the current nonlinear parameters refined again or
     held, whichever predicts better (:func:`sim2real.identification.fitting.fit_on_the_previous`); (fit, holdout residual).
 
     Every way of every candidate is one piece of work, on up to ``workers`` processes side by side
     (:func:`sim2real.forked.map_forked`: the same numbers as one after the other). The candidates' first ways
-    go first: each builds its candidate's convex program, which the second way then reads back
-    (:func:`sim2real.identification.inertial.program_store`) instead of building it again.
+    go first (they refine, and take longest).
     """
     previous = fitting.previous_nonlinear(nonlinear_fixed)
     ways = fitting.previous_ways(previous, uncertainty=False)
@@ -214,7 +214,8 @@ def trial_fits(names: Sequence[str], workers: int, *, model_effects: Sequence[st
         import_solver()
     fits = map_forked(_trial_way, items, workers, {"model_effects": list(model_effects), "nominal": nominal,
                                                     "data": fit_data, "settings": settings, "signals": fit_signals,
-                                                    "holdout_data": holdout_data, "holdout_signals": holdout_signals})
+                                                    "holdout_data": holdout_data, "holdout_signals": holdout_signals,
+                                                    "refinements": refinements})
     out = {}
     for name in names:
         candidate = [fit for (item_name, _), fit in zip(items, fits, strict=True) if item_name == name]
@@ -240,6 +241,7 @@ def diagnose(
     link: str = "body",
     workers: int = 1,
     current: fitting.FitResult | None = None,
+    refinements: fitting.Refinements | None = None,
 ) -> dict[str, Any]:
     """Rank every effect of ``candidates`` (default: the library) not in ``model_effects`` by the
     holdout residual it removes; ``link`` names the link of the model judged (:data:`LINK_TEXT`);
@@ -250,7 +252,8 @@ def diagnose(
     current model's holdout residual (judged minus predicted torque). Each candidate is fitted exactly
     as its rung would be (:func:`sim2real.identification.fitting.fit`, physically consistent, the current model's
     nonlinear parameters ``nonlinear_fixed`` held), so ``rmse_after`` is the holdout error the ladder
-    delivers when the user adds it. ``workers``: processes that fit the candidates side by side (:func:`trial_fits`).
+    delivers when the user adds it. ``workers``: processes that fit the candidates side by side (:func:`trial_fits`);
+    ``refinements``: where their refinements are kept, for the rung of the one the user adds.
     """
     settings = dict(settings or {})
     limits = {**DEFAULT_DIAGNOSIS, **settings.get("diagnosis", {})}
@@ -276,7 +279,7 @@ def diagnose(
     tried, skipped = candidates_to_try(model_effects, holdout_data.torque_source, holdout_signals.forward, candidates)
     trials = trial_fits(tried, workers, model_effects=list(model_effects), nominal=nominal, fit_data=fit_data,
                         holdout_data=holdout_data, nonlinear_fixed=nonlinear_fixed, settings=settings.get("fit"),
-                        fit_signals=fit_signals, holdout_signals=holdout_signals)
+                        fit_signals=fit_signals, holdout_signals=holdout_signals, refinements=refinements)
     for name in tried:
         effect = EFFECTS[name]
         result, residual = trials[name]

@@ -50,16 +50,24 @@ def parameter_scales(inertial: np.ndarray) -> np.ndarray:
 
 def to_mass_com_inertia(params: np.ndarray) -> dict[str, Any]:
     """One body's dynamic parameters -> mass, center of mass, inertia about the COM (xx, xy, xz, yy, yz, zz)."""
-    m = float(params[0])
-    c = np.asarray(params[1:4]) / m if abs(m) > 1e-12 else np.zeros(3)
-    ixx, ixy, iyy, ixz, iyz, izz = params[4:10]
-    origin = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    com_inertia = origin - m * (float(c @ c) * np.eye(3) - np.outer(c, c))
-    return {
-        "mass": round(m, 6),
-        "com": [round(float(v), 6) for v in c],
-        "inertia": [round(float(com_inertia[i, k]), 8) for i, k in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))],
-    }
+    return bodies_mass_com_inertia(np.asarray(params, dtype=float).reshape(1, 10))[0]
+
+
+def bodies_mass_com_inertia(bodies: np.ndarray) -> list[dict[str, Any]]:
+    """:func:`to_mass_com_inertia` of each of (B, 10) bodies, computed for the stack at once (the bootstrap asks
+    for every body of every replicate)."""
+    bodies = np.asarray(bodies, dtype=float)
+    m = bodies[:, 0]
+    heavy = np.abs(m) > 1e-12
+    c = np.where(heavy[:, None], bodies[:, 1:4] / np.where(heavy, m, 1.0)[:, None], 0.0)
+    ixx, ixy, iyy, ixz, iyz, izz = bodies[:, 4:10].T
+    squared = np.sum(c * c, axis=1)
+    # I_com = I_origin - m (|c|^2 1 - c c'), entry by entry in the order xx, xy, xz, yy, yz, zz
+    inertia = np.stack([ixx - m * (squared - c[:, 0] * c[:, 0]), ixy + m * c[:, 0] * c[:, 1], ixz + m * c[:, 0] * c[:, 2],
+                        iyy - m * (squared - c[:, 1] * c[:, 1]), iyz + m * c[:, 1] * c[:, 2],
+                        izz - m * (squared - c[:, 2] * c[:, 2])], axis=1)
+    return [{"mass": round(float(mb), 6), "com": [round(v, 6) for v in cb], "inertia": [round(v, 8) for v in ib]}
+            for mb, cb, ib in zip(m.tolist(), c.tolist(), inertia.tolist(), strict=True)]
 
 
 def correction_anchors(nominal: dict[str, Any]) -> np.ndarray:
@@ -132,8 +140,9 @@ def body_changes(delta: np.ndarray, nominal: dict[str, Any]) -> dict[str, dict[s
     bounds = nominal.get("mesh_bounds")
     hulls = (bounds.hulls if bounds else None) or [None] * len(anchors)
     out = {}
+    befores, afters = bodies_mass_com_inertia(anchors), bodies_mass_com_inertia(corrected)
     for b, link in enumerate(nominal["body_links"]):
-        before, after = to_mass_com_inertia(anchors[b]), to_mass_com_inertia(corrected[b])
+        before, after = befores[b], afters[b]
         dm = after["mass"] - before["mass"]
         dc = float(np.linalg.norm(np.subtract(after["com"], before["com"])))
         moved = bool(abs(dm) > MOVED_MASS_FRACTION * max(before["mass"], 1e-9) or dc > MOVED_COM_M
@@ -228,13 +237,11 @@ class LinkInertia(Effect):
         # The URDF link alone (without the fixed links Pinocchio merged into its body) plus the
         # correction: what the calibrated URDF's <inertial> must say.
         own = signals.nominal.get("link_own_inertial", {})
-        urdf_links = {
-            link: to_mass_com_inertia(np.asarray(own[link]) + delta[10 * b : 10 * b + 10])
-            for b, link in enumerate(bodies)
-            if link in own
-        }
+        with_own = [(b, link) for b, link in enumerate(bodies) if link in own]
+        urdf_links = dict(zip([link for _, link in with_own], bodies_mass_com_inertia(np.array(
+            [np.asarray(own[link]) + delta[10 * b : 10 * b + 10] for b, link in with_own]).reshape(-1, 10)), strict=True))
         return {
-            "links": {link: to_mass_com_inertia(total[10 * b : 10 * b + 10]) for b, link in enumerate(bodies)},
+            "links": dict(zip(bodies, bodies_mass_com_inertia(np.reshape(total, (-1, 10))), strict=True)),
             "urdf_links": urdf_links,
             "base_parameters": int(state["rank"]),
             "condition_number": float(state["condition_number"]),

@@ -3,7 +3,8 @@ ones projected out (variable projection), on every sample or, on a long log, on 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -15,6 +16,30 @@ from sim2real.identification.effects import Signals
 from sim2real.identification.effects.actuation_delay import MAX_DELAY
 from sim2real.identification.fitting.linear import _GramCache, _linear_fit
 from sim2real.identification.fitting.problem import _Problem, subset_signals
+
+
+# The settings a refinement reads (joint_weighting through the problem's weights).
+REFINE_SETTINGS = ("refine_max_samples", "refine_windows_s", "joint_weighting")
+
+
+@dataclass
+class Refinements:
+    """The nonlinear refinements of one link's data, kept between rounds of the loop (:class:`sim2real.cache.FitCache`).
+
+    A diagnosis's trial of a candidate refines exactly what that candidate's rung refines in the next round, once
+    the user adds it: the same data, effects, start and held parameters (the prior's weight, the one difference
+    between a trial and its rung, does not enter the refinement). The rung reads it back, the same bits.
+    ``inputs``: the digest of the link's data and nominal model (:func:`sim2real.identification.sysid.fit_ladder`'s)."""
+
+    cache: Any
+    inputs: str
+
+    def get_or_compute(self, effect_names: Sequence[str], settings: Mapping[str, Any],
+                       fixed: Mapping[str, np.ndarray] | None, start: Mapping[str, np.ndarray] | None,
+                       compute: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+        key = self.cache.key(self.inputs, list(effect_names), {k: settings.get(k) for k in REFINE_SETTINGS},
+                             dict(fixed or {}), dict(start or {}))
+        return self.cache.get_or_compute("refinement", key, compute)
 
 
 def _refine_nonlinear(
@@ -179,9 +204,14 @@ class _ProjectedJacobian:
             scale = np.linalg.norm(weighted, axis=0)
             scale[scale == 0] = 1.0
             unit = weighted / scale
-            # the columns' share of each change, by the minimum-norm solve the linear fit uses (its Gram matrix's
-            # 1e-12 is this 1e-6 of the singular values)
-            taken = unit @ np.linalg.lstsq(unit, changes, rcond=1e-6)[0]
+            # The columns' share of each change: its projection on their span, dropping directions below 1e-6 of
+            # the largest singular value (the Gram matrix's 1e-12, as the linear fit drops them). From the p x p
+            # Gram matrix's eigenpairs rather than an SVD of the tall design: a third of the work, and a
+            # Jacobian's precision is all it needs (the refinement's minimum is the residual's).
+            eigval, eigvec = np.linalg.eigh(unit.T @ unit)
+            keep = eigval > 1e-12 * eigval[-1]
+            inverse = (eigvec[:, keep] / eigval[keep]) @ eigvec[:, keep].T
+            taken = unit @ (inverse @ (unit.T @ changes))
             out[:, where] = -(changes - taken)
         return out
 

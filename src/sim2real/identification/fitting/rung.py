@@ -5,6 +5,7 @@ consistent fit (:mod:`sim2real.identification.inertial`) and the bootstrap; a mo
 from __future__ import annotations
 
 import copy
+import functools
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -17,7 +18,7 @@ from sim2real.identification.fitting.scoring import holdout_metrics, joint_weigh
 from sim2real.identification.fitting.nominal import NominalModel, make_signals
 from sim2real.identification.fitting.linear import _linear_fit
 from sim2real.identification.fitting.problem import FitResult, _Problem, _values
-from sim2real.identification.fitting.refine import _refine_nonlinear
+from sim2real.identification.fitting.refine import Refinements, _refine_nonlinear
 from sim2real.forked import map_forked
 from sim2real.identification.inertial import import_solver
 from sim2real.stats import rmse
@@ -54,6 +55,7 @@ def fit(
     consistency: bool = True,
     nonlinear_fixed: Mapping[str, np.ndarray] | None = None,
     nonlinear_start: Mapping[str, np.ndarray] | None = None,
+    refinements: Refinements | None = None,
 ) -> FitResult:
     """Fit the model ``nominal + effect_names`` on ``data`` (the fit runs).
 
@@ -64,7 +66,8 @@ def fit(
     ``nonlinear_start``: where the refinement starts (the ladder passes the previous rung's and refines
     every nonlinear parameter again, so a rung delivers at least the fall its candidate promised);
     ``signals``: what the judged torque is predicted from (default: the nominal model on ``data``;
-    the actuator link passes its own and no nominal model).
+    the actuator link passes its own and no nominal model); ``refinements``: where the nonlinear refinement is
+    read back from, or kept for the next round (:class:`sim2real.identification.fitting.refine.Refinements`).
     """
     settings = {**DEFAULT_SETTINGS, **(settings or {})}
     if signals is None:
@@ -81,7 +84,9 @@ def fit(
     states = {e.name: e.prepare(signals) for e in effects}
     weights = joint_weights(data.noise_floor, str(settings.get("joint_weighting", "noise_floor")))
     problem = _Problem(effects, signals, states, weights)
-    nonlinear = _refine_nonlinear(problem, data.tau, settings, nonlinear_fixed, nonlinear_start)
+    refine = functools.partial(_refine_nonlinear, problem, data.tau, settings, nonlinear_fixed, nonlinear_start)
+    nonlinear = refine() if refinements is None else refinements.get_or_compute(
+        effect_names, settings, nonlinear_fixed, nonlinear_start, refine)
     theta, residual, sizes = _linear_fit(problem, data.tau, nonlinear)
     unconstrained = FitResult(
         effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=copy.deepcopy(states),
@@ -117,7 +122,7 @@ def fit_on_the_previous(
     holdout_signals: Signals | None = None,
     uncertainty: bool = True,
     workers: int = 1,
-    programs: Sequence[Sequence[str]] = (),
+    refinements: Refinements | None = None,
 ) -> tuple[FitResult, np.ndarray, str]:
     """A model fitted on top of the previous one: (fit, holdout residual, how its nonlinear parameters were set).
 
@@ -128,9 +133,7 @@ def fit_on_the_previous(
     always lowers the fit residual); the one whose holdout residual is smaller, each joint in units of
     its own floor, is kept. The diagnosis and the ladder use this same rule, so a rung delivers what
     its diagnosis promised. ``"refined"`` also when there is nothing to hold. ``workers``: with two, both
-    ways are fitted side by side (:func:`sim2real.forked.map_forked`); ``programs``: models whose convex
-    programs are built on the same processes meanwhile (:func:`build_program`: the diagnosis's candidates,
-    while the way with the bootstrap takes longer than the other).
+    ways are fitted side by side (:func:`sim2real.forked.map_forked`); ``refinements``: :func:`fit`'s.
     """
     previous = previous_nonlinear(previous)
     if fit_signals is None:
@@ -140,13 +143,12 @@ def fit_on_the_previous(
         assert nominal is not None
         holdout_signals = make_signals(nominal, holdout_data)
     ways = previous_ways(previous, uncertainty)
-    work = [*ways, *({"program_for": list(names)} for names in programs)]
-    if workers > 1 and len(work) > 1:
+    if workers > 1 and len(ways) > 1:
         import_solver()
-    fits = map_forked(_fit_way, work, workers, {
+    fits = map_forked(_fit_way, ways, workers, {
         "effect_names": effect_names, "nominal": nominal, "data": fit_data, "settings": settings, "signals": fit_signals,
-        "holdout_data": holdout_data, "holdout_signals": holdout_signals})
-    return better_way(fits[: len(ways)], effect_names, nominal, fit_data, holdout_data, previous, settings,
+        "holdout_data": holdout_data, "holdout_signals": holdout_signals, "refinements": refinements})
+    return better_way(fits, effect_names, nominal, fit_data, holdout_data, previous, settings,
                       fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=uncertainty)
 
 
@@ -199,12 +201,9 @@ def better_way(
 
 
 def _fit_way(way: Mapping[str, Any], holdout_data: TorqueData, holdout_signals: Signals | None,
-             **inputs: Any) -> tuple[FitResult, np.ndarray] | None:
+             **inputs: Any) -> tuple[FitResult, np.ndarray]:
     """:func:`fit` with one way of carrying the previous nonlinear parameters (:func:`fit_on_the_previous`), and
-    its holdout residual; or the program of the model ``way["program_for"]`` built (:func:`build_program`)."""
-    if "program_for" in way:
-        build_program(way["program_for"], inputs["nominal"], inputs["data"], inputs["signals"])
-        return None
+    its holdout residual."""
     result = fit(**inputs, **way)
     return result, holdout_metrics(result, inputs["nominal"], holdout_data, holdout_signals)[1]
 
@@ -345,24 +344,6 @@ def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -
         blocks.append((effect, slice(start, start + cols.shape[2]), cols))
         start += cols.shape[2]
     return blocks, lower, inertial
-
-
-def build_program(effect_names: Sequence[str], nominal: NominalModel | None, data: TorqueData,
-                  signals: Signals | None = None) -> None:
-    """Canonicalise the consistent fit's convex program of the model ``effect_names`` into the program store
-    (:func:`sim2real.identification.inertial.build_program`), as the model's first fit would: the fits that need it then read
-    it back. The diagnosis's candidates' programs are built this way while the rung they sit on is fitted."""
-    from sim2real.identification.inertial import build_program as build
-
-    if signals is None:
-        assert nominal is not None
-        signals = make_signals(nominal, data)
-    effects = [get_effect(name) for name in effect_names]
-    problem = _Problem(effects, signals, {e.name: e.prepare(signals) for e in effects})
-    nonlinear = {e.name: np.asarray(e.nonlinear_init(signals), dtype=float) for e in effects}
-    blocks, lower, inertial = _consistent_blocks(problem, nonlinear)
-    if blocks:
-        build(sum(b[2].shape[2] for b in blocks), np.concatenate(lower), inertial)
 
 
 def _physical(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals) -> bool:

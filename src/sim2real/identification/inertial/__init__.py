@@ -20,7 +20,7 @@ divergence, a direction they do not see is pulled to CAD. The fraction is chosen
 of the fit runs (:func:`choose_prior_weight`): the strongest pull whose held-out error is within 1%
 of the best, not a number set by hand.
 
-Why a semidefinite program (cvxpy, Clarabel) rather than the log-Cholesky parametrisation with
+Why a semidefinite program (Clarabel; its conic form in :mod:`~.conic`, checked against cvxpy) rather than the log-Cholesky parametrisation with
 scipy's least squares (Rucker and Wensing 2022, ``pin.LogCholeskyParameters``): the problem is
 convex, so the SDP returns the global optimum with a certificate and no start point, with the
 friction/armature bounds and the ellipsoid LMIs as plain constraints. It works on the p x p Gram
@@ -31,7 +31,8 @@ consistent rung costs about the same as the unconstrained one. Log-Cholesky is u
 non-convex in the data term, needs a start inside the set and handles bounds only by clipping.
 
 Its modules: :mod:`~.geometry` (pseudo-inertia, divergence, ellipsoids), :mod:`~.rows` (a design a chunk of
-rows at a time), :mod:`~.program` (the convex program, kept between rounds) and :mod:`~.prior` (the prior's weight).
+rows at a time), :mod:`~.program` (the convex program), :mod:`~.conic` (its conic form for Clarabel) and
+:mod:`~.prior` (the prior's weight).
 """
 
 from sim2real.identification.inertial.geometry import (  # noqa: F401  (re-exported: the package's names)
@@ -42,6 +43,6 @@ from sim2real.identification.inertial.prior import (  # noqa: F401
     PRIOR_BLOCKS, PRIOR_BOUNDS, PRIOR_GRID, PRIOR_TOLERANCE, PriorChoice, choose_prior_weight,
 )
 from sim2real.identification.inertial.program import (  # noqa: F401
-    ConsistentSolution, InfeasibleFit, build_program, import_solver, program_store, solve_consistent,
+    ConsistentSolution, InfeasibleFit, import_solver, solve_consistent,
 )
 from sim2real.identification.inertial.rows import DesignRows, column_norms  # noqa: F401

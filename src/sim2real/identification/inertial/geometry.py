@@ -17,15 +17,21 @@ PD_MARGIN = 1e-4  # smallest eigenvalue kept, relative to the CAD body's pseudo-
 
 def pseudo_inertia(params: np.ndarray) -> np.ndarray:
     """4x4 pseudo-inertia matrix of one body's 10 dynamic parameters (PD iff physically consistent)."""
-    m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz = params
-    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    sigma = 0.5 * np.trace(inertia) * np.eye(3) - inertia
-    h = np.array([hx, hy, hz])
-    out = np.zeros((4, 4))
-    out[:3, :3] = sigma
-    out[:3, 3] = h
-    out[3, :3] = h
-    out[3, 3] = m
+    return pseudo_inertias(np.asarray(params, dtype=float).reshape(1, PARAMS_PER_BODY))[0]
+
+
+def pseudo_inertias(bodies: np.ndarray) -> np.ndarray:
+    """(B, 4, 4) pseudo-inertias of (B, 10) bodies' parameters, in one pass over the stack."""
+    bodies = np.asarray(bodies, dtype=float)
+    m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz = bodies.T
+    half_trace = 0.5 * (ixx + iyy + izz)
+    out = np.zeros((len(bodies), 4, 4))
+    out[:, 0, 0], out[:, 1, 1], out[:, 2, 2] = half_trace - ixx, half_trace - iyy, half_trace - izz
+    out[:, 0, 1] = out[:, 1, 0] = -ixy
+    out[:, 0, 2] = out[:, 2, 0] = -ixz
+    out[:, 1, 2] = out[:, 2, 1] = -iyz
+    out[:, :3, 3] = out[:, 3, :3] = np.stack([hx, hy, hz], axis=1)
+    out[:, 3, 3] = m
     return out
 
 
@@ -35,8 +41,7 @@ PSEUDO_BASIS = np.array([pseudo_inertia(np.eye(PARAMS_PER_BODY)[k]) for k in ran
 
 def min_eigenvalues(params: np.ndarray) -> np.ndarray:
     """Smallest pseudo-inertia eigenvalue of every body of a stacked parameter vector."""
-    bodies = np.asarray(params, dtype=float).reshape(-1, PARAMS_PER_BODY)
-    return np.array([np.linalg.eigvalsh(pseudo_inertia(b)).min() for b in bodies])
+    return np.linalg.eigvalsh(pseudo_inertias(np.asarray(params, dtype=float).reshape(-1, PARAMS_PER_BODY))).min(axis=1)
 
 
 def physically_consistent(params: np.ndarray) -> bool:
@@ -45,12 +50,9 @@ def physically_consistent(params: np.ndarray) -> bool:
 
 def entropic_divergence(params: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Lee-Park divergence of every body from its reference (inf where a body is not consistent)."""
-    out = []
-    for p, r in zip(np.reshape(params, (-1, 10)), np.reshape(reference, (-1, 10)), strict=True):
-        j, j0 = pseudo_inertia(p), pseudo_inertia(r)
-        sign, logdet = np.linalg.slogdet(np.linalg.solve(j0, j))
-        out.append(float(np.trace(np.linalg.solve(j0, j)) - logdet - 4.0) if sign > 0 else np.inf)
-    return np.asarray(out)
+    relative = np.linalg.solve(pseudo_inertias(np.reshape(reference, (-1, 10))), pseudo_inertias(np.reshape(params, (-1, 10))))
+    sign, logdet = np.linalg.slogdet(relative)
+    return np.where(sign > 0, np.trace(relative, axis1=1, axis2=2) - logdet - 4.0, np.inf)
 
 
 def ellipsoid_matrix(center: np.ndarray, axes: np.ndarray, rotation: np.ndarray) -> np.ndarray:
