@@ -30,7 +30,7 @@ from sim2real.identification.effects import Signals, get_effect
 from sim2real.errors import InputError
 from sim2real.forked import Forked
 from sim2real.identification.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
-    DEFAULT_SETTINGS, FitResult, NominalModel, Refinements, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
+    DEFAULT_SETTINGS, PRIOR_START_SETTING, FitResult, NominalModel, Refinements, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
     joint_weights,
     kept_segments, load_nominal, make_signals, predict, resolve_armature, RunSamples, stack_runs,
 )
@@ -99,9 +99,13 @@ def fit_ladder(
     for k in range(len(effect_names) + 1):
         effects = list(effect_names[:k])
         previous = result.nonlinear if result is not None else None
+        # The prior's weight is searched from the previous rung's choice (fitting.PRIOR_START_SETTING).
+        chosen = ((result.consistency or {}).get("inertia_prior") or {}) if result is not None else {}
+        rung_settings = ({**fit_settings, PRIOR_START_SETTING: chosen["weight"]} if "grid" in chosen
+                         else fit_settings)
         result, residual, carried, free = cache.get_or_compute(
-            "rung", cache.key(inputs, effects, previous, fit_settings),
-            functools.partial(_rung, effects, nominal, fit_data, holdout_data, previous, fit_settings,
+            "rung", cache.key(inputs, effects, previous, rung_settings),
+            functools.partial(_rung, effects, nominal, fit_data, holdout_data, previous, rung_settings,
                               fit_signals=fit_signals, holdout_signals=holdout_signals, workers=workers,
                               refinements=refinements))
         metrics = {"torque_rmse": rmse(residual, holdout_data.joint_names)}

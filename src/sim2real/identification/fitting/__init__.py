@@ -60,7 +60,7 @@ from sim2real.identification.fitting.problem import (  # noqa: F401  (re-exporte
 )
 from sim2real.identification.fitting.refine import Refinements, _refine_nonlinear, refinement_rows  # noqa: F401
 from sim2real.identification.fitting.rung import (  # noqa: F401  (re-exported: the package's names)
-    DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, _consistent_fit, better_way, fit, fit_on_the_previous,
+    DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, PRIOR_START_SETTING, _consistent_fit, better_way, fit, fit_on_the_previous,
     _fit_way, _physical,
     previous_nonlinear, previous_ways,
     _violations,

@@ -183,22 +183,38 @@ class _ProjectedJacobian:
         weighted = (design * weights[None, :, None]).reshape(residual.size, -1)  # a copy: the design is reused
         out = np.empty((residual.size, z.size))
         moved, where = [], []
-        base_columns: dict[str, np.ndarray] = {}
         point = self._point
-        for i, (effect, _) in enumerate(self.owners):
-            step = np.zeros_like(z)
+        joints = len(weights)
+        # A joint-local effect's parameter moves its own joint's columns only: the same parameter of every joint
+        # (its k-th, k // joints) is differenced in one evaluation of the effect's columns, each joint's change
+        # read on its own rows; any other parameter alone.
+        groups: dict[tuple[str, int], list[int]] = {}
+        for i, (effect, k) in enumerate(self.owners):
             if effect.time_shift:
+                step = np.zeros_like(z)
                 step[i] = self.DELAY_STEP * max(1.0, abs(z[i])) * (1.0 if z[i] >= 0 else -1.0)
                 out[:, i] = (self._at(z + step)[2] - residual) / step[i]
                 self._point = point
                 continue
-            step[i] = self.COLUMN_STEP * max(1.0, abs(z[i]))
-            if effect.name not in base_columns:
-                base_columns[effect.name] = self._columns(effect, nonlinear, nonlinear)
+            local = effect.joint_local and nonlinear[effect.name].size % joints == 0
+            groups.setdefault((effect.name, k // joints if local else joints + k), []).append(i)
+        base_columns: dict[str, np.ndarray] = {}
+        for (name, _), members in groups.items():
+            effect = self.owners[members[0]][0]
+            step = np.zeros_like(z)
+            for i in members:
+                step[i] = self.COLUMN_STEP * max(1.0, abs(z[i]))
+            if name not in base_columns:
+                base_columns[name] = self._columns(effect, nonlinear, nonlinear)
             shifted = problem.split_nonlinear(self.to_x(z + step))
-            change = (self._columns(effect, shifted, nonlinear) - base_columns[effect.name]) / step[i]
-            moved.append((change @ theta[effect.name] * weights[None, :]).reshape(-1))
-            where.append(i)
+            difference = self._columns(effect, shifted, nonlinear) - base_columns[name]
+            for i in members:
+                change = difference / step[i]
+                if len(members) > 1:  # this parameter's joint alone: the others' columns moved by their own
+                    joint = self.owners[i][1] % joints
+                    change = np.where((np.arange(joints) == joint)[None, :, None], change, 0.0)
+                moved.append((change @ theta[name] * weights[None, :]).reshape(-1))
+                where.append(i)
         if moved:
             changes = np.column_stack(moved)
             scale = np.linalg.norm(weighted, axis=0)

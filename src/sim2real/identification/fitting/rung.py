@@ -45,6 +45,11 @@ DEFAULT_SETTINGS: dict[str, Any] = {
 INERTIA_PRIOR_FALLBACK = 1e-3
 
 
+# Where the held-out search of the prior's weight starts (a weight the ladder sets to the previous rung's choice:
+# a rung that adds one effect rarely moves it by more than a decade); absent, the search starts on PRIOR_GRID.
+PRIOR_START_SETTING = "inertia_prior_start"
+
+
 def fit(
     effect_names: Sequence[str],
     nominal: NominalModel | None,
@@ -219,8 +224,8 @@ def _consistent_fit(
     with its own columns and lower bounds. Offsets that are not linear (a payload's own inertia) are
     held at the current estimate and updated by fixed-point iteration, as in the unconstrained fit.
     """
-    from sim2real.identification.inertial import (DesignRows, InfeasibleFit, choose_prior_weight, physically_consistent,
-                                   solve_consistent)
+    from sim2real.identification.inertial import (PRIOR_GRID, DesignRows, InfeasibleFit, choose_prior_weight, grid_around,
+                                                  physically_consistent, solve_consistent)
 
     signals = problem.signals
     blocks, lower, inertial = _consistent_blocks(problem, nonlinear)
@@ -245,8 +250,10 @@ def _consistent_fit(
         relative = INERTIA_PRIOR_FALLBACK
         if inertial is not None:
             try:
+                start = settings.get(PRIOR_START_SETTING)
                 choice = choose_prior_weight(weighted, (data.tau - problem.base({}, nonlinear)) * problem.weights,
-                                             bounds, inertial, max(floor, 1e-12))
+                                             bounds, inertial, max(floor, 1e-12),
+                                             grid=PRIOR_GRID if start is None else grid_around(float(start)))
                 relative = choice.weight
                 bound = {"weakest": "; at the weakest pull searched: the held-out error still fell as the pull "
                          "weakened, so the data ask for inertias freer than the search allows",
@@ -257,7 +264,8 @@ def _consistent_fit(
                     "inside_searched_range": choice.bound is None,
                     "chosen_by": f"cross-validation on {choice.blocks} held-out blocks of the fit runs (the strongest "
                     "pull towards CAD within 1% of the best held-out error, the search going on past its first "
-                    "grid while the scores say so; weights are fractions of the noise floor's variance, scores "
+                    f"grid ({', '.join(f'{g:g}' for g in PRIOR_GRID) if start is None else 'the previous rung' + chr(39) + 's weight and a decade either side'}) "
+                    "while the scores say so; weights are fractions of the noise floor's variance, scores "
                     f"held-out RMS in N*m, each joint weighted by its floor){bound}"}
             except InfeasibleFit:
                 pass  # the rung's own solve below says what failed

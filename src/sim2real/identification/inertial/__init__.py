@@ -40,7 +40,7 @@ from sim2real.identification.inertial.geometry import (  # noqa: F401  (re-expor
     inside_ellipsoids, min_eigenvalues, physically_consistent, pseudo_inertia,
 )
 from sim2real.identification.inertial.prior import (  # noqa: F401
-    PRIOR_BLOCKS, PRIOR_BOUNDS, PRIOR_GRID, PRIOR_TOLERANCE, PriorChoice, choose_prior_weight,
+    PRIOR_BLOCKS, PRIOR_BOUNDS, PRIOR_GRID, PRIOR_TOLERANCE, PriorChoice, choose_prior_weight, grid_around,
 )
 from sim2real.identification.inertial.program import (  # noqa: F401
     ConsistentSolution, InfeasibleFit, import_solver, solve_consistent,

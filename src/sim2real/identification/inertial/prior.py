@@ -32,6 +32,11 @@ PRIOR_BLOCKS = 4
 PRIOR_TOLERANCE = 0.01
 
 
+def grid_around(weight: float, bounds: tuple[float, float] = PRIOR_BOUNDS) -> tuple[float, ...]:
+    """A first grid of three decades centred on ``weight`` (an earlier choice), within ``bounds``."""
+    return tuple(sorted({min(max(weight * factor, bounds[0]), bounds[1]) for factor in (0.1, 1.0, 10.0)}))
+
+
 @dataclass
 class PriorChoice:
     """The inertial prior's weight chosen on held-out blocks: ``weight`` and each ``grid`` weight's
