@@ -207,13 +207,16 @@ class _ProjectedJacobian:
             if name not in base_columns:
                 base_columns[name] = self._columns(effect, nonlinear, nonlinear)
             shifted = problem.split_nonlinear(self.to_x(z + step))
-            difference = self._columns(effect, shifted, nonlinear) - base_columns[name]
+            # the prediction's change (samples x joints), each joint's from its own parameter in the group
+            change = (self._columns(effect, shifted, nonlinear) - base_columns[name]) @ theta[name] * weights[None, :]
             for i in members:
-                change = difference / step[i]
-                if len(members) > 1:  # this parameter's joint alone: the others' columns moved by their own
+                if len(members) > 1:  # this parameter's joint alone: the others' rows moved by their own
+                    own = np.zeros_like(change)
                     joint = self.owners[i][1] % joints
-                    change = np.where((np.arange(joints) == joint)[None, :, None], change, 0.0)
-                moved.append((change @ theta[name] * weights[None, :]).reshape(-1))
+                    own[:, joint] = change[:, joint] / step[i]
+                    moved.append(own.reshape(-1))
+                else:
+                    moved.append((change / step[i]).reshape(-1))
                 where.append(i)
         if moved:
             changes = np.column_stack(moved)
