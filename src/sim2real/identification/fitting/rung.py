@@ -255,6 +255,8 @@ def _consistent_fit(
                                              bounds, inertial, max(floor, 1e-12),
                                              grid=PRIOR_GRID if start is None else grid_around(float(start)))
                 relative = choice.weight
+                first_grid = (", ".join(f"{g:g}" for g in PRIOR_GRID) if start is None
+                              else "the previous rung's weight and a decade either side")
                 bound = {"weakest": "; at the weakest pull searched: the held-out error still fell as the pull "
                          "weakened, so the data ask for inertias freer than the search allows",
                          "strongest": "; at the strongest pull searched: the held-out data see no cost in holding "
@@ -263,10 +265,9 @@ def _consistent_fit(
                     "weight": choice.weight, "grid": choice.grid, "scores": choice.scores,
                     "inside_searched_range": choice.bound is None,
                     "chosen_by": f"cross-validation on {choice.blocks} held-out blocks of the fit runs (the strongest "
-                    "pull towards CAD within 1% of the best held-out error, the search going on past its first "
-                    f"grid ({', '.join(f'{g:g}' for g in PRIOR_GRID) if start is None else 'the previous rung' + chr(39) + 's weight and a decade either side'}) "
-                    "while the scores say so; weights are fractions of the noise floor's variance, scores "
-                    f"held-out RMS in N*m, each joint weighted by its floor){bound}"}
+                    f"pull towards CAD within 1% of the best held-out error, the search going on past its first grid "
+                    f"({first_grid}) while the scores say so; weights are fractions of the noise floor's variance, "
+                    f"scores held-out RMS in N*m, each joint weighted by its floor){bound}"}
             except InfeasibleFit:
                 pass  # the rung's own solve below says what failed
     elif inertial is not None:

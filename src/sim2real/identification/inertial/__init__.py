@@ -20,8 +20,8 @@ divergence, a direction they do not see is pulled to CAD. The fraction is chosen
 of the fit runs (:func:`choose_prior_weight`): the strongest pull whose held-out error is within 1%
 of the best, not a number set by hand.
 
-Why a semidefinite program (Clarabel; its conic form in :mod:`~.conic`, checked against cvxpy) rather than the log-Cholesky parametrisation with
-scipy's least squares (Rucker and Wensing 2022, ``pin.LogCholeskyParameters``): the problem is
+Why a semidefinite program (Clarabel; its conic form in :mod:`~.conic`, checked against cvxpy) rather than the
+log-Cholesky parametrisation with scipy's least squares (Rucker and Wensing 2022, ``pin.LogCholeskyParameters``): the problem is
 convex, so the SDP returns the global optimum with a certificate and no start point, with the
 friction/armature bounds and the ellipsoid LMIs as plain constraints. It works on the p x p Gram
 matrix of the design (p ~ 90 coefficients on a 7-joint arm), so its size does not grow with the
