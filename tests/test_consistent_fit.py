@@ -143,3 +143,23 @@ def test_a_long_design_is_summed_chunk_by_chunk_to_the_same_data_term(monkeypatc
     for a, b in zip(normal_equations(program.prepare(design, target, whole.scale, parts)), normal_equations(picked),
                     strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+
+
+def test_a_solution_outside_the_physical_set_is_reported_not_asserted(lab, monkeypatch):
+    """Should the solver's fallback tolerances end outside the physical set, the rung says the consistent fit
+    failed and keeps the unconstrained fit with a note, as for any failed solve (it used to stop on an assertion)."""
+    from sim2real.identification.inertial import conic
+
+    solve = conic.ConicForm.solve
+
+    def outside(self, *args, **kwargs):
+        z, _, objective = solve(self, *args, **kwargs)
+        return np.full_like(z, -1e3), "optimal_inaccurate", objective
+
+    monkeypatch.setattr(conic.ConicForm, "solve", outside)
+    fit_data, holdout = lab.data("clean")
+    document, _ = sysid.fit_ladder(["link_inertia"], lab.nominal, fit_data, holdout,
+                                   {"fit": {**FAST_FIT, "inertia_regularization": 0.01}}, "panda", diagnose=False)
+    rung = document["ladder"][1]
+    assert rung["consistency"]["status"] == "infeasible", rung["consistency"]
+    assert any("indefinite" in note and "UNCONSTRAINED" in note for note in rung["notes"]), rung["notes"]

@@ -289,6 +289,14 @@ def _consistent_fit(
                 theta[effect.name] = coefficients
         for effect in problem.effects:
             theta.setdefault(effect.name, np.zeros(0))  # a time shift has no linear coefficients
+        if inertial is not None:
+            # The solver's fallback tolerances (ConicForm.solve) can end a hair outside the physical set: a
+            # solution that is not consistent is not one.
+            state = problem.states["link_inertia"]
+            if not physically_consistent(inertial.anchors.reshape(-1) + state["basis"] @ theta["link_inertia"]
+                                         + state["null_offset"]):
+                raise InfeasibleFit(f"the solver's solution ({solution.status}) leaves a body's pseudo-inertia "
+                                    "indefinite")
     except InfeasibleFit as exc:
         record["status"] = "infeasible"
         record["notes"].append(
@@ -315,9 +323,6 @@ def _consistent_fit(
             "noise floor). An effect is missing, or the "
             "torque columns' sign or units are wrong"
         )
-    if inertial is not None:
-        delta = problem.states["link_inertia"]["basis"] @ theta["link_inertia"] + problem.states["link_inertia"]["null_offset"]
-        assert physically_consistent(inertial.anchors.reshape(-1) + delta)
     return theta, residual, record
 
 
