@@ -67,6 +67,7 @@ def _label(ax: Any, joint: str, xlabel: str, ylabel: str) -> None:
     ax.set_xlabel(xlabel, fontsize=8)
     ax.set_ylabel(ylabel, fontsize=8)
     ax.tick_params(labelsize=7)
+    ax.locator_params(nbins=4)  # a few labelled ticks read as well in a small panel, and each costs its drawing
 
 
 def _finish(fig: Figure, title: str, target: str | Path) -> None:
