@@ -267,6 +267,8 @@ class GapFigures:
                 if self.kept[name] is None:
                     ready.append(name)
         if self.workers > 1:
+            if ready:
+                _pyplot()  # imported once, here, for every forked drawer (~0.7 s of CPU each otherwise)
             # the two time-series grids in different processes: they take the longest
             for group in (ready[k::self.workers] for k in range(min(self.workers, len(ready)))):
                 self.drawing.append((group, Forked(_draw_all, group, gap, comparisons, self.figures).result))
