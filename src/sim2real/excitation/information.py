@@ -109,8 +109,16 @@ class Identification:
         return np.concatenate(blocks, axis=2)
 
     def columns(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        """The weighted base columns (N, n, r): each joint's rows divided by its noise floor."""
-        return self.full(q, qd, qdd)[:, :, self.base] * self.row_weight[None, :, None]
+        """The weighted base columns (N, n, r): each joint's rows divided by its noise floor (read-only).
+
+        The last state's are kept: IPOPT asks for the gradient at the point whose value its line search has just
+        accepted, and the regressor is most of either's cost."""
+        key = (q.tobytes(), qd.tobytes(), qdd.tobytes())
+        if getattr(self, "_last_columns", (None, None))[0] != key:
+            columns = self.full(q, qd, qdd)[:, :, self.base] * self.row_weight[None, :, None]
+            columns.flags.writeable = False
+            self._last_columns = (key, columns)
+        return self._last_columns[1]
 
     def matrix(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """The stacked weighted regressor W (N*n, r)."""
