@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
-import pytest
+import dataclasses
 
-from sysid_lab import Lab, overall
+import pytest
+from threadpoolctl import threadpool_limits
+
+from sim2real.identification import fitting, sysid
+from sim2real.stats import rmse
+from sysid_lab import FAST_FIT, WORKERS, Lab, overall
 
 SINGLE_EFFECTS = [
     "viscous_friction", "coulomb_friction", "rotor_inertia", "actuation_delay",
@@ -84,3 +89,37 @@ def test_actuator_effects_are_not_offered_against_the_motion_when_a_sensor_measu
     actuator_effects = {"actuation_delay", "actuator_gain", "command_bias"}
     assert not actuator_effects & {c["effect"] for c in diagnosis["candidates"]}
     assert {s["effect"] for s in diagnosis["skipped"]} == actuator_effects
+
+
+def test_a_trial_that_does_not_solve_is_reported_not_ranked_as_explaining_nothing(lab, monkeypatch):
+    """A candidate extends the model, so its fit matches the fit runs at least as well: one far worse there is a
+    failed solve (a solver's fallback can end so), and the verdict says so instead of ranking it "explains nothing"."""
+    original = fitting._fit_way
+
+    def failing_link_inertia(way, effect_names, **inputs):
+        result, residual = original(way, effect_names=effect_names, **inputs)
+        if effect_names[-1] != "link_inertia":
+            return result, residual
+        data, nominal = inputs["data"], inputs["nominal"]
+        broken = dataclasses.replace(result, theta={k: 1e3 * v + 1.0 for k, v in result.theta.items()})
+        fit_residual = data.tau - fitting.predict(broken, nominal, data, inputs["signals"])
+        broken = dataclasses.replace(broken, fit_rmse=rmse(fit_residual, data.joint_names))
+        return broken, fitting.holdout_metrics(broken, nominal, inputs["holdout_data"], inputs["holdout_signals"])[1]
+
+    monkeypatch.setattr(fitting, "_fit_way", failing_link_inertia)
+    fit_data, holdout_data = lab.data("payload")
+    with threadpool_limits(limits=1, user_api="blas"):
+        document, _ = sysid.fit_ladder([], lab.nominal, fit_data, holdout_data, {"fit": FAST_FIT}, "panda",
+                                       workers=WORKERS)
+    diagnosis = document["diagnosis"]
+    assert diagnosis["failed"] == ["link_inertia"]
+    assert diagnosis["candidates"][0]["effect"] == "payload" and diagnosis["status"] == "add_effect"
+    failed = next(c for c in diagnosis["candidates"] if c["effect"] == "link_inertia")
+    assert diagnosis["candidates"][-1] is failed or diagnosis["candidates"][-1]["effect"] == "link_inertia"
+    assert not failed["decisive"] and failed["explained"] == 0 and failed["joints"] == []
+    figures = failed["evidence"]["fit_failed"]
+    assert figures["fit_x_floor"] > 2 * figures["model_fit_x_floor"], figures
+    assert "The trial of link_inertia" in diagnosis["verdict"] and "did not solve" in diagnosis["verdict"]
+    assert all(c["effect"] != "link_inertia" for c in diagnosis["candidates"][:-1])
+    for joint in diagnosis["per_joint"].values():
+        assert joint["closest"] != "link_inertia"

@@ -30,7 +30,10 @@ A verdict the user can trust says when it is not a clean decision:
   plausible are in its evidence, the ranking prefers, among those that do as well, one that keeps them
   plausible, and the verdict says when the named one does not;
 * **trades with the model**: a candidate whose own term the fit gives back through the effects already in
-  the model (a torque gain against the link inertias' scale) is said to trade places with them.
+  the model (a torque gain against the link inertias' scale) is said to trade places with them;
+* **failed trials** (``failed``): a candidate extends the current model, so its fit matches the fit runs at
+  least as well; one that ends far worse there (:data:`FAILED_TRIAL_FACTOR`) is a solve that failed, not an
+  effect that explains nothing: it is left out of the ranking and the verdict says so.
 
 A candidate is decisive arm-wide (it removes ``min_explained`` of the excess above the floors), or
 on joints: a joint above ``noise_floor_factor`` x its floor whose excess it mostly removes
@@ -88,6 +91,31 @@ HARM_TOLERANCE = 0.1
 
 # A joint is named for an effect when the effect's own fitted term there is at least this (RMS, x its floor).
 OWN_TERM_MIN = 0.5
+
+
+# A trial whose fit on the fit runs ends this many times further from them (x the floors) than the model it extends
+# did not solve: the extended model holds the current one (its own coefficients zero), at the same prior weight.
+FAILED_TRIAL_FACTOR = 2.0
+
+
+def _fit_x_floor(result: fitting.FitResult, data: fitting.TorqueData) -> float:
+    """A fit's RMS on its own runs, each joint in units of its floor, arm-wide."""
+    floor = np.asarray(data.noise_floor, dtype=float)
+    per_joint = np.array([result.fit_rmse["per_joint"][j] for j in data.joint_names], dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(floor > 0, per_joint / floor, per_joint)
+    return float(np.sqrt(np.mean(ratio**2)))
+
+
+def failed_trial(result: fitting.FitResult, current: fitting.FitResult | None,
+                 data: fitting.TorqueData) -> dict[str, float] | None:
+    """The fit-run figures of a trial that failed to solve (:data:`FAILED_TRIAL_FACTOR`), or None."""
+    if current is None:
+        return None
+    trial, model = _fit_x_floor(result, data), _fit_x_floor(current, data)
+    if not np.isfinite(trial) or trial > FAILED_TRIAL_FACTOR * max(model, 1e-12):
+        return {"fit_x_floor": round(trial, 4) if np.isfinite(trial) else None, "model_fit_x_floor": round(model, 4)}
+    return None
 
 
 def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: fitting.TorqueData,
@@ -280,17 +308,23 @@ def diagnose(
     trials = trial_fits(tried, workers, model_effects=list(model_effects), nominal=nominal, fit_data=fit_data,
                         holdout_data=holdout_data, nonlinear_fixed=nonlinear_fixed, settings=settings.get("fit"),
                         fit_signals=fit_signals, holdout_signals=holdout_signals, refinements=refinements)
+    failed: dict[str, dict[str, float]] = {}
     for name in tried:
         effect = EFFECTS[name]
         result, residual = trials[name]
+        broken = failed_trial(result, current, fit_data)
+        if broken is not None:
+            failed[name] = broken
         scaled = residual / unit
         sse_after = _sse(scaled)
-        gain = total_now - float(sse_after.sum())
+        gain = total_now - float(sse_after.sum()) if broken is None else 0.0
         explained = float(np.clip(gain / total_now, 0.0, 1.0)) if total_now > 0 else 0.0
         beyond = float(np.clip(gain / excess_now.sum(), 0.0, 1.0)) if excess_now.sum() > 0 else 0.0
         with np.errstate(invalid="ignore", divide="ignore"):
             per_joint = np.clip(np.where(sse_now > 0, 1.0 - sse_after / sse_now, 0.0), 0.0, 1.0)
             per_joint_beyond = np.clip(np.where(excess_now > 0, (sse_now - sse_after) / excess_now, 0.0), 0.0, 1.0)
+        if broken is not None:  # a failed solve removes nothing and is named nowhere
+            per_joint, per_joint_beyond = np.zeros_like(per_joint), np.zeros_like(per_joint_beyond)
         x_after = np.sqrt(sse_after / max(rows, 1))
         arm_wide = beyond >= limits["min_explained"] and explained >= limits["min_gain"]
         # A joint above its floor whose excess the candidate mostly removes names it on that joint, however
@@ -324,7 +358,10 @@ def diagnose(
                                     "nonlinear": [float(v) for v in result.nonlinear.get(name, [])]}
         evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
         evidence["implausible_bodies"] = implausible_bodies(result)
-        residuals_after[name] = scaled
+        if broken is not None:
+            evidence["fit_failed"] = broken
+        if broken is None:
+            residuals_after[name] = scaled
         ranked_candidates.append({
             "effect": name,
             "link": effect.link if link == "combined" else link,  # a drive effect's follows the torque sensor
@@ -336,7 +373,8 @@ def diagnose(
             "evidence": evidence,
             "add": add_line(name),
         })
-    candidates = _rank(ranked_candidates, float(limits["parsimony_noise_fraction"]))
+    candidates = _rank([c for c in ranked_candidates if c["effect"] not in failed], float(limits["parsimony_noise_fraction"]))
+    candidates += [c for c in ranked_candidates if c["effect"] in failed]  # last, whatever they would have scored
     confounded = _confounded(candidates, residuals_after, CONFOUNDED_NOISE_FRACTION, float(limits["min_gain"]))
     tied_with_best = ties(candidates, residuals_after, rows)
     group = [candidates[0], *tied_with_best] if tied_with_best else []  # the best and those it is not told apart from
@@ -408,6 +446,8 @@ def diagnose(
             f"({best['effect'] if best else 'none'}) removes only {best['explained_beyond_noise'] if best else 0:.0%} "
             "of what lies above the floor. Look at the worst windows in the gap report."
         )
+    if failed:
+        verdict += " " + failed_text(failed)
     return {
         "link": link,
         "candidates": candidates,
@@ -420,4 +460,15 @@ def diagnose(
         "per_joint": per_joint_status,
         "above_floor": above,
         "skipped": skipped,
+        "failed": sorted(failed),
     }
+
+
+def failed_text(failed: Mapping[str, Mapping[str, Any]]) -> str:
+    """The verdict's sentence on trials that did not solve (:func:`failed_trial`)."""
+    parts = [f"{name} ({figures['fit_x_floor'] if figures['fit_x_floor'] is not None else 'not finite'}x the floors "
+             f"on the fit runs against the model's {figures['model_fit_x_floor']:.3g}x)" for name, figures in
+             sorted(failed.items())]
+    return (f"The trial of {', '.join(parts)} did not solve: a model that extends the current one fits its runs at "
+            "least as well, so it is left out of the ranking, neither named nor ruled out. The sysid log has the "
+            "solver's messages.")
