@@ -41,11 +41,16 @@ class Clearance:
                  search: float, config_path: str | Path | None = None, key: str = "obstacles") -> None:
         spec = mujoco.MjSpec.from_file(str(mjcf_path))
         self.search = float(search)
-        for geom in spec.geoms:
+        # Only the collision parts take part: the visual geoms and their meshes go (most of the compile's time).
+        for geom in list(spec.geoms):
             if geom.group == COLLISION_GROUP:
                 geom.contype, geom.conaffinity, geom.margin = 1, 1, self.search
             else:
-                geom.contype, geom.conaffinity = 0, 0
+                spec.delete(geom)
+        used = {geom.meshname for geom in spec.geoms}
+        for mesh in list(spec.meshes):
+            if mesh.name not in used:
+                spec.delete(mesh)
         self.obstacle_names = []
         for k, obstacle in enumerate(obstacles):
             name = f"obstacle_{obstacle['name']}"
@@ -69,12 +74,19 @@ class Clearance:
             self.obstacle_names.append(name)
         # MuJoCo filters a body against its parent, except when the parent is welded to the world: the
         # robot's base and its first moving link touch at their joint, so exclude that pair too.
-        model = spec.compile()
-        base = [b for b in range(1, model.nbody) if model.body_weldid[b] == 0]
-        for b in range(1, model.nbody):
-            if model.body_weldid[b] == b and model.body_weldid[model.body_parentid[b]] == 0:
-                for fixed in base:
-                    spec.add_exclude(bodyname1=model.body(fixed).name, bodyname2=model.body(b).name)
+        welded = {spec.worldbody.name}  # bodies welded to the world: no joint between them and it
+        base, moving = [], []
+        for body in spec.bodies:  # depth first, parents before children: the compiled model's order
+            if body.name == spec.worldbody.name:
+                continue
+            if body.parent.name in welded and not body.joints:
+                welded.add(body.name)
+                base.append(body.name)
+            elif body.parent.name in welded:
+                moving.append(body.name)
+        for name in moving:
+            for fixed in base:
+                spec.add_exclude(bodyname1=fixed, bodyname2=name)
         self.model = spec.compile()
         self.model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         self.data = mujoco.MjData(self.model)
