@@ -358,10 +358,10 @@ def diagnose(
                                     "nonlinear": [float(v) for v in result.nonlinear.get(name, [])]}
         evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
         evidence["implausible_bodies"] = implausible_bodies(result)
-        if broken is not None:
-            evidence["fit_failed"] = broken
         if broken is None:
             residuals_after[name] = scaled
+        else:
+            evidence["fit_failed"] = broken
         ranked_candidates.append({
             "effect": name,
             "link": effect.link if link == "combined" else link,  # a drive effect's follows the torque sensor
@@ -373,7 +373,8 @@ def diagnose(
             "evidence": evidence,
             "add": add_line(name),
         })
-    candidates = _rank([c for c in ranked_candidates if c["effect"] not in failed], float(limits["parsimony_noise_fraction"]))
+    solved = [c for c in ranked_candidates if c["effect"] not in failed]
+    candidates = _rank(solved, float(limits["parsimony_noise_fraction"]))
     candidates += [c for c in ranked_candidates if c["effect"] in failed]  # last, whatever they would have scored
     confounded = _confounded(candidates, residuals_after, CONFOUNDED_NOISE_FRACTION, float(limits["min_gain"]))
     tied_with_best = ties(candidates, residuals_after, rows)
@@ -466,9 +467,11 @@ def diagnose(
 
 def failed_text(failed: Mapping[str, Mapping[str, Any]]) -> str:
     """The verdict's sentence on trials that did not solve (:func:`failed_trial`)."""
-    parts = [f"{name} ({figures['fit_x_floor'] if figures['fit_x_floor'] is not None else 'not finite'}x the floors "
-             f"on the fit runs against the model's {figures['model_fit_x_floor']:.3g}x)" for name, figures in
-             sorted(failed.items())]
+    def x(value: float | None) -> str:
+        return f"{value:.3g}x" if value is not None else "not finite"
+
+    parts = [f"{name} ({x(figures['fit_x_floor'])} the floors on the fit runs against the model's "
+             f"{x(figures['model_fit_x_floor'])})" for name, figures in sorted(failed.items())]
     return (f"The trial of {', '.join(parts)} did not solve: a model that extends the current one fits its runs at "
             "least as well, so it is left out of the ranking, neither named nor ruled out. The sysid log has the "
             "solver's messages.")
