@@ -373,14 +373,14 @@ def excitation_targets(robot):
 # The longest path of a cold build runs from a robot's mesh conversions and CoACD jobs through its MJCF, its
 # excitation design and the lab runs that play it to the fits and the gap report. Of the jobs ready to run,
 # Snakemake starts those of highest priority first, and a rule's priority does not pass to the jobs it waits for:
-# the mesh conversions of that robot carry it too, or its CoACD jobs wait behind other robots' while their
-# conversions queue. Then the path's CoACD jobs all go first, and the CoACD jobs of robots that design no
-# excitation fill the other core while the excitation runs.
+# the mesh conversions and the MJCF of that robot carry it too, or its CoACD jobs wait behind other robots' while
+# their conversions queue, and its MJCF behind other robots' CoACD jobs. Then the path's CoACD jobs all go first,
+# and the CoACD jobs of robots that design no excitation fill the other core while the excitation runs.
 CHAIN_PRIORITY = 1
 
 
 def chain_priority(wildcards):
-    """A robot's mesh and CoACD jobs are on the longest path when its MJCF gates an excitation design."""
+    """A robot's mesh, CoACD and MJCF jobs are on the longest path when its MJCF gates an excitation design."""
     return CHAIN_PRIORITY if excitation_targets(wildcards.robot) else 0
 
 

@@ -17,6 +17,7 @@ rule mjcf:
         "results/{robot}/{variant}logs/mjcf.log",
     benchmark:
         "results/{robot}/{variant}benchmarks/mjcf.tsv"
+    priority: chain_priority
     threads: 1
     resources:
         mem_mb=1024,

@@ -46,6 +46,9 @@ def test_settings_merge_defaults_section_and_per_mesh_override() -> None:
     assert (hand.source, hand.coacd.threshold, hand.coacd.seed) == ("collision", 0.2, 3)
     assert (link1.source, link1.coacd.threshold, link1.coacd.max_convex_hull) == ("visual", 0.08, CoacdSettings().max_convex_hull)
     assert MeshSettings.from_params(hand.as_params()) == hand  # params round trip: what Snakemake compares
+    coarse = mesh_settings({**section, "voxels_per_extent": 30}, "hand")
+    assert (coarse.voxels_per_extent, hand.voxels_per_extent) == (30, 80)  # the measures' solid, section-wide
+    assert MeshSettings.from_params(coarse.as_params()) == coarse and coarse.as_params() != hand.as_params()
 
 
 def test_unknown_setting_names_the_mesh_and_the_key() -> None:

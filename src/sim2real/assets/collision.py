@@ -29,7 +29,7 @@ PARTS_MANIFEST = "parts.json"
 SOURCES = ("visual", "collision")
 SURFACE_SAMPLES = 3000  # points per surface for the distance measures; enough for ~0.1 mm stable means
 SAMPLE_SEED = 0
-VOXELS_PER_EXTENT = 80  # solid voxel model of the source: ~2-3 mm on a Panda link
+VOXELS_PER_EXTENT = 80  # solid voxel model of the source: ~2-3 mm on a Panda link (collision.voxels_per_extent)
 
 
 @dataclass(frozen=True)
@@ -60,20 +60,23 @@ class Tolerance:
 
 @dataclass(frozen=True)
 class MeshSettings:
-    """Everything that decides one mesh's decomposition: the source kind and CoACD parameters."""
+    """Everything that decides one mesh's decomposition and its measures: the source kind, CoACD parameters and
+    the resolution of the source's voxel solid the fidelity measures use."""
 
     source: str = "visual"
     coacd: CoacdSettings = field(default_factory=CoacdSettings)
+    voxels_per_extent: int = VOXELS_PER_EXTENT
 
     def as_params(self) -> dict[str, Any]:
         """Plain dict for Snakemake ``params`` (a change reruns only this mesh's job)."""
-        return {"source": self.source, **asdict(self.coacd)}
+        return {"source": self.source, "voxels_per_extent": self.voxels_per_extent, **asdict(self.coacd)}
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> MeshSettings:
         values = dict(params)
         source = values.pop("source", "visual")
-        return cls(source=source, coacd=CoacdSettings(**values))
+        voxels = values.pop("voxels_per_extent", VOXELS_PER_EXTENT)
+        return cls(source=source, coacd=CoacdSettings(**values), voxels_per_extent=voxels)
 
 
 def mesh_settings(collision_config: Mapping[str, Any] | None, mesh_name: str, config_path: str | Path | None = None) -> MeshSettings:
@@ -95,7 +98,8 @@ def mesh_settings(collision_config: Mapping[str, Any] | None, mesh_name: str, co
     if unknown:
         raise InputError(config_path, f"collision settings of mesh '{mesh_name}'", f"unknown key(s) {', '.join(unknown)}",
                          f"use only {', '.join(sorted(known))}")
-    return MeshSettings(source=source, coacd=CoacdSettings(**coacd_values))
+    voxels = int(section.get("voxels_per_extent", VOXELS_PER_EXTENT))
+    return MeshSettings(source=source, coacd=CoacdSettings(**coacd_values), voxels_per_extent=voxels)
 
 
 def tolerance(collision_config: Mapping[str, Any] | None) -> Tolerance:
@@ -194,7 +198,7 @@ def decompose(source: str | Path, settings: MeshSettings, out_dir: str | Path, m
     parts = run_coacd(mesh, settings.coacd)
     if not parts:
         raise InputError(source, f"mesh '{name}'", "CoACD returned no convex part", "check that the mesh is closed or lower the threshold")
-    fidelity = shape_fidelity(mesh, parts)
+    fidelity = shape_fidelity(mesh, parts, settings.voxels_per_extent)
     seconds = time.perf_counter() - start
     files = [f"part_{index:02d}.stl" for index in range(len(parts))]
     with atomic_dir(out_dir) as tmp:
@@ -249,17 +253,18 @@ def _distance_to_parts(points: np.ndarray, parts: Sequence[trimesh.Trimesh]) -> 
     return distance
 
 
-def solid_voxels(source: trimesh.Trimesh) -> trimesh.voxel.VoxelGrid:
+def solid_voxels(source: trimesh.Trimesh, voxels_per_extent: int = VOXELS_PER_EXTENT) -> trimesh.voxel.VoxelGrid:
     """The source as a filled voxel solid: enclosed cavities of a CAD shell count as material.
 
     Collision shapes may fill a sealed cavity without any effect on contacts, so the measures treat
     the inside of that solid as source. It also gives a volume for sources that are not closed.
     """
-    pitch = float(np.max(source.extents)) / VOXELS_PER_EXTENT
+    pitch = float(np.max(source.extents)) / voxels_per_extent
     return source.voxelized(pitch).fill()
 
 
-def shape_fidelity(source: trimesh.Trimesh, parts: Sequence[trimesh.Trimesh]) -> dict[str, Any]:
+def shape_fidelity(source: trimesh.Trimesh, parts: Sequence[trimesh.Trimesh],
+                   voxels_per_extent: int = VOXELS_PER_EXTENT) -> dict[str, Any]:
     """How closely the parts follow the source surface, in mm, plus a volume ratio.
 
     Two one-sided distances on seeded surface samples:
@@ -271,7 +276,7 @@ def shape_fidelity(source: trimesh.Trimesh, parts: Sequence[trimesh.Trimesh]) ->
     for a closed source, else the filled voxel volume (``source_watertight`` says which).
     """
     import trimesh
-    solid = solid_voxels(source)
+    solid = solid_voxels(source, voxels_per_extent)
     source_points, _ = trimesh.sample.sample_surface(source, SURFACE_SAMPLES, seed=SAMPLE_SEED)
     miss = _distance_to_parts(source_points, parts)
     outer_points = []
