@@ -13,39 +13,15 @@ from __future__ import annotations
 import filecmp
 import os
 import re
-import shutil
 import subprocess
 from pathlib import Path
 
 import pytest
 
-from buildtree import comparable_outputs, copy_repo, make_fast, run_snakemake
-from readme import README_LAB_DURATION_S
+from buildtree import comparable_outputs, run_snakemake
+from slurm_cluster import ROOT, TARGETS, SlurmBuild, slurm_config
 
-ROOT = Path(__file__).resolve().parents[1]
-TARGETS = ["results/panda/mjcf/panda.xml", "results/panda/gap.json"]
-# At fast settings a mesh or CoACD job takes seconds, far less than a SLURM job's start and status
-# polling: the test sends the whole mesh stage as one SLURM job (a Snakemake job group).
-FAST_GROUPS = ["--groups", "visual_mesh=meshes", "coacd=meshes", "--group-components", "meshes=1000"]
 pytestmark = pytest.mark.slow
-
-
-def _slurm_config() -> dict[str, str]:
-    """`scontrol show config` as a dict; skips the test (saying why) where SLURM is not usable."""
-    missing = [tool for tool in ("sbatch", "squeue", "scontrol", "sinfo") if shutil.which(tool) is None]
-    if missing:
-        pytest.skip(f"SLURM is not installed ({', '.join(missing)} not found): run .ci/slurm-setup as root")
-    done = subprocess.run(["scontrol", "show", "config"], capture_output=True, text=True, timeout=30)
-    if done.returncode != 0:
-        pytest.skip(f"SLURM is installed but slurmctld does not answer ({done.stderr.strip()}): run .ci/slurm-setup")
-    config = dict(re.findall(r"^(\S+)\s*=\s*(.*?)\s*$", done.stdout, flags=re.MULTILINE))
-    state = subprocess.run(["sinfo", "-h", "-o", "%T"], capture_output=True, text=True, timeout=30).stdout.split()
-    if not {"idle", "mixed", "allocated"} & set(state):
-        pytest.skip(f"SLURM runs but no node takes jobs (sinfo: {state or 'no node'}): run .ci/slurm-setup")
-    if config.get("JobCompType") != "jobcomp/filetxt" or not Path(config.get("JobCompLoc", "")).is_file():
-        pytest.skip("SLURM keeps no job completion log (JobCompType=jobcomp/filetxt) to check the jobs against: "
-                    "run .ci/slurm-setup")
-    return config
 
 
 def _completed_jobs(jobcomp_log: Path) -> dict[str, dict[str, str]]:
@@ -58,13 +34,11 @@ def _completed_jobs(jobcomp_log: Path) -> dict[str, dict[str, str]]:
     return jobs
 
 
-def test_panda_mjcf_and_gap_report_through_the_slurm_profile(tmp_path: Path, built_tree: Path) -> None:
-    config = _slurm_config()
-    # The settings of the suite's shared tree, built locally by the README's commands: the reference to compare with.
-    tree = copy_repo(ROOT, tmp_path / "slurm")
-    make_fast(tree, README_LAB_DURATION_S)
-    log = run_snakemake(tree, *TARGETS, "--profile", "profiles/slurm", *FAST_GROUPS,
-                        "--slurm-init-seconds-before-status-checks", "2", timeout=1800)
+def test_panda_mjcf_and_gap_report_through_the_slurm_profile(slurm_build: SlurmBuild, built_tree: Path) -> None:
+    config, _ = slurm_config()
+    # At the settings of the suite's shared tree, built locally by the README's commands: the reference to compare with.
+    tree = slurm_build.tree
+    log = slurm_build.log()
 
     submitted = re.findall(r"^Job (\d+) has been submitted with SLURM jobid (\d+)", log, flags=re.MULTILINE)
     run_names = set(re.findall(r"^\s*(?:rule|checkpoint) (\w+):", log, flags=re.MULTILINE))
@@ -102,7 +76,9 @@ def test_panda_mjcf_and_gap_report_through_the_slurm_profile(tmp_path: Path, bui
 
 def test_slurm_setup_is_idempotent() -> None:
     """.ci/slurm-setup run again on a running cluster installs, rewrites and restarts nothing."""
-    _slurm_config()
+    _, unusable = slurm_config()
+    if unusable:
+        pytest.skip(unusable)
     if os.geteuid() != 0:
         pytest.skip(".ci/slurm-setup needs root (it installs packages and starts daemons)")
     done = subprocess.run(["bash", str(ROOT / ".ci" / "slurm-setup")], capture_output=True, text=True, timeout=300)
