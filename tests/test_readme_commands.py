@@ -40,6 +40,9 @@ def test_install_holds_what_the_readme_needs() -> None:
     main = [r for r in requires if "extra ==" not in r]
     assert any(r.startswith("snakemake[reports]") for r in main), main
     assert not any(r.startswith("hypothesis") for r in main)  # the test extra stays out of the main install
+    # Snakemake imports every installed executor and storage plugin at its start: the scale-out ones are an extra
+    plugins = [r for r in requires if r.startswith("snakemake-") and "plugin" in r]
+    assert len(plugins) == 3 and all('extra == "cluster"' in r for r in plugins), plugins
     import pygments  # noqa: F401
 
     from sim2real.assets.usd_validation import validator_names
