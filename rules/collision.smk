@@ -23,7 +23,7 @@ rule coacd:
         "results/{robot}/benchmarks/coacd/{name}.tsv"
     wildcard_constraints:
         name="[A-Za-z0-9_-]+",
-    priority: chain_priority
+    priority: MESH_PRIORITY
     threads: 1
     resources:
         mem_mb=2048,

@@ -370,18 +370,41 @@ def excitation_targets(robot):
 
 
 # ---- scheduling -------------------------------------------------------------------
-# The longest path of a cold build runs from a robot's mesh conversions and CoACD jobs through its MJCF, its
-# excitation design and the lab runs that play it to the fits and the gap report. Of the jobs ready to run,
-# Snakemake starts those of highest priority first, and a rule's priority does not pass to the jobs it waits for:
-# the mesh conversions and the MJCF of that robot carry it too, or its CoACD jobs wait behind other robots' while
-# their conversions queue, and its MJCF behind other robots' CoACD jobs. Then the path's CoACD jobs all go first,
-# and the CoACD jobs of robots that design no excitation fill the other core while the excitation runs.
+# Of the jobs ready to run, Snakemake starts those of highest priority first, and a rule's priority does not pass to
+# the jobs it waits for. Every robot's mesh conversions and CoACD jobs go first (MESH_PRIORITY): they are most of a
+# cold build's work, and a long CoACD job left for the end (the UR5's wrist, 60-75 s) ran alone on one core while
+# nothing else was left. Then the chain from a robot's MJCF through its excitation design and lab runs to its fits
+# and gap report (CHAIN_PRIORITY), the MJCF of a robot that designs an excitation first: with the design in about
+# 40 s, the robots' chains fill both cores to the end of the build.
 CHAIN_PRIORITY = 1
+MESH_PRIORITY = CHAIN_PRIORITY + 1
 
 
 def chain_priority(wildcards):
-    """A robot's mesh, CoACD and MJCF jobs are on the longest path when its MJCF gates an excitation design."""
+    """A robot's MJCF heads the longest chain when it gates an excitation design."""
     return CHAIN_PRIORITY if excitation_targets(wildcards.robot) else 0
+
+
+def sysid_fits(wildcards):
+    """Where a campaign's sysid keeps its rungs and diagnoses for the next round (sim2real.cache.FitCache)."""
+    return f"results/{wildcards.robot}/{wildcards.campaign}sysid/fits"
+
+
+def gap_kept(wildcards):
+    """Where a campaign's gap report keeps its replays and figures for the next round."""
+    return f"results/{wildcards.robot}/{wildcards.campaign}gap/kept"
+
+
+# sysid and gap_report split a round of the loop over two processes (the new rung's two ways, the diagnosis's
+# candidates, the figures). A job that asks for two cores starts only when both are free, and in a first build the
+# other jobs keep one busy until the last CoACD job ends: the fits and reports then waited for it and ran last, one
+# after the other. Without kept work (a first build: every rung is new, the rest of the DAG runs beside) they ask
+# for one; a round, which reads most of its work back and runs alone, gets ``most``. The outputs are the same bytes.
+def round_threads(most, kept):
+    def threads(wildcards):
+        return most if os.path.isdir(kept(wildcards)) else 1
+
+    return threads
 
 
 # ---- the stages' final outputs (all_targets) ---------------------------------------

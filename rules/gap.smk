@@ -92,12 +92,12 @@ rule gap_report:
         "results/{robot}/benchmarks/{campaign}gap_report.tsv"
     # the figures are drawn in worker processes while the replays run (sim2real.report.GapFigures)
     priority: CHAIN_PRIORITY
-    threads: 2
+    threads: round_threads(2, gap_kept)
     resources:
         mem_mb=1024,
         runtime=5,
     params:
         # the replays and figures of the last report, read back when what they show did not change
-        kept=lambda w: f"results/{w.robot}/{w.campaign}gap/kept",
+        kept=gap_kept,
     script:
         "../scripts/gap_report.py"

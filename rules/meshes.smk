@@ -18,7 +18,7 @@ rule visual_mesh:
         "results/{robot}/benchmarks/visual_mesh/{name}.tsv"
     wildcard_constraints:
         name="[^/]+",
-    priority: chain_priority
+    priority: MESH_PRIORITY
     threads: 1
     resources:
         mem_mb=256,
@@ -40,7 +40,7 @@ rule collision_mesh:
         "results/{robot}/benchmarks/collision_mesh/{name}.tsv"
     wildcard_constraints:
         name="[^/]+",
-    priority: chain_priority
+    priority: MESH_PRIORITY
     threads: 1
     resources:
         mem_mb=256,

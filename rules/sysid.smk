@@ -24,13 +24,13 @@ rule sysid:
         "results/{robot}/benchmarks/{campaign}sysid.tsv"
     # the diagnosis fits its candidates side by side (sim2real.identification.diagnosis.trial_fits)
     priority: CHAIN_PRIORITY
-    threads: 2
+    threads: round_threads(2, sysid_fits)
     resources:
         # forked workers share the parent's pages, but the benchmark sums every process's resident set
         mem_mb=1536,
         runtime=5,
     params:
         # the rungs and diagnoses of the last round, read back when their inputs did not change
-        fits=lambda w: f"results/{w.robot}/{w.campaign}sysid/fits",
+        fits=sysid_fits,
     script:
         "../scripts/sysid.py"

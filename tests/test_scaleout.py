@@ -34,6 +34,24 @@ def test_every_rule_declares_threads_memory_and_runtime() -> None:
     assert heaviest == "coacd", "CoACD jobs take the most"
 
 
+def _planned_threads(log: str, rule: str) -> list[int]:
+    """The threads a dry run plans for each job of ``rule`` (Snakemake prints them when more than one)."""
+    jobs = re.split(r"^(?:local)?rule ", log, flags=re.MULTILINE)[1:]
+    return [int(m[1]) if (m := re.search(r"^\s+threads: (\d+)$", job, re.MULTILINE)) else 1
+            for job in jobs if job.startswith(f"{rule}:")]
+
+
+def test_fits_and_reports_ask_one_core_in_a_first_build_and_two_in_a_round(tmp_path: Path, built_tree: Path) -> None:
+    """A first build's fits and reports run beside its other jobs on one core each (asking for two, they waited
+    until every CoACD job had ended); a round of the loop, with the fits and replays kept, splits its work on two."""
+    fresh = copy_repo(ROOT, tmp_path / "repo")
+    first = _snakemake("-n", "results/panda/gap.json", cwd=fresh)
+    assert _planned_threads(first, "sysid") == [1] and _planned_threads(first, "gap_report") == [1], first[-3000:]
+    assert (built_tree / "results/panda/sysid/fits").is_dir() and (built_tree / "results/panda/gap/kept").is_dir()
+    round_ = _snakemake("-n", "--nolock", "results/panda/gap.json", "--forcerun", "sysid", cwd=built_tree)
+    assert _planned_threads(round_, "sysid") == [2] and _planned_threads(round_, "gap_report") == [2], round_[-3000:]
+
+
 def test_declared_resources_cover_what_benchmarks_measured(tmp_path: Path) -> None:
     results = tmp_path / "results"
     bench = results / "panda" / "benchmarks"

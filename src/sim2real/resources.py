@@ -36,7 +36,8 @@ def declared_resources(rules_dir: str | Path) -> dict[str, dict[str, Any]]:
                 return int(found.group(1)) if found else None
 
             declared[name] = {
-                "threads": number(r"^    threads: (\d+)$"),
+                # a number, or a helper of rules/common.smk given the most it asks for (round_threads(2, ...))
+                "threads": number(r"^    threads: (?:\w+\()?(\d+)(?:,.*\))?$"),
                 "mem_mb": number(r"^        mem_mb=(\d+),?$"),
                 "runtime": number(r"^        runtime=(\d+),?$"),
                 "file": path.as_posix(),
