@@ -11,6 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from hypothesis import given
+from hypothesis import strategies as st
 
 from buildtree import run_snakemake
 from readme import copy_built
@@ -242,6 +244,24 @@ def test_gap_md_names_the_design_when_the_inertias_are_poorly_pinned() -> None:
     poorly = "\n".join(_identified_markdown(rung(3 * ILL_CONDITIONED), "panda"))
     assert "`snakemake results/panda/excitation/identification.csv`" in poorly
     assert "excitation/" not in "\n".join(_identified_markdown(rung(0.5 * ILL_CONDITIONED), "panda"))
+
+
+@given(st.floats(min_value=0.0, max_value=1.0, exclude_max=True), st.integers(min_value=1, max_value=12))
+def test_a_failing_design_is_scaled_to_the_largest_passing_scale(threshold: float, bisections: int) -> None:
+    """The dense check's fallback (design.largest_passing_scale): where the check fails above a scale, the scale
+    kept passes and lies within 2**-bisections below it, and no scale is tried twice (each try is a 1 kHz check)."""
+    from sim2real.excitation.design import largest_passing_scale
+
+    tried: list[float] = []
+
+    def fails(scale: float) -> bool:
+        tried.append(scale)
+        return scale > threshold
+
+    kept, failing = largest_passing_scale(fails, bisections)
+    assert kept <= threshold < failing
+    assert failing - kept == pytest.approx(2.0 ** -bisections)
+    assert len(tried) == bisections == len(set(tried))
 
 
 @pytest.mark.parametrize("objective", ["condition", "d_optimal"])
