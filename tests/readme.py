@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from buildtree import copy_repo, make_fast
+from buildtree import SNAKEMAKE, copy_repo, make_fast
 
 ROOT = Path(__file__).resolve().parents[1]
 # The README first, then every page of docs/: what a newcomer reads, and every command they may type.
@@ -72,7 +72,7 @@ def argv(command: str) -> list[str]:
     words = shlex.split(command)
     program = words[0].removeprefix(".venv/bin/")
     if program == "snakemake":
-        return [sys.executable, "-m", "snakemake", *words[1:]]
+        return [*SNAKEMAKE, *words[1:]]
     if program == "python":
         return [sys.executable, *words[1:]]
     return words

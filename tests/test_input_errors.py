@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from buildtree import copy_repo, edit_yaml
+from buildtree import SNAKEMAKE, copy_repo, edit_yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow
@@ -29,7 +29,7 @@ STUB_MJCF = '<mujoco model="stub"><worldbody><body name="b"><joint name="j"/><ge
 def snakemake_fails(tree: Path, *args: str) -> list[str]:
     """Run Snakemake, expect it to fail, return the non-empty lines of what it printed."""
     done = subprocess.run(
-        [sys.executable, "-m", "snakemake", "--cores", "2", *args],
+        [*SNAKEMAKE, "--cores", "2", *args],
         cwd=tree, capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONHASHSEED": "0"},
     )
     assert done.returncode != 0, done.stderr[-3000:]
@@ -103,6 +103,26 @@ def test_rule_entry_logs_the_traceback_and_prints_the_message(tmp_path: Path, ca
     for handler in [h for h in root.handlers if isinstance(h, logging.FileHandler)]:
         root.removeHandler(handler)
         handler.close()
+
+
+def test_a_config_that_is_not_yaml_names_the_line_column_and_character(tmp_path: Path) -> None:
+    """Configs are parsed by libyaml (sim2real.files.read_yaml); a file it rejects is named with PyYAML's own message,
+    which says which character is wrong, at the same line and column."""
+    from sim2real.errors import InputError
+    from sim2real.files import read_yaml
+
+    good = tmp_path / "lab.yaml"
+    good.write_text((ROOT / "configs/panda/lab.yaml").read_text())
+    assert read_yaml(good) == yaml.safe_load(good.read_text())
+    for text, where, what in (("joints: [a, b]\nruns:\n\t- fit\n", "line 3, column 1", "found character '\\t'"),
+                              ("robot: panda\nnotes: @draft\n", "line 2, column 8", "found character '@'"),
+                              ("joints: [a, b\n", "line 2, column 1", "expected ',' or ']'")):
+        bad = tmp_path / "bad.yaml"
+        bad.write_text(text)
+        with pytest.raises(InputError) as error:
+            read_yaml(bad)
+        message = str(error.value)
+        assert str(bad) in message and where in message and what in message and "Fix: fix the YAML syntax" in message
 
 
 def test_robot_without_folder_one_line_at_parse_time(tmp_path: Path) -> None:

@@ -10,16 +10,18 @@ from pathlib import Path
 
 import yaml
 
-from buildtree import copy_repo
+from buildtree import SNAKEMAKE, copy_repo
 from sim2real.resources import declared_resources, exceeded, measured_resources, resource_table, undeclared
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_RULES = {"collision_mesh", "collision_report", "lab_truth", "dr_resolve", "dr_summary", "fleet"}
 
 
-def _snakemake(*args: str, stdout_only: bool = False, cwd: Path = ROOT) -> str:
-    done = subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=600, env={**os.environ, "PYTHONHASHSEED": "0"})
+def _snakemake(*args: str, stdout_only: bool = False, cwd: Path = ROOT, scale_out: bool = False) -> str:
+    """``scale_out``: with the executor and storage plugins a scale-out profile needs (else as buildtree.SNAKEMAKE)."""
+    command = [sys.executable, "-m", "snakemake"] if scale_out else SNAKEMAKE
+    done = subprocess.run([*command, *args], cwd=cwd, capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "PYTHONHASHSEED": "0"})
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return done.stdout if stdout_only else done.stdout + done.stderr
 
@@ -80,7 +82,8 @@ def test_slurm_profile_plans_every_job_on_the_slurm_executor(tmp_path: Path) -> 
     assert profile["executor"] == "slurm"
     # In a clean copy: a checkout where `snakemake all` has run plans nothing (the README's first command, then
     # its second, in one clone).
-    log = _snakemake("-n", "--profile", "profiles/slurm", "all", cwd=copy_repo(ROOT, tmp_path / "repo"))
+    log = _snakemake("-n", "--profile", "profiles/slurm", "all", cwd=copy_repo(ROOT, tmp_path / "repo"),
+                     scale_out=True)
     assert "Using profiles profiles/slurm" in log
     assert re.search(r"^total\s+\d+", log, flags=re.MULTILINE)
     # what sbatch will be asked for comes from the rule (the dry run stops at the URDF checkpoint)
