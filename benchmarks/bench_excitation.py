@@ -93,7 +93,9 @@ def main() -> None:
             print(f"design {name} ({design['objective']}): {design['solver']['status']} after "
                   f"{design['solver']['iterations']} IPOPT iterations, {design_seconds:.1f} s (rule time); condition "
                   f"number {design['condition_number']['initial']:.4g} (its random start) -> "
-                  f"{design['condition_number']['designed']:.4g}; closest approach {design['min_clearance_m'] * 1000:.1f} mm")
+                  f"{design['condition_number']['designed']:.4g}; closest approach {design['min_clearance_m'] * 1000:.1f} mm"
+                  + (f"; scaled by {design['solver']['scaled_by']:.4g} to pass the every-sample check"
+                     if design["solver"]["scaled_by"] < 1 else ""))
         model = load_model_config(tree / "configs/panda/model.yaml")
         robot = yaml.safe_load((tree / "configs/panda/robot.yaml").read_text())
         settings = load_design(tree / "configs/panda/excitation.yaml", "identification")

@@ -246,22 +246,23 @@ def test_gap_md_names_the_design_when_the_inertias_are_poorly_pinned() -> None:
     assert "excitation/" not in "\n".join(_identified_markdown(rung(0.5 * ILL_CONDITIONED), "panda"))
 
 
-@given(st.floats(min_value=0.0, max_value=1.0, exclude_max=True), st.integers(min_value=1, max_value=12))
-def test_a_failing_design_is_scaled_to_the_largest_passing_scale(threshold: float, bisections: int) -> None:
-    """The dense check's fallback (design.largest_passing_scale): where the check fails above a scale, the scale
-    kept passes and lies within 2**-bisections below it, and no scale is tried twice (each try is a 1 kHz check)."""
-    from sim2real.excitation.design import largest_passing_scale
+@given(st.lists(st.floats(min_value=-0.05, max_value=0.05), max_size=60))
+def test_each_stretch_short_of_clearance_is_named_by_its_closest_sample(distances: list[float]) -> None:
+    """The active set's clearance rows and the dense check's first look when it scales a design
+    (design._closest_of_each_stretch): one sample per run of consecutive samples below the margin, its smallest."""
+    from sim2real.excitation.design import _closest_of_each_stretch
 
-    tried: list[float] = []
-
-    def fails(scale: float) -> bool:
-        tried.append(scale)
-        return scale > threshold
-
-    kept, failing = largest_passing_scale(fails, bisections)
-    assert kept <= threshold < failing
-    assert failing - kept == pytest.approx(2.0 ** -bisections)
-    assert len(tried) == bisections == len(set(tried))
+    margin = 0.01
+    values = np.asarray(distances, dtype=float)
+    closest = _closest_of_each_stretch(values, margin)
+    short = values < margin
+    starts = [k for k in range(len(values)) if short[k] and (k == 0 or not short[k - 1])]
+    assert len(closest) == len(starts) and closest == sorted(closest)
+    for begin, k in zip(starts, closest, strict=True):
+        end = begin
+        while end + 1 < len(values) and short[end + 1]:
+            end += 1
+        assert begin <= k <= end and values[k] == values[begin : end + 1].min()
 
 
 @pytest.mark.parametrize("objective", ["condition", "d_optimal"])
