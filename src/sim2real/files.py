@@ -144,7 +144,7 @@ def read_yaml(path: str | Path) -> Any:
     try:
         return yaml.load(text, Loader=_YAML_LOADER)
     except yaml.YAMLError:
-        pass  # libyaml's messages are terser ("found character that cannot start any token"): PyYAML's own say which
+        pass  # libyaml's message is terser ("found character that cannot start any token"): PyYAML's names it
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
