@@ -239,7 +239,8 @@ def _inside_any(points: np.ndarray, hulls: Sequence[trimesh.Trimesh], tol: float
     for hull in hulls:
         normals = hull.face_normals
         offsets = np.einsum("ij,ij->i", normals, hull.triangles[:, 0, :])
-        inside |= np.all(points @ normals.T - offsets <= tol, axis=1)
+        outside = np.flatnonzero(~inside)  # a point inside one part needs no other
+        inside[outside] = np.all(points[outside] @ normals.T - offsets <= tol, axis=1)
     return inside
 
 
@@ -247,9 +248,10 @@ def _distance_to_parts(points: np.ndarray, parts: Sequence[trimesh.Trimesh]) -> 
     """Distance from each point to the union of the convex parts (0 inside)."""
     import trimesh
     union = trimesh.util.concatenate(list(parts)) if len(parts) > 1 else parts[0]
-    _, distance, _ = trimesh.proximity.closest_point(union, points)
-    distance = np.asarray(distance)
-    distance[_inside_any(points, parts)] = 0.0
+    distance = np.zeros(len(points))
+    outside = ~_inside_any(points, parts)  # only these have a distance to look for
+    if outside.any():
+        distance[outside] = trimesh.proximity.closest_point(union, points[outside])[1]
     return distance
 
 
