@@ -17,10 +17,45 @@ SLURM_BUILD_TEST = "test_slurm.py::test_panda_mjcf_and_gap_report_through_the_sl
 SLURM_BUILD = pytest.StashKey["SlurmBuild"]()
 
 
-def pytest_collection_finish(session: pytest.Session) -> None:
-    """The SLURM build of tests/test_slurm.py starts as soon as the suite knows it runs that test: the build mostly
-    waits on SLURM (tests/slurm_cluster.py), so the tests before it run meanwhile."""
-    if session.config.option.collectonly or not any(item.nodeid.endswith(SLURM_BUILD_TEST) for item in session.items):
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The suite runs on two processes (pytest-xdist, `-n 2 --dist loadgroup` in pyproject.toml). A session fixture
+    is made once per process, so the tests of the shared built tree go to one process and those of the shared lab to
+    one, each module whole (its module fixtures are made once too); the other modules are spread one by one."""
+    modules: dict[str, str] = {}
+    for item in items:
+        module = item.nodeid.split("::")[0]
+        if "readme_run" in item.fixturenames:
+            modules[module] = "built_tree"
+        elif "shared_lab" in item.fixturenames and modules.get(module) != "built_tree":
+            modules[module] = "shared_lab"
+    for item in items:
+        module = item.nodeid.split("::")[0]
+        item.add_marker(pytest.mark.xdist_group(modules.get(module, module)))
+
+
+class _GroupsTaken:
+    """Fails the run when pytest-xdist did not take the groups (it writes them into the test ids; pytest 9.2 ignores
+    that, pytest-dev/pytest-xdist#1386): the shared tree and lab would then be made on each process, twice the work."""
+
+    @pytest.hookimpl(trylast=True)
+    def pytest_collection_modifyitems(self, config: pytest.Config, items: list[pytest.Item]) -> None:
+        if config.getvalue("loadgroup") and items and not any("@" in item.nodeid for item in items):
+            raise pytest.UsageError(
+                f"pytest-xdist's --dist loadgroup did not group the tests under pytest {pytest.__version__} "
+                "(pytest-dev/pytest-xdist#1386): install the test extra's pytest (pip install -e '.[test]')")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.pluginmanager.register(_GroupsTaken())
+
+
+def start_slurm_build_if_run(session: pytest.Session) -> None:
+    """The SLURM build of tests/test_slurm.py starts as soon as the process that runs that test knows it will: the
+    build mostly waits on SLURM (tests/slurm_cluster.py), so the tests before it run meanwhile. The test uses the
+    built tree, so the process that builds that tree (readme_run) is the one that runs it."""
+    runs_it = any(item.nodeid.split("@")[0].endswith(SLURM_BUILD_TEST) for item in session.items)  # "@": its group
+    if SLURM_BUILD in session.config.stash or not runs_it:
         return
     from slurm_cluster import SlurmBuild, slurm_config
 
@@ -42,10 +77,12 @@ def repo_root() -> Path:
 
 
 @pytest.fixture(scope="session")
-def readme_run(tmp_path_factory: pytest.TempPathFactory) -> "ReadmeRun":
+def readme_run(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> "ReadmeRun":
     """The README's commands run as written in a fast copy of the project, once for the suite: the built tree
     that tests needing one copy (readme.copy_built) rather than building their own."""
     from readme import run_readme
+
+    start_slurm_build_if_run(request.session)
 
     return run_readme(REPO_ROOT, tmp_path_factory.mktemp("readme"))
 

@@ -1,8 +1,8 @@
 """The local SLURM cluster of tests/test_slurm.py and the Panda's build through `--profile profiles/slurm` on it.
 
 The build mostly waits on SLURM's scheduler and on the executor's status polls (a few CPU-seconds of jobs between
-tens of seconds of waiting), so the suite starts it as soon as it knows it will run the test (conftest
-``pytest_collection_finish``) and the tests before it run meanwhile; the test then reads its log.
+tens of seconds of waiting), so the process that will run the test starts it as soon as it starts the shared built
+tree (conftest's ``readme_run``), and the tests before it run meanwhile; the test then reads its log.
 """
 
 from __future__ import annotations
