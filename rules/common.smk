@@ -315,12 +315,18 @@ def bag_topics(wildcards):
     return ros2_topics(measurement_list(wildcards.robot))
 
 
+@functools.cache
+def lab_excitation_designs(robot):
+    """{(scenario, run): design} of configs/{robot}/lab.yaml; read once per run."""
+    from sim2real.lab import excitation_designs
+
+    return excitation_designs(f"configs/{robot}/lab.yaml")
+
+
 def lab_run_excitation(wildcards):
     """The designed excitation a lab run plays (lab.yaml `runs: [{..., excitation: <design>}]`), if any."""
-    from sim2real.lab import excitation_design
-
-    design = excitation_design(
-        f"configs/{wildcards.robot}/lab.yaml", wildcards.scenario, wildcards.run
+    design = lab_excitation_designs(wildcards.robot).get(
+        (wildcards.scenario, wildcards.run)
     )
     return [f"results/{wildcards.robot}/excitation/{design}.csv"] if design else []
 

@@ -73,9 +73,29 @@ the model), :mod:`~sim2real.lab.hidden` (the hidden effects that act as torques 
 Dahl's memory, cogging, drift) and :mod:`~sim2real.lab.simulate` (the controller, the sensors and the loop).
 """
 
-from sim2real.lab.arm import arm_spec, compile_arm  # noqa: F401  (re-exported: the package's names)
-from sim2real.lab.config import EFFECTS, excitation_design, load_lab_config, read_excitation, scenario_runs  # noqa: F401
-from sim2real.lab.hidden import cogging_torque, dahl_step, gaz_friction, passive_friction, stribeck_friction  # noqa: F401
-from sim2real.lab.simulate import (  # noqa: F401
-    fourier_excitation, run_lab_scenario_run, simulate_run, write_truth,
-)
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+# The package's names, each imported from its module when first asked for: Snakemake's input functions read
+# lab.yaml (config) at every start, which need not load MuJoCo (arm, simulate) with it.
+_MODULE_OF = {
+    **dict.fromkeys(["arm_spec", "compile_arm"], "arm"),
+    **dict.fromkeys(["EFFECTS", "excitation_designs", "load_lab_config", "read_excitation", "scenario_runs"], "config"),
+    **dict.fromkeys(["cogging_torque", "dahl_step", "gaz_friction", "passive_friction", "stribeck_friction"], "hidden"),
+    **dict.fromkeys(["fourier_excitation", "run_lab_scenario_run", "simulate_run", "write_truth"], "simulate"),
+}
+__all__ = sorted(_MODULE_OF)
+
+if TYPE_CHECKING:
+    from sim2real.lab.arm import arm_spec, compile_arm
+    from sim2real.lab.config import EFFECTS, excitation_designs, load_lab_config, read_excitation, scenario_runs
+    from sim2real.lab.hidden import cogging_torque, dahl_step, gaz_friction, passive_friction, stribeck_friction
+    from sim2real.lab.simulate import fourier_excitation, run_lab_scenario_run, simulate_run, write_truth
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _MODULE_OF:
+        raise AttributeError(f"module 'sim2real.lab' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"sim2real.lab.{_MODULE_OF[name]}"), name)

@@ -99,10 +99,12 @@ def _per_joint_vectors(value: Mapping[str, Any], joints: Sequence[str], where: s
     return np.array([np.asarray(value.get(j, [0.0, 0.0, 0.0]), dtype=float) for j in joints])
 
 
-def excitation_design(lab_config: str | Path, scenario: str, run: str) -> str | None:
-    """The designed excitation a run plays (its ``excitation`` key), or None for the scenario's random series."""
-    runs = {r["name"]: r for r in scenario_runs(lab_config, scenario)}
-    return runs[run].get("excitation") if run in runs else None
+def excitation_designs(lab_config: str | Path) -> dict[tuple[str, str], str]:
+    """The designed excitation each run plays (its ``excitation`` key): {(scenario, run): design}; a run not in it
+    plays its scenario's random series."""
+    scenarios = load_lab_config(lab_config)["scenarios"]
+    return {(name, run["name"]): run["excitation"]
+            for name, scenario in scenarios.items() for run in scenario["runs"] if run.get("excitation")}
 
 
 def read_excitation(path: str | Path, joints: Sequence[str], rate_hz: float, where: str,
