@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
@@ -34,20 +34,14 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         item.add_marker(pytest.mark.xdist_group(modules.get(module, module)))
 
 
-class _GroupsTaken:
-    """Fails the run when pytest-xdist did not take the groups (it writes them into the test ids; pytest 9.2 ignores
-    that, pytest-dev/pytest-xdist#1386): the shared tree and lab would then be made on each process, twice the work."""
-
-    @pytest.hookimpl(trylast=True)
-    def pytest_collection_modifyitems(self, config: pytest.Config, items: list[pytest.Item]) -> None:
-        if config.getvalue("loadgroup") and items and not any("@" in item.nodeid for item in items):
-            raise pytest.UsageError(
-                f"pytest-xdist's --dist loadgroup did not group the tests under pytest {pytest.__version__} "
-                "(pytest-dev/pytest-xdist#1386): install the test extra's pytest (pip install -e '.[test]')")
-
-
-def pytest_configure(config: pytest.Config) -> None:
-    config.pluginmanager.register(_GroupsTaken())
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_node_collection_finished(node: Any, ids: list[str]) -> None:
+    """Stops the run when pytest-xdist did not take the groups (it writes them into the test ids, which pytest 9.2
+    no longer reads: pytest-dev/pytest-xdist#1386): the shared tree and lab would be made on each process, twice the
+    work."""
+    if node.config.getoption("dist") == "loadgroup" and ids and not any("@" in nodeid for nodeid in ids):
+        pytest.exit(f"pytest-xdist's --dist loadgroup did not group the tests under pytest {pytest.__version__} "
+                    "(pytest-dev/pytest-xdist#1386): install the test extra's pytest (pip install -e '.[test]')", 4)
 
 
 def start_slurm_build_if_run(session: pytest.Session) -> None:

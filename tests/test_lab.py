@@ -531,3 +531,31 @@ def test_scenario_without_runs_anywhere_is_an_input_error(tmp_path):
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(InputError, match=r"lab.yaml: scenarios/\w+/runs: no runs.*Fix: list runs under defaults"):
         load_lab_config(path)
+
+
+def test_a_designed_excitation_is_played_by_the_runs_that_name_it_and_those_that_inherit_it(tmp_path: Path) -> None:
+    """excitation_designs (Snakemake's lab-run inputs): a run's own `excitation`, or the one of the defaults' runs a
+    scenario without runs of its own inherits; a run without one plays its scenario's random series."""
+    from sim2real.lab import excitation_designs
+
+    repo = Path(__file__).resolve().parents[1]
+    data = yaml.safe_load((repo / "configs" / "panda" / "lab.yaml").read_text(encoding="utf-8"))
+    shipped = excitation_designs(repo / "configs" / "panda" / "lab.yaml")
+    assert shipped[("real_arm_like_designed", "fit")] == "identification"
+    assert ("real_arm_like_designed", "holdout") not in shipped and ("real_arm_like", "fit") not in shipped
+
+    data["defaults"]["runs"] = [{"name": "fit", "seed": 1, "role": "fit", "excitation": "sweep"},
+                                {"name": "holdout", "seed": 2, "role": "holdout"}]
+    data["scenarios"] = {"inherits": {}, "own": {"runs": [{"name": "fit", "seed": 3, "role": "fit"},
+                                                          {"name": "holdout", "seed": 4, "role": "holdout"}]}}
+    path = tmp_path / "lab.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    assert excitation_designs(path) == {("inherits", "fit"): "sweep"}
+
+
+def test_reading_the_lab_config_does_not_load_the_simulator() -> None:
+    """Snakemake's input functions read lab.yaml at every start; MuJoCo is loaded only by what simulates."""
+    code = ("import sys; from sim2real.lab import excitation_designs, load_lab_config; "
+            "assert 'mujoco' not in sys.modules; from sim2real.lab import compile_arm; assert 'mujoco' in sys.modules")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr

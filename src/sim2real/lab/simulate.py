@@ -240,7 +240,8 @@ def run_lab_scenario_run(
 ) -> None:
     """Simulate one run of ``scenario`` and write it (table + metadata) to ``output``.
 
-    ``excitation``: the designed trajectory's CSV when the run names one (:func:`~sim2real.lab.config.excitation_designs`).
+    ``excitation``: the designed trajectory's CSV when the run names one
+    (:func:`~sim2real.lab.config.excitation_designs`).
     """
     from sim2real.measurements import write_run
 
