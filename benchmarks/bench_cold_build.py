@@ -2,8 +2,8 @@
 
 A newcomer's first build is the README's first command (``python3 -m venv .venv && .venv/bin/pip install -e .
 && .venv/bin/snakemake all``), typed in a fresh clone. This benchmark does exactly that for the commit at HEAD and,
-with ``--against REV``, for REV, alternating (REV first, then HEAD, then the other way round), each in a new
-clone with a new environment, as each commit's own README gives the command. It prints the wall time of each
+with ``--against REV``, for REV, alternating (REV first unless ``--head-first``, then the other way round), each in
+a new clone with a new environment, as each commit's own README gives the command. It prints the wall time of each
 part of the command and the ratio of the medians: machines and days differ 2-3x in speed, so only a ratio
 measured in one run on one machine says whether the first build got faster.
 
@@ -169,6 +169,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--against", metavar="REV", help="also the README command of this commit, alternating")
     parser.add_argument("--repeats", type=int, default=1, help="builds of each commit")
+    parser.add_argument("--head-first", action="store_true", help="HEAD's build first (default: REV's first)")
     parser.add_argument("--keep", metavar="DIR", type=Path, help="keep the clones under DIR (default: removed)")
     args = parser.parse_args()
     head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
@@ -176,7 +177,7 @@ def main() -> None:
     if subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"], capture_output=True,
                       text=True, check=True).stdout.strip():
         print(f"note: the work tree has uncommitted changes; the clones hold the commit {head} only")
-    revs = [head] if args.against is None else [args.against, head]
+    revs = [head] if args.against is None else [head, args.against] if args.head_first else [args.against, head]
     builds: dict[str, list[ColdBuild]] = {rev: [] for rev in revs}
     with tempfile.TemporaryDirectory(prefix="sim2real-cold-") as tmp:
         root = args.keep or Path(tmp)
