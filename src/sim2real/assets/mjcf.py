@@ -139,7 +139,8 @@ def build_mjcf(
         scene_check = out_dir / f".{out_scene.name}.{os.getpid()}.check.xml"
         try:  # the saved files load (relative mesh paths resolve) before anything is replaced
             scene_check.write_text(scene_text(tmp.name), encoding="utf-8")
-            mujoco.MjModel.from_xml_path(str(scene_check))
+            # absolute, as the spec's modelfiledir: MuJoCo's mesh cache then knows the files it just compiled
+            mujoco.MjModel.from_xml_path(str(scene_check.resolve()))
         finally:
             scene_check.unlink(missing_ok=True)
     write_text(out_scene, scene_text(out_xml.name))
