@@ -61,6 +61,31 @@ def test_run_is_deterministic_inside_limits_and_in_measurement_format(dev):
     assert not np.allclose(signals["q_cmd"], run.q_cmd)  # another seed, another excitation
 
 
+def test_runs_without_the_inert_meshes_are_the_same_to_the_bit(dev, monkeypatch):
+    """The lab compiles its arms without the mesh geoms that cannot move a number (most of each compile):
+    a run with a link-side sensor (three arms: nominal, real, link side), a payload, changed inertias,
+    friction and noise, against the same run with every mesh kept."""
+    import sim2real.lab.simulate as simulate
+    from sim2real.lab import compile_arm
+
+    config = load_lab_config(dev["lab"])
+    scenario = {**config["scenarios"]["link_side_sensor"], "duration_s": 0.5}
+    meshes = []  # of each arm compiled: 9 with every mesh kept, 1 without the inert ones
+
+    def compile_counting(spec, joints):
+        meshes.append(len(spec.meshes))
+        return compile_arm(spec, joints)
+
+    monkeypatch.setattr(simulate, "compile_arm", compile_counting)
+    time, lean, _ = simulate_run(dev["mjcf"], config["joints"], scenario, seed=3)
+    monkeypatch.setattr(simulate, "drop_inert_meshes", lambda spec: None)
+    time_full, full, _ = simulate_run(dev["mjcf"], config["joints"], scenario, seed=3)
+    assert len(meshes) == 6 and max(meshes[:3]) < min(meshes[3:]), meshes
+    assert np.array_equal(time, time_full) and set(lean) == set(full) == {"q", "qd", "tau", "tau_cmd", "q_cmd"}
+    for column in lean:
+        assert np.array_equal(lean[column], full[column]), column
+
+
 def test_delay_scenario_writes_commands_only_and_delays_them(dev):
     config = load_lab_config(dev["lab"])
     scenario = config["scenarios"]["actuation_delay"]

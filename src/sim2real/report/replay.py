@@ -20,35 +20,6 @@ from sim2real.measurements import PreparedRun
 from sim2real.report.metrics import TorqueComparison, fidelity_grade, per_joint_dict, reality_gap, spectral_divergence
 from sim2real.stats import rmse
 
-def _meshes_inert(spec: mujoco.MjSpec) -> bool:
-    """Whether the mesh geoms of bodies with an explicit inertia change no number of the replay.
-
-    They do not when contacts are off (``arm_spec``), fluid forces are off (the ellipsoid model reads geoms),
-    sleeping is off (it reads ``dof_length``, which the compiler takes from the geoms) and the compiler keeps
-    explicit inertias (it then ignores the geoms' masses).
-    """
-    return bool(spec.option.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT
-                and not spec.option.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP
-                and not spec.option.density and not spec.option.viscosity
-                and spec.compiler.inertiafromgeom != mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE)
-
-
-def _drop_inert_meshes(spec: mujoco.MjSpec) -> None:
-    """Delete the mesh geoms (and their meshes) that cannot change a number of the replay (``_meshes_inert``).
-
-    Loading and processing the meshes is most of a compile (about 1.2 s of 1.3 s on the Panda).
-    """
-    if not _meshes_inert(spec):
-        return
-    for geom in list(spec.geoms):
-        if geom.type == mujoco.mjtGeom.mjGEOM_MESH and geom.parent.explicitinertial:
-            spec.delete(geom)
-    used = {geom.meshname for geom in spec.geoms}
-    for mesh in list(spec.meshes):
-        if mesh.name not in used:
-            spec.delete(mesh)
-
-
 class ReplayModels:
     """The compiled arm of each distinct model of one report, each compiled once.
 
@@ -67,14 +38,14 @@ class ReplayModels:
 
     def _spec(self, joints: Sequence[str], identified: Mapping[str, Any] | None, strip: bool) -> mujoco.MjSpec:
         from sim2real.identification.effects import apply_to_spec
-        from sim2real.lab import arm_spec
+        from sim2real.lab import arm_spec, drop_inert_meshes
 
         if not strip:
             spec = arm_spec(self.mjcf_path, joints)
         else:
             if tuple(joints) not in self._bases:
                 base = arm_spec(self.mjcf_path, joints)
-                _drop_inert_meshes(base)
+                drop_inert_meshes(base)
                 self._bases[tuple(joints)] = base
             spec = self._bases[tuple(joints)].copy()
         if identified:
@@ -84,12 +55,12 @@ class ReplayModels:
     def get(self, joints: Sequence[str], identified: Mapping[str, Any] | None = None,
             ) -> tuple[mujoco.MjModel, np.ndarray, np.ndarray]:
         """(model, qpos addresses, dof addresses) of the arm with ``identified`` written in (None: as built)."""
-        from sim2real.lab import compile_arm
+        from sim2real.lab import compile_arm, meshes_inert
 
         key = (tuple(joints), json.dumps(identified or None, sort_keys=True))
         if key not in self._models:
             spec = self._spec(joints, identified, strip=True)
-            if not _meshes_inert(spec):  # an effect switched on something that reads the geoms: keep them all
+            if not meshes_inert(spec):  # an effect switched on something that reads the geoms: keep them all
                 spec = self._spec(joints, identified, strip=False)
             self._models[key] = compile_arm(spec, joints)
         return self._models[key]
