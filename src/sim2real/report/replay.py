@@ -20,6 +20,7 @@ from sim2real.measurements import PreparedRun
 from sim2real.report.metrics import TorqueComparison, fidelity_grade, per_joint_dict, reality_gap, spectral_divergence
 from sim2real.stats import rmse
 
+
 class ReplayModels:
     """The compiled arm of each distinct model of one report, each compiled once.
 
