@@ -59,6 +59,7 @@ class _Problem:
         # reuse_design: each design() writes the moving columns into the last one's array, the static ones stay
         # (the refinement asks for hundreds; a caller must be done with one design before it asks for the next)
         self._reused: tuple[np.ndarray, list[int], list[tuple[Effect, slice]]] | None = None
+        self._reused_holds = b""  # the nonlinear parameters the reused design's moving columns hold
         self.reuse_design = reuse_design
         self._kept: dict[str, tuple[bytes, np.ndarray]] = {}  # effect -> (its nonlinear parameters, its columns)
         self._weighted: tuple[list[np.ndarray], inertial.DesignRows] | None = None
@@ -120,8 +121,11 @@ class _Problem:
         """Columns (N, n, p) at the given nonlinear parameters (before the time shift) and sizes."""
         if self._reused is not None:
             design, sizes, moving = self._reused
-            for effect, columns in moving:
-                design[:, :, columns] = self.block(effect, nonlinear)
+            holds = self._moving_key(nonlinear, moving)
+            if holds != self._reused_holds:  # the refinement's Jacobian asks for the design its residual just made
+                for effect, columns in moving:
+                    design[:, :, columns] = self.block(effect, nonlinear)
+                self._reused_holds = holds
             return design, list(sizes)
         blocks, sizes = self._blocks(nonlinear)
         n_samples, n = self.signals.q.shape
@@ -131,7 +135,19 @@ class _Problem:
             moving = [(effect, slice(int(bounds[k]), int(bounds[k + 1]))) for k, effect in enumerate(self.effects)
                       if sizes[k] and effect.name not in self.static_columns]
             self._reused = (design, list(sizes), moving)
+            self._reused_holds = self._moving_key(nonlinear, moving)
         return design, sizes
+
+    @staticmethod
+    def _moving_key(nonlinear: dict[str, np.ndarray], moving: Sequence[tuple[Effect, slice]]) -> bytes:
+        """The nonlinear parameters a reused design's moving columns were computed at (they depend on nothing else)."""
+        return b"|".join(np.asarray(nonlinear[effect.name], dtype=float).tobytes() for effect, _ in moving)
+
+    def columns_of(self, effect: Effect, design: np.ndarray, sizes: Sequence[int]) -> np.ndarray:
+        """``effect``'s columns in ``design`` (a :meth:`design` or :meth:`shifted_design`, laid out by ``sizes``)."""
+        k = self.effects.index(effect)
+        start = int(sum(sizes[:k]))
+        return design[:, :, start : start + sizes[k]]
 
     def weighted_rows(self, blocks: list[np.ndarray]) -> inertial.DesignRows:
         """The weighted design of these columns as rows (:class:`sim2real.identification.inertial.DesignRows`); the last one is

@@ -179,7 +179,7 @@ class _ProjectedJacobian:
         problem, weights = self.problem, self.problem.weights
         z = np.asarray(z, dtype=float)
         nonlinear, theta, residual = self._at(z)
-        design, _ = problem.shifted_design(nonlinear)
+        design, sizes = problem.shifted_design(nonlinear)  # the one the residual at z was solved on, not made again
         weighted = (design * weights[None, :, None]).reshape(residual.size, -1)  # a copy: the design is reused
         out = np.empty((residual.size, z.size))
         moved, where = [], []
@@ -204,8 +204,8 @@ class _ProjectedJacobian:
             step = np.zeros_like(z)
             for i in members:
                 step[i] = self.COLUMN_STEP * max(1.0, abs(z[i]))
-            if name not in base_columns:
-                base_columns[name] = self._columns(effect, nonlinear, nonlinear)
+            if name not in base_columns:  # the effect's columns at z, as they enter the prediction: the design's
+                base_columns[name] = problem.columns_of(effect, design, sizes)
             shifted = problem.split_nonlinear(self.to_x(z + step))
             # the prediction's change (samples x joints), each joint's from its own parameter in the group
             change = (self._columns(effect, shifted, nonlinear) - base_columns[name]) @ theta[name] * weights[None, :]
@@ -222,7 +222,8 @@ class _ProjectedJacobian:
             changes = np.column_stack(moved)
             scale = np.linalg.norm(weighted, axis=0)
             scale[scale == 0] = 1.0
-            unit = weighted / scale
+            unit = weighted
+            unit /= scale  # in place: the weighted copy is not needed again
             # The columns' share of each change: its projection on their span, dropping directions below 1e-6 of
             # the largest singular value (the Gram matrix's 1e-12, as the linear fit drops them). From the p x p
             # Gram matrix's eigenpairs rather than an SVD of the tall design: a third of the work, and a
@@ -231,7 +232,9 @@ class _ProjectedJacobian:
             keep = eigval > 1e-12 * eigval[-1]
             inverse = (eigvec[:, keep] / eigval[keep]) @ eigvec[:, keep].T
             taken = unit @ (inverse @ (unit.T @ changes))
-            out[:, where] = -(changes - taken)
+            changes -= taken
+            np.negative(changes, out=changes)
+            out[:, where] = changes
         return out
 
 
