@@ -25,6 +25,7 @@ from sim2real.identification.inertial import entropic_divergence, physically_con
 
 RELATIVE_SINGULAR_TOL = 1e-3  # directions excited 1000x less than the best are left at nominal
 STRUCTURAL_ZERO = 1e-9  # relative column norm below which a parameter does not act at all
+KEPT_COLUMNS_BYTES = 32 * 2**20  # the columns kept with their signals up to this size (a 20 s log: 8 MB)
 # A body "moved" when the fit changed it beyond these (else it stayed at its URDF values).
 MOVED_MASS_FRACTION = 0.02
 MOVED_COM_M = 0.003
@@ -223,7 +224,17 @@ class LinkInertia(Effect):
 
     def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
         basis = state["basis"]
-        return signals.regressor @ basis, [ColumnLabel(f"base_{i}") for i in range(basis.shape[1])]
+        labels = [ColumnLabel(f"base_{i}") for i in range(basis.shape[1])]
+        # Every rung, way and candidate of a round asks for these columns on the same signals and basis: kept with the
+        # signals while they are small (the same product, the same bits), read-only so that no fit can change them.
+        kept = signals._memo.get("link_inertia.columns")
+        if kept is not None and np.array_equal(kept[0], basis):
+            return kept[1], labels
+        columns = signals.regressor @ basis
+        if columns.nbytes <= KEPT_COLUMNS_BYTES:
+            columns.setflags(write=False)
+            signals._memo["link_inertia.columns"] = (basis.copy(), columns)
+        return columns, labels
 
     def values(self, theta, nonlinear, signals, state):
         delta = state["basis"] @ theta + state["null_offset"]
