@@ -57,15 +57,15 @@ def _grid(n: int) -> tuple[Figure, np.ndarray]:
     cols = min(n, 4)
     rows = int(np.ceil(n / cols))
     width, height = 3.6 * cols, 2.6 * rows
-    fig, axes = _pyplot().subplots(rows, cols, figsize=(width, height), squeeze=False)
+    fig = _pyplot().figure(figsize=(width, height))
+    grid = fig.add_gridspec(rows, cols)
+    axes = np.array([fig.add_subplot(grid[k // cols, k % cols]) for k in range(n)])  # no axes for the empty cells
     left, right, bottom, top, across, down = GRID_MARGINS_IN
     cell_w = (width - left - right - across * (cols - 1)) / cols
     cell_h = (height - bottom - top - down * (rows - 1)) / rows
     fig.subplots_adjust(left=left / width, right=1 - right / width, bottom=bottom / height, top=1 - top / height,
                         wspace=across / cell_w, hspace=down / cell_h)
-    for ax in axes.flat[n:]:
-        ax.set_visible(False)
-    return fig, axes.flat
+    return fig, axes
 
 
 def _label(ax: Any, joint: str, xlabel: str, ylabel: str) -> None:
