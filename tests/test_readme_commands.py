@@ -35,7 +35,7 @@ def test_every_readme_command_is_covered() -> None:
 
 
 def test_install_holds_what_the_readme_needs() -> None:
-    """`pip install -e .` alone brings the report's pygments (snakemake[reports]) and the USD validators."""
+    """The README's install of `-e .` alone brings the report's pygments (snakemake[reports]) and the USD validators."""
     requires = importlib.metadata.requires("sim2real") or []
     main = [r for r in requires if "extra ==" not in r]
     assert any(r.startswith("snakemake[reports]") for r in main), main
