@@ -1,8 +1,8 @@
 """README command 1 from fresh clones, this commit's against another's in one run (issue 32).
 
 A newcomer's first build is the README's first command (``python3 -m venv .venv && .venv/bin/pip install -q uv
-&& .venv/bin/uv pip install --compile-bytecode -e . && .venv/bin/snakemake all``; ce27dde's installed with pip
-alone), typed in a fresh clone. This benchmark does exactly that for the commit at HEAD and,
+&& .venv/bin/uv pip install -p .venv/bin/python --compile-bytecode -e . && .venv/bin/snakemake all``; ce27dde's
+installed with pip alone), typed in a fresh clone. This benchmark does exactly that for the commit at HEAD and,
 with ``--against REV``, for REV, alternating (REV first unless ``--head-first``, then the other way round), each in
 a new clone with a new environment, as each commit's own README gives the command. It prints the wall time of each
 part of the command and the ratio of the medians: machines and days differ 2-3x in speed, so only a ratio

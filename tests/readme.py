@@ -30,7 +30,7 @@ RUN, HELP, SKIP = "run", "help", "skip"
 COVERAGE: list[tuple[str, str, str]] = [
     (r"python3 -m venv \.venv", SKIP, "makes the environment this test runs in"),
     (r"\.venv/bin/pip install -q uv", SKIP, "installs the installer of the next command"),
-    (r"\.venv/bin/uv pip install (-q )?--compile-bytecode -e (\.|'\.\[test\]')", SKIP,
+    (r"\.venv/bin/uv pip install (-q )?-p \.venv/bin/python --compile-bytecode -e (\.|'\.\[test\]')", SKIP,
      "installs the project: test_install_holds_what_the_readme_needs checks what it brings"),
     (r"(\.venv/bin/)?python -m pytest", SKIP, "the suite this test is part of"),
     (r"python -m mujoco\.viewer .*", SKIP, "needs a display"),
