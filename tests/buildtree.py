@@ -16,7 +16,7 @@ FAST_BUILD_TARGET = "all"
 
 # Snakemake imports every installed executor and storage plugin when it starts (snakemake/snakemake#3847, open): in
 # the test environment, whose `cluster` extra serves the scale-out tests, 1.5 s of `snakemake --version` and about
-# 0.5 s of a dry run on a 2-core machine. The suite's other runs start Snakemake as the README's `pip install -e .`
+# 0.5 s of a dry run on a 2-core machine. The suite's other runs start Snakemake as the README's install of `-e .`
 # leaves it, without those plugins.
 _WITHOUT_SCALE_OUT_PLUGINS = """
 import pkgutil

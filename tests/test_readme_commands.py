@@ -2,8 +2,8 @@
 
 tests/readme.py reads the commands and says how each is covered (COVERAGE); the conftest's ``readme_run`` runs
 them as written, in order, in a fast copy of the project, once for the suite (the tests that need a built tree
-copy it). The environment is the one ``pip install -e '.[test]'`` made, which holds everything
-``pip install -e .`` installs (checked below). The README's ``python`` block runs after them; its ``yaml`` blocks
+copy it). The environment is the one the README's install of ``-e '.[test]'`` made, which holds
+everything the install of ``-e .`` brings (checked below). The README's ``python`` block runs after them; its ``yaml`` blocks
 that name a file are that file.
 """
 
