@@ -5,6 +5,7 @@ import glob
 import os
 
 import sim2real.assets.collision as _sim2real_collision
+import sim2real.assets.robot_config as _sim2real_robot_config
 import sim2real.design_names as _sim2real_design_names
 import sim2real.measurements.campaigns as _sim2real_campaigns
 import sim2real.files as _sim2real_files
@@ -70,8 +71,20 @@ def robot_config(robot):
 
 @functools.cache
 def robot_settings(robot):
-    """configs/{robot}/robot.yaml as a dict (validated by the MJCF stage); read once per run."""
-    return _sim2real_files.read_yaml(robot_config(robot))
+    """configs/{robot}/robot.yaml as a dict, validated against schemas/robot.schema.yaml; read once per run."""
+    return _sim2real_robot_config.read_robot_config(robot_config(robot))
+
+
+def robot_params(wildcards):
+    """What the MJCF, USD, sysid and excitation jobs read of robot.yaml, as a param rather than the file as an input:
+    they rerun when one of these settings changes, not after an edit of a comment or of ``collision`` (the CoACD
+    jobs and the collision report take that section as their own params; new parts rerun the MJCF through them).
+    """
+    return {
+        key: value
+        for key, value in robot_settings(wildcards.robot).items()
+        if key != "collision"
+    }
 
 
 def robot_xacro(robot):

@@ -10,7 +10,6 @@ rule excitation:
         config="configs/{robot}/excitation.yaml",
         urdf="results/{robot}/{robot}.urdf",
         mjcf="results/{robot}/mjcf/{robot}.xml",
-        robot_config=lambda w: robot_config(w.robot),
         model=optional_model_ladder,
         ladder=separation_ladder,
     output:
@@ -33,5 +32,8 @@ rule excitation:
     resources:
         mem_mb=2048,
         runtime=30,
+    params:
+        robot=robot_params,
+        robot_config=lambda w: robot_config(w.robot),
     script:
         "../scripts/excitation.py"

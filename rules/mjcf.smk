@@ -6,7 +6,6 @@
 rule mjcf:
     input:
         urdf="results/{robot}/{variant}{robot}.urdf",
-        config=lambda w: robot_config(w.robot),
         visual=lambda w: visual_mesh_dirs(w.robot),
         collision=lambda w: sorted(collision_part_dirs(w.robot).values()),
         params=identified_params,
@@ -24,5 +23,7 @@ rule mjcf:
         runtime=3,
     params:
         collision_dirs=lambda w: collision_part_dirs(w.robot),
+        robot=robot_params,
+        robot_config=lambda w: robot_config(w.robot),
     script:
         "../scripts/build_mjcf.py"

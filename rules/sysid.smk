@@ -9,7 +9,6 @@
 rule sysid:
     input:
         urdf="results/{robot}/{robot}.urdf",
-        robot_config=lambda w: robot_config(w.robot),
         model="configs/{robot}/model.yaml",
         prepared="results/{robot}/{campaign}prepared_runs.npz",
     output:
@@ -32,5 +31,7 @@ rule sysid:
     params:
         # the rungs and diagnoses of the last round, read back when their inputs did not change
         fits=sysid_fits,
+        robot=robot_params,
+        robot_config=lambda w: robot_config(w.robot),
     script:
         "../scripts/sysid.py"

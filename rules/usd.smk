@@ -6,7 +6,6 @@
 rule usd:
     input:
         urdf="results/{robot}/{variant}{robot}.urdf",
-        config=lambda w: robot_config(w.robot),
         visual=lambda w: visual_mesh_dirs(w.robot),
         collision=lambda w: sorted(collision_part_dirs(w.robot).values()),
     output:
@@ -22,6 +21,8 @@ rule usd:
         runtime=3,
     params:
         collision_dirs=lambda w: collision_part_dirs(w.robot),
+        robot=robot_params,
+        robot_config=lambda w: robot_config(w.robot),
     script:
         "../scripts/build_usd.py"
 

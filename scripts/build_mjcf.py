@@ -9,9 +9,10 @@ from sim2real.assets.mjcf import build_mjcf
 with rule_entry(snakemake):
     build_mjcf(
         snakemake.input.urdf,
-        snakemake.input.config,
+        snakemake.params.robot_config,
         BuiltMeshes.of(list(snakemake.input.visual), parts_by_uri(snakemake.params.collision_dirs)),
         snakemake.output.xml,
         snakemake.output.scene,
         spec_edit=spec_edit_from_params(snakemake.input.params[0]) if snakemake.input.params else None,
+        robot_settings=snakemake.params.robot,
     )

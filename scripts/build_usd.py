@@ -10,9 +10,10 @@ from sim2real.assets.usd import build_usd
 with rule_entry(snakemake):
     summary = build_usd(
         snakemake.input.urdf,
-        snakemake.input.config,
+        snakemake.params.robot_config,
         BuiltMeshes.of(list(snakemake.input.visual), parts_by_uri(snakemake.params.collision_dirs)),
         snakemake.output.usda,
         snakemake.output.geometry,
+        robot_settings=snakemake.params.robot,
     )
     logging.info("bodies %s; joints %s", summary["bodies"], summary["joints"])

@@ -10,8 +10,9 @@ with rule_entry(snakemake):
         snakemake.wildcards.design,
         snakemake.input.urdf,
         snakemake.input.mjcf,
-        snakemake.input.robot_config,
+        snakemake.params.robot_config,
         snakemake.input.model[0] if snakemake.input.model else None,
         {key: str(value) for key, value in snakemake.output.items()},
         ladder=snakemake.input.ladder[0] if snakemake.input.ladder else None,
+        robot_settings=snakemake.params.robot,
     )

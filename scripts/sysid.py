@@ -9,7 +9,7 @@ with rule_entry(snakemake):
     document = run_sysid(
         snakemake.wildcards.robot,
         snakemake.input.urdf,
-        snakemake.input.robot_config,
+        snakemake.params.robot_config,
         snakemake.input.model,
         snakemake.input.prepared,
         snakemake.output.ladder,
@@ -18,5 +18,6 @@ with rule_entry(snakemake):
         threads=snakemake.threads,
         cache_dir=snakemake.params.fits,
         residuals_npz=snakemake.output.residuals,
+        robot_settings=snakemake.params.robot,
     )
     logging.info("diagnosis: %s", document.get("diagnosis", {}).get("verdict"))

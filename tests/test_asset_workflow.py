@@ -10,7 +10,7 @@ from pathlib import Path
 import mujoco
 import pytest
 
-from buildtree import rules_run
+from buildtree import edit_yaml, rules_run
 from buildtree import run_snakemake as snakemake
 from readme import copy_built
 
@@ -48,3 +48,28 @@ def test_inertial_edit_reruns_urdf_and_mjcf_only_then_nothing(tmp_path: Path, bu
 
     assert "Nothing to be done" in snakemake(tree, "-n", *TARGETS)
     assert rules_run(snakemake(tree, *TARGETS)) == set()
+
+
+def test_robot_yaml_edits_rerun_what_reads_the_setting(tmp_path: Path, built_tree: Path) -> None:
+    """robot.yaml reaches the MJCF, USD, fits and excitation as params of the settings they read, not as a file: a
+    comment reruns nothing, a collision tolerance only the collision report, an armature the MJCF and what follows
+    it, never the meshes."""
+    tree = copy_built(built_tree, tmp_path / "project")
+    targets = [*TARGETS, f"results/{ROBOT}/usd/{ROBOT}.usda", f"results/{ROBOT}/collision/report.json"]
+    config = tree / "configs" / ROBOT / "robot.yaml"
+    shipped = config.read_text()
+    assert "Nothing to be done" in snakemake(tree, "-n", *targets)
+
+    config.write_text(shipped + "# a comment changes no setting\n")
+    assert "Nothing to be done" in snakemake(tree, "-n", *targets)
+
+    edit_yaml(config, lambda robot: robot["collision"]["tolerance"].update(hausdorff_mm=16.0))
+    assert rules_run(snakemake(tree, "-n", *targets)) == {"collision_report"}
+
+    config.write_text(shipped)
+    edit_yaml(config, lambda robot: robot.update(armature={"*": 0.12}))
+    rerun = rules_run(snakemake(tree, "-n", *targets))
+    assert {"mjcf", "usd"} <= rerun and not rerun & (MESH_RULES | {"urdf", "collision_report"})
+
+    config.write_text(shipped)
+    assert "Nothing to be done" in snakemake(tree, "-n", *targets)

@@ -17,6 +17,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -105,15 +106,16 @@ def build_mjcf(
     out_scene: str | Path,
     *,
     spec_edit: Callable[[mujoco.MjSpec], None] | None = None,
+    robot_settings: Mapping[str, Any] | None = None,
 ) -> None:
     """Build ``out_xml`` (robot) and ``out_scene`` (floor, light, ``<include>`` of the robot).
 
     ``meshes``: the visual parts and the collision files; each collision file becomes one collision geom.
-    ``spec_edit`` is applied last, before saving.
-    Both files are written atomically and only after the model compiles.
+    ``spec_edit`` is applied last, before saving. ``robot_settings``: robot.yaml's content, when already read
+    (:func:`read_robot_config`). Both files are written atomically and only after the model compiles.
     """
     urdf_path, out_xml, out_scene = Path(urdf_path), Path(out_xml), Path(out_scene)
-    config = read_robot_config(robot_config_path)
+    config = read_robot_config(robot_config_path, robot_settings)
     out_dir = out_xml.parent
     out_dir.mkdir(parents=True, exist_ok=True)
 

@@ -8,13 +8,17 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from sim2real.files import read_validated_yaml
+from sim2real.files import read_validated_yaml, validate
 
 ROBOT_SCHEMA = "robot.schema.yaml"
 
 
-def read_robot_config(path: str | Path) -> Any:
-    """robot.yaml, validated against ``schemas/robot.schema.yaml`` (an error names the file, the key and the fix)."""
+def read_robot_config(path: str | Path, settings: Mapping[str, Any] | None = None) -> Any:
+    """robot.yaml, validated against ``schemas/robot.schema.yaml`` (an error names the file, the key and the fix).
+    ``settings``: its content as already read (the DAG passes a stage the part it reads as params), validated the
+    same and named by ``path`` in an error."""
+    if settings is not None:
+        return validate(dict(settings), ROBOT_SCHEMA, path)
     return read_validated_yaml(path, ROBOT_SCHEMA)
 
 

@@ -161,17 +161,19 @@ def build_usd(
     meshes: BuiltMeshes,
     out_usda: str | Path,
     out_geometry: str | Path,
+    robot_settings: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write the robot layer ``out_usda`` and the geometry layer ``out_geometry`` (same directory).
 
-    ``meshes``: the visual parts and the collision files (CoACD's convex parts, or one mesh file).
+    ``meshes``: the visual parts and the collision files (CoACD's convex parts, or one mesh file);
+    ``robot_settings``: robot.yaml's content, when already read (:func:`read_robot_config`).
     Returns a summary (bodies, joints, drives). Both layers pass USD's registered validators
     (:func:`compliance_errors`) before they replace the outputs.
     """
     urdf_path, out_usda, out_geometry = Path(urdf_path), Path(out_usda), Path(out_geometry)
     if out_usda.parent.resolve() != out_geometry.parent.resolve():
         raise InputError(out_geometry, None, "must sit beside the robot layer", f"write it into {out_usda.parent}")
-    config = read_robot_config(robot_config_path)
+    config = read_robot_config(robot_config_path, robot_settings)
     model = read_urdf(urdf_path)
     bodies, body_of = fold_bodies(model)
     gains = drive_gains(model, config, robot_config_path)

@@ -152,17 +152,18 @@ def markdown(result: DesignResult, robot: str, outputs: Mapping[str, str]) -> st
 
 def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path, mjcf: str | Path,
                      robot_config: str | Path, model_config: str | Path | None, outputs: Mapping[str, str],
-                     ladder: str | Path | None = None) -> DesignResult:
+                     ladder: str | Path | None = None, robot_settings: Mapping[str, Any] | None = None) -> DesignResult:
     """Design ``name`` of ``config`` and write its outputs (keys csv, trajectory, json, md, figure).
 
     A name ``separate-<a>-vs-<b>`` designs the run that tells the confounded candidates a and b of
     ``ladder`` (results/{robot}/sysid/ladder.json) apart, with the file's default settings (or its own entry).
+    ``robot_settings``: ``robot_config``'s content, when already read (:func:`read_robot_config`).
     """
     from sim2real.identification.documents import load_model_config
 
     pair = confounded_pair(name)
     design = load_design(config, name, allow_default=pair is not None)
-    robot_settings = read_robot_config(robot_config)
+    robot_settings = read_robot_config(robot_config, robot_settings)
     effects = load_model_config(model_config)["effects"] if model_config and Path(model_config).exists() else []
     nominal = load_nominal(urdf, design.joints, robot_settings.get("armature"), robot_settings.get("flange"))
     separation = None

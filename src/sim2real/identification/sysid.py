@@ -339,9 +339,11 @@ def run_sysid(
     threads: int = 1,
     cache_dir: str | Path | None = None,
     residuals_npz: str | Path | None = None,
+    robot_settings: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration; the last
     rung's residuals (``residuals_npz``, :func:`write_model_residuals`) for the gap report.
+    ``robot_settings``: ``robot_config_path``'s content, when already read (the DAG passes it as params).
 
     ``measurement_list``: the measurement list, or the runs prepared from it (``prepare_runs``, ``.npz``);
     ``threads``: the diagnosis fits its candidates on that many processes (BLAS on one thread each);
@@ -352,7 +354,7 @@ def run_sysid(
     from sim2real.measurements import FIT_ARRAYS, runs_for_model
 
     model_config = load_model_config(model_config_path)
-    robot_config = read_yaml(robot_config_path) or {}
+    robot_config = dict(robot_settings) if robot_settings is not None else (read_yaml(robot_config_path) or {})
     entries, prepared, _ = runs_for_model(measurement_list, urdf_path, root, FIT_ARRAYS)
     joints = prepared[0].joint_names
     cache = FitCache(cache_dir)
