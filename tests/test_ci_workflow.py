@@ -53,3 +53,13 @@ def test_workflow_publishes_report_and_one_updated_gap_comment() -> None:
     assert "updateComment" in script and "createComment" in script
     assert "<!-- sim2real-gap-report -->" in script
     assert any(s.get("uses", "").startswith("actions/upload-artifact") for s in steps)
+
+
+def test_workflow_installs_as_ci_run_does_and_puts_the_environment_on_path() -> None:
+    # One install for the README, .ci/run and GitHub: the workflow's may not drift from the one tested here.
+    ci_run = (ROOT / ".ci" / "run").read_text()
+    install_line = next(line for line in ci_run.splitlines() if line.startswith("python3 -m venv"))
+    install = install_line.split(" && .venv/bin/python -m pytest")[0]
+    step = next(s for s in _steps() if s.get("name") == "Install")["run"]
+    assert install in step.splitlines()
+    assert 'echo "$PWD/.venv/bin" >> "$GITHUB_PATH"' in step
