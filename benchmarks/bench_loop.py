@@ -1,8 +1,8 @@
 """One round of the gap loop, timed (issue 20): a change of model.yaml through to a new gap.json.
 
-Part 1, the Panda demo through Snakemake: after a cold build of ``results/panda/gap.json``, two kinds of
-round (:func:`demo_rounds`): ``model.yaml`` edited without a change of its effects, and one line added, as
-a user following the verdicts does; the rule times of ``sysid`` and ``gap_report`` come from their
+Part 1, the Panda demo through Snakemake: after a cold build of ``results/panda/gap.json``, three kinds of
+round (:func:`demo_rounds`): ``model.yaml`` edited without a change of its effects, one line added, as
+a user following the verdicts does, and that line removed again; the rule times of ``sysid`` and ``gap_report`` come from their
 ``benchmark:`` files (the runs are prepared once, by ``prepare_runs``, which a round does not rerun).
 Median of ``--repeats``.
 
@@ -129,9 +129,10 @@ def profiled_round(tree: Path, measurements: Path, out: Path, src: Path | None =
 
 
 def demo_rounds(tree: Path, repeats: int) -> None:
-    """Two kinds of round, each timed ``repeats`` times: ``model.yaml`` edited without touching its effects (a
-    comment: every rung and diagnosis is read back from results/panda/sysid/fits/), and the loop's own round:
-    the line the verdict named added (the demo's last effect, after a round without it)."""
+    """Three kinds of round, each timed ``repeats`` times: ``model.yaml`` edited without touching its effects (a
+    comment: every rung and diagnosis is read back from results/panda/sysid/fits/), the loop's own round: the line
+    the verdict named added (the demo's last effect, after two rounds without it, so that nothing of the model with it
+    is in the cache, which keeps two rounds' work), and that line removed again (undone: read back)."""
     run_snakemake(tree, "results/panda/gap.json", timeout=3600)
     model = tree / "configs/panda/model.yaml"
     original = model.read_text()
@@ -148,11 +149,16 @@ def demo_rounds(tree: Path, repeats: int) -> None:
                 times[rule] = float(next(csv.DictReader(handle, delimiter="\t"))["s"])
         return times
 
-    rows: dict[str, list[dict]] = {"model.yaml edited, same effects": [], f"one line added ({last})": []}
+    added, removed = f"one line added ({last})", f"the line removed again ({last})"
+    rows: dict[str, list[dict]] = {"model.yaml edited, same effects": [], added: [], removed: []}
     for k in range(repeats):
         rows["model.yaml edited, same effects"].append(round_(original + f"# bench_loop round {k}\n"))
-        round_(without_last)  # the round before: its verdict names the line
-        rows[f"one line added ({last})"].append(round_(original))
+        # Two rounds without the line (the cache keeps two rounds' work): the line is then new to the cache, as
+        # it is to a user adding it for the first time; the last of them names it.
+        round_(without_last)
+        round_(without_last + f"# bench_loop round {k}\n")
+        rows[added].append(round_(original))
+        rows[removed].append(round_(without_last))  # undone: read back from the round before
     model.write_text(original)
     for kind, times in rows.items():
         print(f"  {kind}: jobs run: {times[-1]['jobs']}")
@@ -164,6 +170,7 @@ def demo_rounds(tree: Path, repeats: int) -> None:
     medians = [statistics.median(t["sysid"] + t["gap_report"] for t in times) for times in rows.values()]
     print(f"  a round that adds the line / a round that changes nothing: {medians[1] / medians[0]:.2f}x "
           "(issue 32: at most 1.5x)")
+    print(f"  a round that removes it again / a round that changes nothing: {medians[2] / medians[0]:.2f}x")
 
 
 def lab_runs(tree: Path, length_s: float) -> Path:

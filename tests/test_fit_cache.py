@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from sim2real.identification import sysid
-from sim2real.cache import FitCache, digest
+from sim2real.cache import ROUND_MARK, FitCache, digest
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
 from test_sysid import _write_real_log
 
@@ -57,8 +57,31 @@ def test_an_entry_is_computed_once_read_back_and_pruned_when_unused(tmp_path):
     later = FitCache(tmp_path / "fits")
     later.get_or_compute("rung", digest("b"), lambda: work(3))
     later.prune()
-    assert [p.name.split("-")[0] for p in (tmp_path / "fits").iterdir()] == ["rung"] and not entry.exists()
+    kept = [p.name.split("-")[0] for p in (tmp_path / "fits").iterdir() if p.name != ROUND_MARK]
+    assert kept == ["rung"] and not entry.exists()
     assert FitCache(None).get_or_compute("rung", "", lambda: work(4))["value"][1] == 4  # None keeps nothing
+
+
+def test_a_round_keeps_what_it_and_the_round_before_used_so_an_undone_round_refits_nothing(tmp_path):
+    calls = []
+    t0 = 1.7e9  # rounds a minute apart: an entry's mtime is when a round last read or wrote it
+
+    def round_(start: float, used: list[str]) -> list[str]:
+        cache = FitCache(tmp_path / "fits")
+        cache.started = start
+        for name in used:
+            cache.get_or_compute("rung", digest(name), lambda name=name: calls.append(name) or name)
+            os.utime(cache._path("rung", digest(name)), (start, start))
+        cache.prune()
+        return [name for name in "abc" if cache._path("rung", digest(name)).exists()]
+
+    assert round_(t0, ["a"]) == ["a"]
+    assert round_(t0 + 60, ["a", "b"]) == ["a", "b"]  # a line added: b is new
+    assert round_(t0 + 120, ["a"]) == ["a", "b"]  # removed again: read back; b stays for one more round
+    assert calls == ["a", "b"]
+    assert round_(t0 + 180, ["a", "c"]) == ["a", "c"]  # another line: b was used two rounds ago, and is gone
+    assert round_(t0 + 240, ["a", "b"]) == ["a", "b", "c"] and calls == ["a", "b", "c", "b"]  # c: the round before
+    assert (tmp_path / "fits" / ROUND_MARK).read_text() == repr(t0 + 240)
 
 
 def test_a_round_after_one_added_line_refits_only_the_new_rung_and_writes_the_same_bytes(tmp_path, monkeypatch):

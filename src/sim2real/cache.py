@@ -6,7 +6,8 @@ keeps each expensive piece of work (a rung's fit, a link's diagnosis, the bodies
 report's replays and figures) in a file named by the digest of
 everything it depends on (:func:`digest`): the data and the nominal model as arrays, the effects, the
 settings, the package's own source and the versions of the numerical libraries. A hit is exactly what
-the work would compute; a miss (or an unreadable file) computes it. Entries no round used are pruned.
+the work would compute; a miss (or an unreadable file) computes it. Entries neither this round nor the round
+before used are pruned: a line removed again (or a model.yaml put back as it was) is read back, not refitted.
 """
 
 from __future__ import annotations
@@ -27,6 +28,9 @@ T = TypeVar("T")
 
 # The libraries whose arithmetic a fit's last bits depend on.
 NUMERIC_LIBRARIES = ("numpy", "scipy", "cvxpy", "clarabel", "scs", "pinocchio", "mujoco")
+
+# The file in a cache's directory holding the start of the last round that pruned it (FitCache.prune).
+ROUND_MARK = ".last_round"
 
 
 @functools.lru_cache(maxsize=1)
@@ -156,8 +160,23 @@ class FitCache:
         return self.directory / f"{kind}-{key[:40]}.pkl"
 
     def prune(self) -> None:
-        """Remove the fits this round did not use: the cache holds one round's fits, no more."""
+        """Remove the entries neither this round nor the round before used: the cache holds two rounds' work, so
+        that undoing a round (a line removed again) costs what a round that changes nothing costs.
+
+        A round's start is kept in :data:`ROUND_MARK` (an entry read or written is touched, so its mtime says when
+        it was last used); without a mark (a cache of an earlier version) only this round's entries are kept.
+        """
         if self.directory is None or not self.directory.is_dir():
             return
-        for path in [p for p in self.directory.iterdir() if p.is_file() and p.stat().st_mtime < self.started - 1.0]:
+        mark = self.directory / ROUND_MARK
+        try:
+            previous = float(mark.read_text())
+        except (OSError, ValueError):
+            previous = self.started
+        cutoff = min(previous, self.started) - 1.0
+        for path in [p for p in self.directory.iterdir()
+                     if p.is_file() and p.name != ROUND_MARK and p.stat().st_mtime < cutoff]:
             path.unlink(missing_ok=True)
+        aside = mark.with_name(f"{ROUND_MARK}.{os.getpid()}.tmp")
+        aside.write_text(repr(self.started))
+        os.replace(aside, mark)
