@@ -365,9 +365,21 @@ def excitation_config(robot):
     return f"configs/{robot}/excitation.yaml"
 
 
-def optional_model_ladder(wildcards):
-    """The model ladder the design makes identifiable, when the robot has one."""
-    return [model_ladder(wildcards.robot)] if has_model(wildcards.robot) else []
+@functools.cache
+def model_effects(robot):
+    """The effects of configs/{robot}/model.yaml ([] without one), validated against schemas/model.schema.yaml;
+    read once per run."""
+    if not has_model(robot):
+        return []
+    data = _sim2real_files.read_validated_yaml(model_ladder(robot), "model.schema.yaml")
+    return list((data or {}).get("effects") or [])
+
+
+def design_model_effects(wildcards):
+    """What an excitation design reads of model.yaml, its effects, as a param rather than the file as an input: a
+    comment or a fit setting reruns no design (an 18 s job or more); an effect added, removed or moved does.
+    """
+    return model_effects(wildcards.robot)
 
 
 def separation_ladder(wildcards):

@@ -10,7 +10,6 @@ rule excitation:
         config="configs/{robot}/excitation.yaml",
         urdf="results/{robot}/{robot}.urdf",
         mjcf="results/{robot}/mjcf/{robot}.xml",
-        model=optional_model_ladder,
         ladder=separation_ladder,
     output:
         csv="results/{robot}/excitation/{design}.csv",
@@ -35,5 +34,7 @@ rule excitation:
     params:
         robot=robot_params,
         robot_config=lambda w: robot_config(w.robot),
+        model_effects=design_model_effects,
+        model_config=lambda w: model_ladder(w.robot),
     script:
         "../scripts/excitation.py"

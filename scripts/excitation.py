@@ -11,8 +11,9 @@ with rule_entry(snakemake):
         snakemake.input.urdf,
         snakemake.input.mjcf,
         snakemake.params.robot_config,
-        snakemake.input.model[0] if snakemake.input.model else None,
+        snakemake.params.model_config,
         {key: str(value) for key, value in snakemake.output.items()},
         ladder=snakemake.input.ladder[0] if snakemake.input.ladder else None,
         robot_settings=snakemake.params.robot,
+        model_effects=snakemake.params.model_effects,
     )

@@ -73,3 +73,28 @@ def test_robot_yaml_edits_rerun_what_reads_the_setting(tmp_path: Path, built_tre
 
     config.write_text(shipped)
     assert "Nothing to be done" in snakemake(tree, "-n", *targets)
+
+
+def test_model_yaml_edits_rerun_the_excitation_only_when_its_effects_change(tmp_path: Path, built_tree: Path) -> None:
+    """The excitation design reads model.yaml's effects as a param: a comment or a fit setting reruns no design (18 s
+    or more on the Panda); an effect added does; an unknown effect stops the run before any job, naming the file."""
+    tree = copy_built(built_tree, tmp_path / "project")
+    design = "results/panda/excitation/identification.csv"
+    model = tree / "configs" / "panda" / "model.yaml"
+    shipped = model.read_text()
+    assert "Nothing to be done" in snakemake(tree, "-n", design)
+
+    model.write_text(shipped + "# a comment changes no effect\n")
+    assert "Nothing to be done" in snakemake(tree, "-n", design)
+    edit_yaml(model, lambda config: config.setdefault("fit", {}).update(bootstrap_replicates=7))
+    assert "Nothing to be done" in snakemake(tree, "-n", design)
+
+    edit_yaml(model, lambda config: config.update(effects=[*config["effects"], "viscous_friction"]))
+    assert rules_run(snakemake(tree, "-n", design)) == {"excitation"}
+
+    edit_yaml(model, lambda config: config.update(effects=[*config["effects"], "cogging"]))
+    with pytest.raises(AssertionError, match=r"model\.yaml.*effects"):
+        snakemake(tree, "-n", design)
+
+    model.write_text(shipped)
+    assert "Nothing to be done" in snakemake(tree, "-n", design)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -152,19 +152,24 @@ def markdown(result: DesignResult, robot: str, outputs: Mapping[str, str]) -> st
 
 def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path, mjcf: str | Path,
                      robot_config: str | Path, model_config: str | Path | None, outputs: Mapping[str, str],
-                     ladder: str | Path | None = None, robot_settings: Mapping[str, Any] | None = None) -> DesignResult:
+                     ladder: str | Path | None = None, robot_settings: Mapping[str, Any] | None = None,
+                     model_effects: Sequence[str] | None = None) -> DesignResult:
     """Design ``name`` of ``config`` and write its outputs (keys csv, trajectory, json, md, figure).
 
     A name ``separate-<a>-vs-<b>`` designs the run that tells the confounded candidates a and b of
     ``ladder`` (results/{robot}/sysid/ladder.json) apart, with the file's default settings (or its own entry).
-    ``robot_settings``: ``robot_config``'s content, when already read (:func:`read_robot_config`).
+    ``robot_settings``: ``robot_config``'s content, when already read (:func:`read_robot_config`); ``model_effects``:
+    ``model_config``'s effects, when already read (the DAG passes them as params), checked as the file's would be.
     """
-    from sim2real.identification.documents import load_model_config
+    from sim2real.identification.documents import checked_effects, load_model_config
 
     pair = confounded_pair(name)
     design = load_design(config, name, allow_default=pair is not None)
     robot_settings = read_robot_config(robot_config, robot_settings)
-    effects = load_model_config(model_config)["effects"] if model_config and Path(model_config).exists() else []
+    if model_effects is not None:
+        effects = checked_effects(model_effects, model_config or "model.yaml")
+    else:
+        effects = load_model_config(model_config)["effects"] if model_config and Path(model_config).exists() else []
     nominal = load_nominal(urdf, design.joints, robot_settings.get("armature"), robot_settings.get("flange"))
     separation = None
     if pair is not None:

@@ -112,11 +112,17 @@ def load_model_config(path: str | Path) -> dict[str, Any]:
     from sim2real.files import read_validated_yaml
 
     data = read_validated_yaml(path, "model.schema.yaml") or {}
-    effects = list(data.get("effects") or [])
+    return {"effects": checked_effects(data.get("effects") or [], path), "fit": dict(data.get("fit") or {}),
+            "diagnosis": dict(data.get("diagnosis") or {})}
+
+
+def checked_effects(effects: Sequence[str], path: str | Path) -> list[str]:
+    """model.yaml's ``effects`` (of the file ``path``, named in an error): each a known effect, listed once."""
+    effects = list(effects)
     seen = set()
     for i, name in enumerate(effects):
         get_effect(name, str(path))
         if name in seen:
             raise InputError(path, f"effects/{i}", f"'{name}' is listed twice", "list each effect once")
         seen.add(name)
-    return {"effects": effects, "fit": dict(data.get("fit") or {}), "diagnosis": dict(data.get("diagnosis") or {})}
+    return effects
