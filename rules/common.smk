@@ -382,6 +382,13 @@ def design_model_effects(wildcards):
     return model_effects(wildcards.robot)
 
 
+def design_start(wildcards):
+    """Where a design starts (rule excitation_start); a separating design starts from a random series."""
+    if _sim2real_design_names.confounded_pair(wildcards.design) is not None:
+        return []
+    return [f"results/{wildcards.robot}/excitation/{wildcards.design}.start.npz"]
+
+
 def separation_ladder(wildcards):
     """The diagnosis a separating design (separate-<a>-vs-<b>) reads its two fitted candidates from."""
     if _sim2real_design_names.confounded_pair(wildcards.design) is None:

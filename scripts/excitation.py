@@ -16,4 +16,5 @@ with rule_entry(snakemake):
         ladder=snakemake.input.ladder[0] if snakemake.input.ladder else None,
         robot_settings=snakemake.params.robot,
         model_effects=snakemake.params.model_effects,
+        start=snakemake.input.start[0] if snakemake.input.start else None,
     )

@@ -386,3 +386,45 @@ def test_the_state_gradient_is_the_derivative_of_the_objective(designed: Path) -
             numeric = (ident.value(*plus, objective) - ident.value(*minus, objective)) / (2 * step)
             analytic = sum(float(np.sum(g * d)) for g, d in zip((dq, dqd, dqdd), directions, strict=True))
             assert analytic == pytest.approx(numeric, rel=1e-4, abs=1e-6)
+
+
+def test_a_design_starts_from_its_design_for_friction_alone_and_a_wrong_start_is_refused(designed: Path,
+                                                                                          tmp_path: Path) -> None:
+    """Every design starts from its design for the nominal model and friction alone (rule excitation_start, which
+    reads nothing of model.yaml): that start is the design `effects: []` gives, to the bit; a start of another shape
+    or not a start at all is refused, naming the file and how to rebuild it."""
+    from sim2real.excitation.files import build_excitation_start, read_start
+    from sim2real.files import write_array_archive
+
+    config = designed / "configs/panda/excitation.yaml"
+    settings = _config(designed)["defaults"]
+    built = designed / "results/panda/excitation/identification.start.npz"  # the DAG's
+    assert read_start(built, "identification", _config(designed)["joints"], settings["harmonics"]).shape == (7, 20)
+    # In one process (IPOPT's path follows the BLAS kernels' last bits): the start, and the design of `effects: []`.
+    start = build_excitation_start("panda", config, "identification", designed / "results/panda/panda.urdf",
+                                   designed / "results/panda/mjcf/panda.xml", designed / "configs/panda/robot.yaml",
+                                   tmp_path / "identification.start.npz")
+    assert np.array_equal(read_start(tmp_path / "identification.start.npz", "identification",
+                                     _config(designed)["joints"], settings["harmonics"]), start)
+    out = tmp_path / "out"
+    friction_alone = build_excitation(
+        "panda", config, "identification", designed / "results/panda/panda.urdf",
+        designed / "results/panda/mjcf/panda.xml", designed / "configs/panda/robot.yaml", None,
+        {k: str(out / f"x.{k}") for k in ("csv", "trajectory", "json", "md", "figure")})
+    assert np.array_equal(friction_alone.coefficients, start)
+    assert friction_alone.summary["identified"]["effects"] == ["viscous_friction", "coulomb_friction"]
+
+    wrong = tmp_path / "wrong.start.npz"
+    write_array_archive(wrong, {"coefficients": np.zeros((3, 4))}, {"design": "identification"})
+    not_a_start = tmp_path / "garbage.start.npz"
+    not_a_start.write_bytes(b"not an archive")
+    for bad, what in ((wrong, r"shape \(3, 4\), not of 'identification' \(7 joints x 20\)"),
+                      (not_a_start, "is not a design start")):
+        with pytest.raises(InputError, match=what) as err:
+            build_excitation("panda", config, "identification", designed / "results/panda/panda.urdf",
+                             designed / "results/panda/mjcf/panda.xml", designed / "configs/panda/robot.yaml",
+                             designed / "configs/panda/model.yaml",
+                             {k: str(out / f"y.{k}") for k in ("csv", "trajectory", "json", "md", "figure")},
+                             start=bad)
+        assert str(bad) in str(err.value) and f"rebuild it: snakemake {bad.as_posix()}" in str(err.value)
+        assert not (out / "y.csv").exists()

@@ -225,11 +225,13 @@ def check_trajectory(nominal: NominalModel, trajectory: Trajectory, lim: Limits,
 def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Path, home: Mapping[str, float],
                       model_effects: Sequence[str], urdf_path: str | Path,
                       log: Callable[[str], None] = lambda message: None,
-                      separation: Separation | None = None) -> DesignResult:
+                      separation: Separation | None = None,
+                      start_coefficients: np.ndarray | None = None) -> DesignResult:
     """Design one excitation: the optimised coefficients and the checked trajectory at the controller rate.
 
     ``separation``: design the run that tells two confounded candidates apart (:mod:`.separation`) instead of
-    one that conditions the identification.
+    one that conditions the identification; ``start_coefficients``: the coefficients IPOPT starts from (excited joints x 2
+    harmonics; :func:`design_start`), instead of a random series at a fraction of the limits.
     """
     started = clock.perf_counter()
     settings, joints = design.settings, design.joints
@@ -282,7 +284,11 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
         grid = _Grid.subset(objective_grid, samples)
         return _torque_jacobian(nominal, *grid.state(x), grid).reshape(-1, series.size)
 
-    x0 = _scaled_start(series, limit_grid, lim, excited, int(solver["seed"]))
+    if start_coefficients is None:
+        x0 = _scaled_start(series, limit_grid, lim, excited, int(solver["seed"]))
+    else:
+        x0 = np.asarray(start_coefficients, dtype=float).ravel().copy()
+        assert x0.size == series.size, f"a start of {x0.size} coefficients for a series of {series.size}"
     initial = x0.copy()
     scan_grid = _Grid(series, np.linspace(0.0, period, CLEARANCE_SCAN * len(limit_grid.time), endpoint=False),
                       excited, n, start)
@@ -370,6 +376,16 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
     return DesignResult(design=design, joints=list(joints), coefficients=x.reshape(len(excited), -1), start=start,
                         limits=lim, trajectory=trajectory, torque=tau, clearance=distances, closest_pair=closest,
                         summary=summary)
+
+
+def design_start(design: Design, nominal: NominalModel, mjcf_path: str | Path, home: Mapping[str, float],
+                 urdf_path: str | Path, log: Callable[[str], None] = lambda message: None) -> np.ndarray:
+    """Where a design for any model starts: the same design for the nominal model and friction alone (what
+    ``effects: []`` identifies), from a random series. It reads nothing of model.yaml, so a change of the model's
+    effects designs from here (a few seconds) rather than from a random series (issue 32: warm-started when the
+    model changes), and the result is the same bytes whatever was designed before. Coefficients: excited joints x 2
+    harmonics."""
+    return design_trajectory(design, nominal, mjcf_path, home, [], urdf_path, log=log).coefficients
 
 
 def _per_joint(joints: Sequence[str], values: np.ndarray) -> dict[str, float]:

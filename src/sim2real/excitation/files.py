@@ -18,12 +18,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from sim2real.excitation.config import load_design  # noqa: E402
-from sim2real.excitation.design import DesignResult, design_trajectory  # noqa: E402
+from sim2real.excitation.design import DesignResult, design_start, design_trajectory  # noqa: E402
 from sim2real.identification.fitting import load_nominal  # noqa: E402
 from sim2real.errors import InputError  # noqa: E402
 from sim2real.design_names import confounded_pair  # noqa: E402
 from sim2real.excitation.separation import Separation, fitted_candidates  # noqa: E402
-from sim2real.files import atomic_path, dump_yaml, write_json, write_text  # noqa: E402
+from sim2real.files import (  # noqa: E402
+    atomic_path, dump_yaml, read_array_archive, write_array_archive, write_json, write_text,
+)
 from sim2real.assets.robot_config import read_robot_config  # noqa: E402
 
 PNG_METADATA = {"Software": None}
@@ -150,16 +152,49 @@ def markdown(result: DesignResult, robot: str, outputs: Mapping[str, str]) -> st
     return "\n".join(lines)
 
 
+def build_excitation_start(robot: str, config: str | Path, name: str, urdf: str | Path, mjcf: str | Path,
+                           robot_config: str | Path, output: str | Path,
+                           robot_settings: Mapping[str, Any] | None = None) -> np.ndarray:
+    """Where design ``name`` of ``config`` starts for any model (:func:`sim2real.excitation.design.design_start`),
+    written to ``output`` (an array archive: ``coefficients``, excited joints x 2 harmonics)."""
+    design = load_design(config, name)
+    robot_settings = read_robot_config(robot_config, robot_settings)
+    nominal = load_nominal(urdf, design.joints, robot_settings.get("armature"), robot_settings.get("flange"))
+    coefficients = design_start(design, nominal, mjcf, robot_settings.get("home") or {}, urdf, log=logging.info)
+    write_array_archive(output, {"coefficients": coefficients},
+                        {"design": name, "robot": robot, "excited": list(design.excite)})
+    return coefficients
+
+
+def read_start(path: str | Path, name: str, excited: Sequence[str], harmonics: int) -> np.ndarray:
+    """The coefficients of :func:`build_excitation_start` for design ``name``, checked against its joints and
+    harmonics."""
+    import zipfile
+
+    try:
+        header, arrays = read_array_archive(path)
+        coefficients = np.asarray(arrays["coefficients"], dtype=float)
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile) as error:
+        raise InputError(path, "coefficients", f"is not a design start ({error})",
+                         f"rebuild it: snakemake {Path(path).as_posix()}") from None
+    if header.get("design") != name or coefficients.shape != (len(excited), 2 * harmonics):
+        raise InputError(path, "coefficients", f"are of design {header.get('design')!r} with shape "
+                         f"{coefficients.shape}, not of {name!r} ({len(excited)} joints x {2 * harmonics})",
+                         f"rebuild it: snakemake {Path(path).as_posix()}")
+    return coefficients
+
+
 def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path, mjcf: str | Path,
                      robot_config: str | Path, model_config: str | Path | None, outputs: Mapping[str, str],
                      ladder: str | Path | None = None, robot_settings: Mapping[str, Any] | None = None,
-                     model_effects: Sequence[str] | None = None) -> DesignResult:
+                     model_effects: Sequence[str] | None = None, start: str | Path | None = None) -> DesignResult:
     """Design ``name`` of ``config`` and write its outputs (keys csv, trajectory, json, md, figure).
 
     A name ``separate-<a>-vs-<b>`` designs the run that tells the confounded candidates a and b of
     ``ladder`` (results/{robot}/sysid/ladder.json) apart, with the file's default settings (or its own entry).
     ``robot_settings``: ``robot_config``'s content, when already read (:func:`read_robot_config`); ``model_effects``:
-    ``model_config``'s effects, when already read (the DAG passes them as params), checked as the file's would be.
+    ``model_config``'s effects, when already read (the DAG passes them as params), checked as the file's would be;
+    ``start``: the file of :func:`build_excitation_start` the design starts from (None: from a random series).
     """
     from sim2real.identification.documents import checked_effects, load_model_config
 
@@ -184,8 +219,11 @@ def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path
         if floor is None:
             floor = np.array([document["noise_floor"]["torque_rmse"]["per_joint"][j] for j in design.joints])
         separation = Separation(nominal, fitted_candidates(document, pair, str(ladder)), floor, str(ladder))
+    coefficients = (None if start is None else
+                    read_start(start, name, design.excite, int(design.settings["harmonics"])))
     result = design_trajectory(design, nominal, mjcf, robot_settings.get("home") or {}, effects, urdf,
-                               log=logging.info, separation=separation)
+                               log=logging.info, separation=separation,
+                               start_coefficients=coefficients)
     write_csv(result, outputs["csv"])
     rate = float(design.settings["trajectory_rate_hz"])
     write_text(outputs["trajectory"], dump_yaml(joint_trajectory(result, rate), sort_keys=False, width=200,
