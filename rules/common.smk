@@ -383,9 +383,7 @@ def design_model_effects(wildcards):
 
 
 def design_start(wildcards):
-    """Where a design starts (rule excitation_start); a separating design starts from a random series."""
-    if _sim2real_design_names.confounded_pair(wildcards.design) is not None:
-        return []
+    """Where a design starts: its design for friction alone (rule excitation_start)."""
     return [f"results/{wildcards.robot}/excitation/{wildcards.design}.start.npz"]
 
 

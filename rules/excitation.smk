@@ -2,9 +2,9 @@
 # trajectory (CSV at the controller rate, a ROS 2 JointTrajectory, a report), for the model of
 # configs/{robot}/model.yaml on the built URDF and MJCF (CoACD collision parts).
 # A design named separate-<a>-vs-<b> is the run that tells two candidates the diagnosis could not tell apart
-# (gap.md names it): it reads their fits from the ladder. Every other design starts from its own design for the
-# nominal model and friction alone (excitation_start), which reads nothing of model.yaml: a change of the model's
-# effects designs from there in seconds, and the result is the same bytes whatever was designed before.
+# (gap.md names it): it reads their fits from the ladder. Every design starts from its own design for the nominal
+# model and friction alone (excitation_start), which reads nothing of model.yaml nor of the ladder: a change of the
+# model's effects designs from there in seconds, and the result is the same bytes whatever was designed before.
 
 
 rule excitation_start:

@@ -157,7 +157,7 @@ def build_excitation_start(robot: str, config: str | Path, name: str, urdf: str 
                            robot_settings: Mapping[str, Any] | None = None) -> np.ndarray:
     """Where design ``name`` of ``config`` starts for any model (:func:`sim2real.excitation.design.design_start`),
     written to ``output`` (an array archive: ``coefficients``, excited joints x 2 harmonics)."""
-    design = load_design(config, name)
+    design = load_design(config, name, allow_default=confounded_pair(name) is not None)
     robot_settings = read_robot_config(robot_config, robot_settings)
     nominal = load_nominal(urdf, design.joints, robot_settings.get("armature"), robot_settings.get("flange"))
     coefficients = design_start(design, nominal, mjcf, robot_settings.get("home") or {}, urdf, log=logging.info)
