@@ -2,8 +2,8 @@
 
 Part 1, the Panda demo through Snakemake: after a cold build of ``results/panda/gap.json``, three kinds of
 round (:func:`demo_rounds`): ``model.yaml`` edited without a change of its effects, one line added, as
-a user following the verdicts does, and that line removed again; the rule times of ``sysid`` and ``gap_report`` come from their
-``benchmark:`` files (the runs are prepared once, by ``prepare_runs``, which a round does not rerun).
+a user following the verdicts does, and that line removed again; the rule times of ``sysid`` and ``gap_report``
+come from their ``benchmark:`` files (the runs are prepared once, by ``prepare_runs``, which a round does not rerun).
 Median of ``--repeats``.
 
 Part 2, where a round spends its time and how that grows with the log: the lab's ``real_arm_like`` arm is

@@ -230,8 +230,8 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
     """Design one excitation: the optimised coefficients and the checked trajectory at the controller rate.
 
     ``separation``: design the run that tells two confounded candidates apart (:mod:`.separation`) instead of
-    one that conditions the identification; ``start_coefficients``: the coefficients IPOPT starts from (excited joints x 2
-    harmonics; :func:`design_start`), instead of a random series at a fraction of the limits.
+    one that conditions the identification; ``start_coefficients``: the coefficients IPOPT starts from (excited
+    joints x 2 harmonics; :func:`design_start`), instead of a random series at a fraction of the limits.
     """
     started = clock.perf_counter()
     settings, joints = design.settings, design.joints
