@@ -7,6 +7,7 @@ import os
 import sim2real.assets.collision as _sim2real_collision
 import sim2real.assets.robot_config as _sim2real_robot_config
 import sim2real.design_names as _sim2real_design_names
+import sim2real.excitation.config as _sim2real_excitation_config
 import sim2real.measurements.campaigns as _sim2real_campaigns
 import sim2real.files as _sim2real_files
 from sim2real.errors import InputError
@@ -380,6 +381,23 @@ def design_model_effects(wildcards):
     comment or a fit setting reruns no design (an 18 s job or more); an effect added, removed or moved does.
     """
     return model_effects(wildcards.robot)
+
+
+@functools.cache
+def excitation_design(robot, design):
+    """A design of configs/{robot}/excitation.yaml, defaults merged and checked (an error names the file, the key
+    and the fix), as plain data; read once per run. A separating design takes the file's defaults.
+    """
+    separating = _sim2real_design_names.confounded_pair(design) is not None
+    return _sim2real_excitation_config.load_design(
+        excitation_config(robot), design, allow_default=separating
+    ).spec()
+
+
+def design_params(wildcards):
+    """What a design's jobs read of excitation.yaml, the design's own entry with the defaults, as a param rather than
+    the file as an input: a comment or another design's entry reruns no design."""
+    return excitation_design(wildcards.robot, wildcards.design)
 
 
 def design_start(wildcards):

@@ -1,6 +1,7 @@
 # Excitation design: configs/{robot}/excitation.yaml -> an optimised, collision-checked identification
 # trajectory (CSV at the controller rate, a ROS 2 JointTrajectory, a report), for the model of
-# configs/{robot}/model.yaml on the built URDF and MJCF (CoACD collision parts).
+# configs/{robot}/model.yaml on the built URDF and MJCF (CoACD collision parts). Each design's jobs take its own
+# entry of excitation.yaml (defaults merged) and model.yaml's effects as params: an edit reruns the designs it changes.
 # A design named separate-<a>-vs-<b> is the run that tells two candidates the diagnosis could not tell apart
 # (gap.md names it): it reads their fits from the ladder. Every design starts from its own design for the nominal
 # model and friction alone (excitation_start), which reads nothing of model.yaml nor of the ladder: a change of the
@@ -9,7 +10,6 @@
 
 rule excitation_start:
     input:
-        config="configs/{robot}/excitation.yaml",
         urdf="results/{robot}/{robot}.urdf",
         mjcf="results/{robot}/mjcf/{robot}.xml",
     output:
@@ -24,6 +24,8 @@ rule excitation_start:
         mem_mb=2048,
         runtime=30,
     params:
+        design=design_params,
+        config=lambda w: excitation_config(w.robot),
         robot=robot_params,
         robot_config=lambda w: robot_config(w.robot),
     script:
@@ -32,7 +34,6 @@ rule excitation_start:
 
 rule excitation:
     input:
-        config="configs/{robot}/excitation.yaml",
         urdf="results/{robot}/{robot}.urdf",
         mjcf="results/{robot}/mjcf/{robot}.xml",
         ladder=separation_ladder,
@@ -58,6 +59,8 @@ rule excitation:
         mem_mb=2048,
         runtime=30,
     params:
+        design=design_params,
+        config=lambda w: excitation_config(w.robot),
         robot=robot_params,
         robot_config=lambda w: robot_config(w.robot),
         model_effects=design_model_effects,

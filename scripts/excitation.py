@@ -6,7 +6,7 @@ from sim2real.excitation.files import build_excitation
 with rule_entry(snakemake):
     build_excitation(
         snakemake.wildcards.robot,
-        snakemake.input.config,
+        snakemake.params.config,
         snakemake.wildcards.design,
         snakemake.input.urdf,
         snakemake.input.mjcf,
@@ -15,6 +15,7 @@ with rule_entry(snakemake):
         {key: str(value) for key, value in snakemake.output.items()},
         ladder=snakemake.input.ladder[0] if snakemake.input.ladder else None,
         robot_settings=snakemake.params.robot,
+        design_spec=snakemake.params.design,
         model_effects=snakemake.params.model_effects,
         start=snakemake.input.start[0] if snakemake.input.start else None,
     )

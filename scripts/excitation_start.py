@@ -6,11 +6,12 @@ from sim2real.excitation.files import build_excitation_start
 with rule_entry(snakemake):
     build_excitation_start(
         snakemake.wildcards.robot,
-        snakemake.input.config,
+        snakemake.params.config,
         snakemake.wildcards.design,
         snakemake.input.urdf,
         snakemake.input.mjcf,
         snakemake.params.robot_config,
         snakemake.output.start,
         robot_settings=snakemake.params.robot,
+        design_spec=snakemake.params.design,
     )

@@ -98,3 +98,30 @@ def test_model_yaml_edits_rerun_the_excitation_only_when_its_effects_change(tmp_
 
     model.write_text(shipped)
     assert "Nothing to be done" in snakemake(tree, "-n", design)
+
+
+def test_excitation_yaml_edits_rerun_only_the_designs_they_change(tmp_path: Path, built_tree: Path) -> None:
+    """A design's jobs take its own entry of excitation.yaml (defaults merged) as a param: a comment or another
+    design's entry reruns neither of its stages; a default it takes reruns both; a bad entry stops the run before
+    any job, naming the file, the key and the fix."""
+    tree = copy_built(built_tree, tmp_path / "project")
+    design = "results/panda/excitation/identification.csv"
+    config = tree / "configs" / "panda" / "excitation.yaml"
+    shipped = config.read_text()
+    assert "Nothing to be done" in snakemake(tree, "-n", design)
+
+    config.write_text(shipped + "# a comment changes no design\n")
+    assert "Nothing to be done" in snakemake(tree, "-n", design)
+    edit_yaml(config, lambda data: data["designs"].update(slow={"base_frequency_hz": 0.1, "duration_s": 10.0}))
+    assert "Nothing to be done" in snakemake(tree, "-n", design)
+    assert rules_run(snakemake(tree, "-n", "results/panda/excitation/slow.csv")) == {"excitation_start", "excitation"}
+
+    edit_yaml(config, lambda data: data["defaults"]["margins"].update(collision_m=0.011))
+    assert rules_run(snakemake(tree, "-n", design)) == {"excitation_start", "excitation"}
+
+    edit_yaml(config, lambda data: data["designs"]["identification"].update(excite=["panda_joint9"]))
+    with pytest.raises(AssertionError, match=r"excitation\.yaml: .*designs/identification/excite.*panda_joint9"):
+        snakemake(tree, "-n", design)
+
+    config.write_text(shipped)
+    assert "Nothing to be done" in snakemake(tree, "-n", design)

@@ -58,6 +58,11 @@ class Design:
     def key(self, *parts: str) -> str:
         return "/".join(("designs", self.name, *parts))
 
+    def spec(self) -> dict[str, Any]:
+        """What the design reads of its file, as plain data: the DAG passes it to the design's jobs as a param, so a
+        comment or another design's entry reruns no design (:func:`design_from_spec` gives the design back)."""
+        return {"joints": list(self.joints), "excite": list(self.excite), "settings": self.settings}
+
     @property
     def periods(self) -> int:
         return int(round(self.settings["duration_s"] * self.settings["base_frequency_hz"]))
@@ -105,6 +110,11 @@ def load_designs(path: str | Path) -> dict[str, Design]:
         _check_period(design)
         designs[name] = design
     return designs
+
+
+def design_from_spec(path: str | Path, name: str, spec: Mapping[str, Any]) -> Design:
+    """The design ``name`` of the file ``path`` from its :meth:`Design.spec` (already checked when it was read)."""
+    return Design(name, Path(path), list(spec["joints"]), list(spec["excite"]), dict(spec["settings"]))
 
 
 def load_design(path: str | Path, name: str, allow_default: bool = False) -> Design:

@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from sim2real.excitation.config import load_design  # noqa: E402
+from sim2real.excitation.config import design_from_spec, load_design  # noqa: E402
 from sim2real.excitation.design import DesignResult, design_start, design_trajectory  # noqa: E402
 from sim2real.identification.fitting import load_nominal  # noqa: E402
 from sim2real.errors import InputError  # noqa: E402
@@ -154,16 +154,26 @@ def markdown(result: DesignResult, robot: str, outputs: Mapping[str, str]) -> st
 
 def build_excitation_start(robot: str, config: str | Path, name: str, urdf: str | Path, mjcf: str | Path,
                            robot_config: str | Path, output: str | Path,
-                           robot_settings: Mapping[str, Any] | None = None) -> np.ndarray:
+                           robot_settings: Mapping[str, Any] | None = None,
+                           design_spec: Mapping[str, Any] | None = None) -> np.ndarray:
     """Where design ``name`` of ``config`` starts for any model (:func:`sim2real.excitation.design.design_start`),
-    written to ``output`` (an array archive: ``coefficients``, excited joints x 2 harmonics)."""
-    design = load_design(config, name, allow_default=confounded_pair(name) is not None)
+    written to ``output`` (an array archive: ``coefficients``, excited joints x 2 harmonics); ``design_spec``: the
+    design as already read (:meth:`sim2real.excitation.config.Design.spec`, the DAG's param)."""
+    design = _design(config, name, design_spec)
     robot_settings = read_robot_config(robot_config, robot_settings)
     nominal = load_nominal(urdf, design.joints, robot_settings.get("armature"), robot_settings.get("flange"))
     coefficients = design_start(design, nominal, mjcf, robot_settings.get("home") or {}, urdf, log=logging.info)
     write_array_archive(output, {"coefficients": coefficients},
                         {"design": name, "robot": robot, "excited": list(design.excite)})
     return coefficients
+
+
+def _design(config: str | Path, name: str, spec: Mapping[str, Any] | None) -> Any:
+    """Design ``name`` of ``config``: from its spec when the DAG passed it, else read (a separating name takes the
+    file's defaults)."""
+    if spec is not None:
+        return design_from_spec(config, name, spec)
+    return load_design(config, name, allow_default=confounded_pair(name) is not None)
 
 
 def read_start(path: str | Path, name: str, excited: Sequence[str], harmonics: int) -> np.ndarray:
@@ -187,19 +197,21 @@ def read_start(path: str | Path, name: str, excited: Sequence[str], harmonics: i
 def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path, mjcf: str | Path,
                      robot_config: str | Path, model_config: str | Path | None, outputs: Mapping[str, str],
                      ladder: str | Path | None = None, robot_settings: Mapping[str, Any] | None = None,
-                     model_effects: Sequence[str] | None = None, start: str | Path | None = None) -> DesignResult:
+                     model_effects: Sequence[str] | None = None, start: str | Path | None = None,
+                     design_spec: Mapping[str, Any] | None = None) -> DesignResult:
     """Design ``name`` of ``config`` and write its outputs (keys csv, trajectory, json, md, figure).
 
     A name ``separate-<a>-vs-<b>`` designs the run that tells the confounded candidates a and b of
     ``ladder`` (results/{robot}/sysid/ladder.json) apart, with the file's default settings (or its own entry).
     ``robot_settings``: ``robot_config``'s content, when already read (:func:`read_robot_config`); ``model_effects``:
     ``model_config``'s effects, when already read (the DAG passes them as params), checked as the file's would be;
-    ``start``: the file of :func:`build_excitation_start` the design starts from (None: from a random series).
+    ``start``: the file of :func:`build_excitation_start` the design starts from (None: from a random series);
+    ``design_spec``: the design as already read (:meth:`sim2real.excitation.config.Design.spec`, the DAG's param).
     """
     from sim2real.identification.documents import checked_effects, load_model_config
 
     pair = confounded_pair(name)
-    design = load_design(config, name, allow_default=pair is not None)
+    design = _design(config, name, design_spec)
     robot_settings = read_robot_config(robot_config, robot_settings)
     if model_effects is not None:
         effects = checked_effects(model_effects, model_config or "model.yaml")
