@@ -377,10 +377,13 @@ def model_effects(robot):
 
 
 def design_model_effects(wildcards):
-    """What an excitation design reads of model.yaml, its effects, as a param rather than the file as an input: a
-    comment or a fit setting reruns no design (an 18 s job or more); an effect added, removed or moved does.
+    """What an excitation design reads of model.yaml, the effects whose columns it makes identifiable, as a param
+    rather than the file as an input: a comment, a fit setting or an effect that adds no column (link_inertia,
+    payload, actuation_delay) reruns no design; another effect added, removed or moved does.
     """
-    return model_effects(wildcards.robot)
+    return _sim2real_excitation_config.identification_effects(
+        model_effects(wildcards.robot)
+    )
 
 
 @functools.cache

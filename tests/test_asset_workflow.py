@@ -76,8 +76,9 @@ def test_robot_yaml_edits_rerun_what_reads_the_setting(tmp_path: Path, built_tre
 
 
 def test_model_yaml_edits_rerun_the_excitation_only_when_its_effects_change(tmp_path: Path, built_tree: Path) -> None:
-    """The excitation design reads model.yaml's effects as a param: a comment or a fit setting reruns no design (18 s
-    or more on the Panda); an effect added does; an unknown effect stops the run before any job, naming the file."""
+    """The excitation design reads model.yaml's effects as a param, those it identifies: a comment, a fit setting or an
+    effect without columns of its own reruns no design; an effect it identifies does; an unknown effect stops the run
+    before any job, naming the file."""
     tree = copy_built(built_tree, tmp_path / "project")
     design = "results/panda/excitation/identification.csv"
     model = tree / "configs" / "panda" / "model.yaml"
@@ -89,6 +90,8 @@ def test_model_yaml_edits_rerun_the_excitation_only_when_its_effects_change(tmp_
     edit_yaml(model, lambda config: config.setdefault("fit", {}).update(bootstrap_replicates=7))
     assert "Nothing to be done" in snakemake(tree, "-n", design)
 
+    edit_yaml(model, lambda config: config.update(effects=[*config["effects"], "payload", "actuation_delay"]))
+    assert "Nothing to be done" in snakemake(tree, "-n", design)  # no column of their own to identify
     edit_yaml(model, lambda config: config.update(effects=[*config["effects"], "viscous_friction"]))
     assert rules_run(snakemake(tree, "-n", design)) == {"excitation"}
 

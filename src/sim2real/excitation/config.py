@@ -32,6 +32,20 @@ DEFAULTS: dict[str, Any] = {
     "solver": {"max_iterations": 120, "objective_samples": 120, "limit_samples": 400, "seed": 0},
 }
 PERIOD_TOLERANCE = 1e-6  # relative: a duration this close to a whole number of periods is one
+INERTIAL_EFFECTS = ("link_inertia", "payload")  # their columns are (combinations of) the inertial ones
+DEFAULT_FRICTION = ("viscous_friction", "coulomb_friction")
+
+
+def identification_effects(model_effects: Sequence[str]) -> list[str]:
+    """The effects whose columns the design must make identifiable (model order, friction added if absent): the
+    DAG passes these to a design as its param, so a line of model.yaml that adds no column (a payload, a delay)
+    reruns no design."""
+    from sim2real.identification.effects import EFFECTS
+
+    names = [e for e in model_effects if e in EFFECTS and e not in INERTIAL_EFFECTS and not EFFECTS[e].time_shift]
+    if not any("friction" in e for e in names):
+        names += [e for e in DEFAULT_FRICTION if e not in names]
+    return names
 
 
 @dataclass(frozen=True)

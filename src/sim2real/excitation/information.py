@@ -27,24 +27,15 @@ import numpy as np
 import scipy.linalg
 
 from sim2real.assets.dynamics import INERTIAL_PARAMS_PER_BODY
+from sim2real.excitation.config import identification_effects  # noqa: F401  (re-exported: the design's columns)
 from sim2real.excitation.regressor import SymbolicRegressor
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Effect, Signals
 from sim2real.identification.fitting import NominalModel
 
-INERTIAL_EFFECTS = ("link_inertia", "payload")  # their columns are (combinations of) the inertial ones
-DEFAULT_FRICTION = ("viscous_friction", "coulomb_friction")
 BASE_SAMPLES = 400
 BASE_TOLERANCE = 1e-6  # |R_ii| / |R_00| of the unit-norm columns below this: a dependent column
 FD_STEP = 1e-6
-
-
-def identification_effects(model_effects: Sequence[str]) -> list[str]:
-    """The effects whose columns the design must make identifiable (model order, friction added if absent)."""
-    names = [e for e in model_effects if e in EFFECTS and e not in INERTIAL_EFFECTS and not EFFECTS[e].time_shift]
-    if not any("friction" in e for e in names):
-        names += [e for e in DEFAULT_FRICTION if e not in names]
-    return names
 
 
 class Identification:
