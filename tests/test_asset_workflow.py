@@ -75,56 +75,59 @@ def test_robot_yaml_edits_rerun_what_reads_the_setting(tmp_path: Path, built_tre
     assert "Nothing to be done" in snakemake(tree, "-n", *targets)
 
 
+DESIGN = "results/panda/excitation/identification.csv"
+
+
+def _built_copy_with_config(tmp_path: Path, built_tree: Path, name: str) -> tuple[Path, Path, str]:
+    """A copy of the built tree, the Panda's config ``name`` in it and its shipped text; the design up to date."""
+    tree = copy_built(built_tree, tmp_path / "project")
+    config = tree / "configs" / "panda" / name
+    assert "Nothing to be done" in snakemake(tree, "-n", DESIGN)
+    return tree, config, config.read_text()
+
+
 def test_model_yaml_edits_rerun_the_excitation_only_when_its_effects_change(tmp_path: Path, built_tree: Path) -> None:
     """The excitation design reads model.yaml's effects as a param, those it identifies: a comment, a fit setting or an
     effect without columns of its own reruns no design; an effect it identifies does; an unknown effect stops the run
     before any job, naming the file."""
-    tree = copy_built(built_tree, tmp_path / "project")
-    design = "results/panda/excitation/identification.csv"
-    model = tree / "configs" / "panda" / "model.yaml"
-    shipped = model.read_text()
-    assert "Nothing to be done" in snakemake(tree, "-n", design)
+    tree, model, shipped = _built_copy_with_config(tmp_path, built_tree, "model.yaml")
 
     model.write_text(shipped + "# a comment changes no effect\n")
-    assert "Nothing to be done" in snakemake(tree, "-n", design)
+    assert "Nothing to be done" in snakemake(tree, "-n", DESIGN)
     edit_yaml(model, lambda config: config.setdefault("fit", {}).update(bootstrap_replicates=7))
-    assert "Nothing to be done" in snakemake(tree, "-n", design)
+    assert "Nothing to be done" in snakemake(tree, "-n", DESIGN)
 
     edit_yaml(model, lambda config: config.update(effects=[*config["effects"], "payload", "actuation_delay"]))
-    assert "Nothing to be done" in snakemake(tree, "-n", design)  # no column of their own to identify
+    assert "Nothing to be done" in snakemake(tree, "-n", DESIGN)  # no column of their own to identify
     edit_yaml(model, lambda config: config.update(effects=[*config["effects"], "viscous_friction"]))
-    assert rules_run(snakemake(tree, "-n", design)) == {"excitation"}
+    assert rules_run(snakemake(tree, "-n", DESIGN)) == {"excitation"}
 
     edit_yaml(model, lambda config: config.update(effects=[*config["effects"], "cogging"]))
     with pytest.raises(AssertionError, match=r"model\.yaml.*effects"):
-        snakemake(tree, "-n", design)
+        snakemake(tree, "-n", DESIGN)
 
     model.write_text(shipped)
-    assert "Nothing to be done" in snakemake(tree, "-n", design)
+    assert "Nothing to be done" in snakemake(tree, "-n", DESIGN)
 
 
 def test_excitation_yaml_edits_rerun_only_the_designs_they_change(tmp_path: Path, built_tree: Path) -> None:
     """A design's jobs take its own entry of excitation.yaml (defaults merged) as a param: a comment or another
     design's entry reruns neither of its stages; a default it takes reruns both; a bad entry stops the run before
     any job, naming the file, the key and the fix."""
-    tree = copy_built(built_tree, tmp_path / "project")
-    design = "results/panda/excitation/identification.csv"
-    config = tree / "configs" / "panda" / "excitation.yaml"
-    shipped = config.read_text()
-    assert "Nothing to be done" in snakemake(tree, "-n", design)
+    tree, config, shipped = _built_copy_with_config(tmp_path, built_tree, "excitation.yaml")
 
     config.write_text(shipped + "# a comment changes no design\n")
-    assert "Nothing to be done" in snakemake(tree, "-n", design)
+    assert "Nothing to be done" in snakemake(tree, "-n", DESIGN)
     edit_yaml(config, lambda data: data["designs"].update(slow={"base_frequency_hz": 0.1, "duration_s": 10.0}))
-    assert "Nothing to be done" in snakemake(tree, "-n", design)
+    assert "Nothing to be done" in snakemake(tree, "-n", DESIGN)
     assert rules_run(snakemake(tree, "-n", "results/panda/excitation/slow.csv")) == {"excitation_start", "excitation"}
 
     edit_yaml(config, lambda data: data["defaults"]["margins"].update(collision_m=0.011))
-    assert rules_run(snakemake(tree, "-n", design)) == {"excitation_start", "excitation"}
+    assert rules_run(snakemake(tree, "-n", DESIGN)) == {"excitation_start", "excitation"}
 
     edit_yaml(config, lambda data: data["designs"]["identification"].update(excite=["panda_joint9"]))
     with pytest.raises(AssertionError, match=r"excitation\.yaml: .*designs/identification/excite.*panda_joint9"):
-        snakemake(tree, "-n", design)
+        snakemake(tree, "-n", DESIGN)
 
     config.write_text(shipped)
-    assert "Nothing to be done" in snakemake(tree, "-n", design)
+    assert "Nothing to be done" in snakemake(tree, "-n", DESIGN)
