@@ -3,8 +3,8 @@
 A real arm differs from its URDF in every way at once, and its wrist torques are ten times smaller
 than its shoulder's. The lab's ``real_arm_like`` (motor-side sensor), ``link_side_sensor`` (after the
 gearbox, like the Panda's tau_J, with part of the friction after the sensor), ``link_side_tau_only``
-(the same without commands, like a real tau_J log) and ``wrist_friction`` (friction on joint 7 alone)
-hide all of it. This script plays the user: it starts from an empty ``effects:``, adds what each
+(the same without commands, like a real tau_J log), ``wrist_friction`` (friction on joint 7 alone) and
+``real_arm_like_dropouts`` (a logger that loses stretches of samples) hide all of it. This script plays the user: it starts from an empty ``effects:``, adds what each
 verdict asks, and prints every round's verdicts and each joint's holdout residual in units of its own
 noise floor. Issue 18 is done when every joint of every link ends within 1.5x; until then this prints
 where it does not, so the next change can be judged joint by joint. The diagnosis sees only runs.
@@ -24,7 +24,7 @@ from sysid_lab import Lab  # noqa: E402  (the tests' lab helper: a dev Panda and
 
 FACTOR = 1.5
 SCENARIOS = ("real_arm_like", "link_side_sensor", "link_side_tau_only", "wrist_friction", "sensor_gains", "hysteresis",
-             "drift", "ripple")
+             "drift", "ripple", "real_arm_like_dropouts")
 
 
 def report(document: dict, round_: int, seconds: float | None = None) -> None:

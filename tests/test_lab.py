@@ -584,3 +584,47 @@ def test_reading_the_lab_config_does_not_load_the_simulator() -> None:
             "assert 'mujoco' not in sys.modules; from sim2real.lab import compile_arm; assert 'mujoco' in sys.modules")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
+
+
+def test_a_logger_that_loses_samples_costs_the_loop_nothing(shared_lab):
+    """real_arm_like_dropouts: the real_arm_like arm, its logger losing three 0.3 s stretches of each run. The lab
+    draws the losses last, so every row it keeps is real_arm_like's to the bit. Prepared piece by piece (never
+    interpolated across a lost stretch), the model the demo ends with sits at the floor on every joint, as on the
+    whole log; interpolated across (gaps.max_step_s above the losses), the same model misses by several floors."""
+    import pandas as pd
+
+    from sim2real.identification import sysid
+    from sim2real.measurements import load_prepared_runs, noise_floor_of
+    from sysid_lab import FAST_FIT
+
+    lab = shared_lab
+    whole = yaml.safe_load(lab.measurement_list("real_arm_like").read_text())["runs"]
+    listing = lab.measurement_list("real_arm_like_dropouts")
+    lossy = yaml.safe_load(listing.read_text())["runs"]
+    for full, kept in zip(whole, lossy, strict=True):
+        full_table, kept_table = pd.read_csv(full["path"]), pd.read_csv(kept["path"])
+        steps = np.diff(kept_table["time"].to_numpy())
+        assert np.count_nonzero(steps > 0.25) == 3 and len(full_table) - len(kept_table) in range(890, 910)
+        same = full_table.set_index("time").loc[kept_table["time"]].reset_index()
+        pd.testing.assert_frame_equal(same, kept_table)
+
+    effects = ["link_inertia", "asymmetric_friction", "stribeck_friction", "rotor_inertia"]
+    assert lab.ladder("real_arm_like_dropouts", effects, diagnose=False)["ladder"][-1]["effects"] == effects
+
+    def last_rung_x_floor(measurements):
+        entries, prepared, _ = load_prepared_runs(measurements, PANDA_JOINTS, "/")
+        data = [sysid.stack_runs([sysid.RunSamples.of(p, noise_floor_of(p)) for e, p in zip(entries, prepared)
+                                  if e.role == role], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]) for role in ("fit", "holdout")]
+        document, _ = sysid.fit_ladder(effects, lab.nominal, *data, {"fit": FAST_FIT}, "panda", diagnose=False)
+        return prepared, np.array(list(document["ladder"][-1]["metrics"]["torque_x_floor"]["per_joint"].values()))
+
+    pieces, split = last_rung_x_floor(listing)
+    records = {p.filter["gaps"]["run"]: p.filter["gaps"] for p in pieces}
+    assert sorted(records) == ["fit", "holdout"] and all(len(r["pieces"]) == 4 for r in records.values())
+    kept = [piece["name"] for r in records.values() for piece in r["pieces"] if piece["kept"]]
+    assert [p.name for p in pieces] == kept and len(kept) >= 6  # a piece too short to prepare is left out
+    assert np.all(split <= 1.5), split
+    across = listing.with_name("across.yaml")
+    across.write_text(yaml.safe_dump({"runs": lossy, "gaps": {"max_step_s": 1.0}}))
+    runs, interpolated = last_rung_x_floor(across)
+    assert [p.name for p in runs] == ["fit", "holdout"] and interpolated.max() > 3.0, interpolated

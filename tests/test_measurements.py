@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sim2real.measurements.bags import mcap_to_run
 from sim2real.errors import InputError
@@ -19,6 +21,7 @@ from sim2real.measurements import (
     load_prepared_runs,
     load_run,
     prepare_run,
+    Run,
     write_run,
 )
 
@@ -242,6 +245,72 @@ def test_prepared_runs_follow_the_list_and_its_filter_and_share_joints(tmp_path)
     write_csv(tmp_path / "b.csv", [h.replace("panda_joint2", "panda_joint3") for h in header], rows)
     with pytest.raises(InputError, match=r"b\.csv.*joints differ.*panda_joint1, panda_joint2"):
         load_prepared_runs(listing, [*JOINTS, "panda_joint3"], root=tmp_path)
+
+
+def _listing(tmp_path: Path, header: list[str], rows: list[list[float]], **settings: object) -> Path:
+    write_csv(tmp_path / "a.csv", header, rows)
+    listing = tmp_path / "m.yaml"
+    listing.write_text(yaml.safe_dump({"runs": [{"name": "one", "path": "a.csv", "role": "fit"}], **settings}))
+    return listing
+
+
+def test_a_log_with_lost_stretches_is_prepared_piece_by_piece_never_across_them(tmp_path):
+    """A logger that loses 0.3 s twice: interpolated across, the lost stretches become straight lines of q whose
+    second derivative is no acceleration the arm made. Split at them, every prepared sample is one the log holds on
+    both sides, and the accelerations are as good as a log without loss; the pieces keep the run's entry."""
+    header, rows = good_rows(n=9000)
+    lost = [r for r in rows if not (2.0 <= r[0] < 2.3 or 5.5 <= r[0] < 5.8)]
+    entries, prepared, _ = load_prepared_runs(_listing(tmp_path, header, lost), JOINTS, root=tmp_path)
+    assert [p.name for p in prepared] == ["one#1", "one#2", "one#3"] and all(e.name == "one" for e in entries)
+    for piece in prepared:
+        assert not np.any((piece.time > 1.999) & (piece.time < 2.3)) and not np.any((piece.time > 5.499) & (piece.time < 5.8))
+        _, qd, qdd = motion(piece.time)
+        assert np.max(np.abs(piece.qdd - qdd)) < 0.03  # as a log without loss (the test above)
+        record = piece.filter["gaps"]
+        assert record["run"] == "one" and record["max_step_s"] == pytest.approx(0.02)
+        assert [round(g["after_s"], 3) for g in record["gaps"]] == [1.999, 5.499]
+        assert [g["lost_s"] == pytest.approx(0.301) for g in record["gaps"]] == [True, True]
+    # The same log interpolated across its lost stretches (a threshold above them): the acceleration there is wrong.
+    _, across, _ = load_prepared_runs(_listing(tmp_path, header, lost, gaps={"max_step_s": 1.0}), JOINTS, root=tmp_path)
+    (whole,) = across
+    _, _, qdd = motion(whole.time)
+    assert whole.name == "one" and "gaps" not in whole.filter
+    assert np.max(np.abs(whole.qdd - qdd)) > 0.3
+
+
+def test_a_piece_too_short_is_left_out_and_said_and_a_log_of_only_such_pieces_is_refused(tmp_path):
+    header, rows = good_rows(n=9000)
+    # 0.4 s between two lost stretches: too short once 0.3 s are trimmed at each end
+    lost = [r for r in rows if not (3.0 <= r[0] < 3.2 or 3.6 <= r[0] < 3.8)]
+    entries, prepared, _ = load_prepared_runs(_listing(tmp_path, header, lost), JOINTS, root=tmp_path)
+    assert [p.name for p in prepared] == ["one#1", "one#3"]
+    assert [(round(p["from_s"], 2), p["kept"]) for p in prepared[0].filter["gaps"]["pieces"]] == [
+        (0.0, True), (3.2, False), (3.8, True)]
+    # Every stretch between losses too short: refused, naming the file, the column, the gaps and the fix.
+    choppy = [r for r in rows if (r[0] % 0.5) < 0.4]
+    with pytest.raises(InputError) as error:
+        load_prepared_runs(_listing(tmp_path, header, choppy), JOINTS, root=tmp_path)
+    message = str(error.value)
+    assert "a.csv: column 'time'" in message and "gap(s) longer than 0.02 s" in message
+    assert "gaps.max_step_s" in message and "Fix:" in message
+
+
+@given(cuts=st.lists(st.integers(1, 2998), max_size=6, unique=True), threshold=st.sampled_from([0.002, 0.02]))
+@settings(max_examples=40, deadline=None)
+def test_split_at_gaps_keeps_every_row_once_in_order(cuts, threshold):
+    """Whatever the losses, the pieces hold every logged row once, in order, and no step inside a piece is a gap."""
+    from sim2real.measurements.prepare import split_at_gaps
+
+    t = np.arange(3000) * 0.001
+    for cut in sorted(cuts):
+        t[cut:] += 0.05  # a lost stretch before row `cut`
+    q = np.column_stack([t, -t])
+    run = Run("r", Path("r.csv"), JOINTS, t, q, None, q.copy(), None, None, {})
+    pieces = split_at_gaps(run, threshold)
+    assert np.array_equal(np.concatenate([p.time for p in pieces]), t)
+    assert np.array_equal(np.concatenate([p.tau for p in pieces]), q)
+    assert all(np.all(np.diff(p.time) <= threshold) for p in pieces)
+    assert len(pieces) == 1 + len(cuts) and (len(pieces) > 1 or pieces[0] is run)
 
 
 def _two_logged_runs(tmp_path):

@@ -234,7 +234,24 @@ def simulate_run(
         # Stamps wander around the sample instants; a real logger never writes them out of order.
         stamps = time + jitter * rng.standard_normal(steps)
         time = np.maximum.accumulate(np.clip(stamps, time - 0.45 * dt, time + 0.45 * dt))
-    return time, {k: v for k, v in signals.items() if k in columns}, truth
+    logged = _logged_rows(time, sensors.get("dropouts") or {}, rng)
+    return time[logged], {k: v[logged] for k, v in signals.items() if k in columns}, truth
+
+
+def _logged_rows(time: np.ndarray, dropouts: Mapping[str, Any], rng: np.random.Generator) -> np.ndarray:
+    """The rows the logger keeps: all but ``dropouts.count`` stretches of ``dropouts.length_s`` each (a real
+    logger loses samples: a full buffer, a dropped connection), one at a random place within each of ``count``
+    equal slots of the run's middle 80 % (drawn last: the rest of the run is the same with or without them)."""
+    count, length = int(dropouts.get("count", 0)), float(dropouts.get("length_s", 0.0))
+    keep = np.ones(time.size, dtype=bool)
+    if count <= 0 or length <= 0:
+        return keep
+    first, span = time[0] + 0.1 * (time[-1] - time[0]), 0.8 * (time[-1] - time[0])
+    slot = span / count
+    for k, u in enumerate(rng.uniform(size=count)):
+        start = first + k * slot + u * max(slot - length, 0.0)
+        keep &= ~((time >= start) & (time < start + length))
+    return keep
 
 
 def run_lab_scenario_run(

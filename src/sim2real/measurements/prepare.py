@@ -1,5 +1,8 @@
 """Preparation of runs for the comparison with a model (:func:`prepare_run`, per run):
 
+0. A run is split at its logging gaps (:func:`split_at_gaps`: stretches the logger lost, longer than the filter
+   can bridge) and each piece prepared on its own: interpolated across a lost stretch, the positions would be a
+   straight line whose second derivative is no acceleration the arm made, and the torque one it never measured.
 1. Consecutive samples with identical positions (a logger faster than the state) are dropped:
    they carry a stale state, and keeping them would put steps into the differentiated signals.
 2. Everything is linearly interpolated onto a uniform grid (median time step, or ``sample_rate_hz``).
@@ -31,6 +34,39 @@ from sim2real.measurements.runs import (
     DEFAULT_CUTOFF_HZ, DEFAULT_FILTER_ORDER, DEFAULT_TORQUE_SENSOR, MAX_GRID_PER_SAMPLE, MIN_SAMPLES, MeasurementEntry,
     PreparedRun, Run, _row_label, check_run, read_runs,
 )
+
+# A step between two stamps is a logging gap above the longer of these: GAP_MEDIAN_STEPS median steps (a
+# jittered or slow logger's own rhythm is no gap) and GAP_FILTER_PERIODS periods of the filter's cutoff (a
+# stretch the low-pass bridges without inventing motion: 20 ms at 10 Hz).
+GAP_MEDIAN_STEPS = 3.0
+GAP_FILTER_PERIODS = 0.2
+
+
+def gap_threshold_s(time: np.ndarray, cutoff_hz: float, max_step_s: float | None = None) -> float:
+    """The longest step between two stamps of ``time`` that is not a logging gap: ``max_step_s`` when the
+    measurement list sets it (``gaps.max_step_s``), else the longer of :data:`GAP_MEDIAN_STEPS` median steps and
+    :data:`GAP_FILTER_PERIODS` periods of the filter's cutoff."""
+    if max_step_s is not None:
+        return float(max_step_s)
+    return max(GAP_MEDIAN_STEPS * float(np.median(np.diff(time))), GAP_FILTER_PERIODS / float(cutoff_hz))
+
+
+def split_at_gaps(run: Run, max_step_s: float) -> list[Run]:
+    """``run`` cut at every step between stamps longer than ``max_step_s``: its pieces in time order, named
+    ``<run>#1``, ``<run>#2``, ... (the run itself, unchanged, when it has no gap)."""
+    cuts = np.flatnonzero(np.diff(run.time) > max_step_s) + 1
+    if not cuts.size:
+        return [run]
+    bounds = [0, *cuts.tolist(), run.time.size]
+    pieces = []
+    for k, (start, stop) in enumerate(zip(bounds[:-1], bounds[1:], strict=True), start=1):
+        rows = slice(start, stop)
+        pieces.append(dataclasses.replace(
+            run, name=f"{run.name}#{k}", time=run.time[rows], q=run.q[rows],
+            **{name: None if getattr(run, name) is None else getattr(run, name)[rows]
+               for name in ("qd", "tau", "tau_cmd", "q_cmd", "contact")}))
+    return pieces
+
 
 def prepare_run(
     run: Run,
@@ -85,7 +121,7 @@ def prepare_run(
     qdd_f = np.gradient(qd_f, dt, axis=0)
 
     # 4. trim the filter's transient at both ends (a few time constants of the cutoff)
-    trim = int(np.ceil(max(0.05, 3.0 / cutoff_hz) / dt))
+    trim = _trim_samples(cutoff_hz, dt)
     if n - 2 * trim < MIN_SAMPLES:
         raise InputError(run.path, "column 'time'", "run too short once the filter's edges are trimmed",
                          f"log a longer run (at least {2 * trim * dt + MIN_SAMPLES * dt:.2f} s)")
@@ -129,6 +165,11 @@ def prepare_run(
     )
 
 
+def _trim_samples(cutoff_hz: float, dt: float) -> int:
+    """Samples trimmed at each end of a prepared run: a few time constants of the filter's cutoff."""
+    return int(np.ceil(max(0.05, 3.0 / cutoff_hz) / dt))
+
+
 def with_command_floor(run: PreparedRun) -> PreparedRun:
     """``run`` with its actuator-link noise floor (:func:`command_white_noise`, ``command_torque_sigma``) where it
     logs both the measured and the commanded torque: computed once, by the rule that prepares the runs."""
@@ -140,12 +181,52 @@ def with_command_floor(run: PreparedRun) -> PreparedRun:
 def prepare_runs(
     runs: Sequence[Run], settings: Mapping[str, Any], known_joints: Sequence[str] | None = None,
     limits: Mapping[str, tuple[float, float]] | None = None,
-) -> list[PreparedRun]:
+) -> list[list[PreparedRun]]:
     """Runs of :func:`read_runs` checked against the model (:func:`check_run`), then prepared with the
-    list's filter settings (:func:`prepare_run`)."""
+    list's filter settings: each run's pieces (:func:`prepare_pieces`; one, the run, when it has no gap)."""
     for run in runs:
         check_run(run, known_joints, limits)
-    return [prepare_run(run, cutoff_hz=settings["cutoff_hz"], order=settings["order"]) for run in runs]
+    return [prepare_pieces(run, settings) for run in runs]
+
+
+def prepare_pieces(run: Run, settings: Mapping[str, Any]) -> list[PreparedRun]:
+    """``run`` split at its logging gaps (:func:`split_at_gaps`, :func:`gap_threshold_s`) and each piece prepared
+    (:func:`prepare_run`) on the run's own grid rate. A piece too short to prepare once the filter's edges are
+    trimmed is left out; every piece kept records the gaps and what was left out (its ``filter["gaps"]``). A run
+    with no piece long enough is refused, naming its largest piece and its gaps."""
+    cutoff = float(settings["cutoff_hz"])
+    threshold = gap_threshold_s(run.time, cutoff, settings.get("max_step_s"))
+    pieces = split_at_gaps(run, threshold)
+    if len(pieces) == 1:
+        return [prepare_run(run, cutoff_hz=cutoff, order=settings["order"])]
+    rate = float(run.meta.get("sample_rate_hz") or 1.0 / float(np.median(np.diff(run.time))))
+    trim = _trim_samples(cutoff, 1.0 / rate)
+    # A piece's grid holds floor(span * rate) + 1 points; MIN_SAMPLES must remain once both edges are trimmed.
+    long_enough = [np.floor((p.time[-1] - p.time[0]) * rate) + 1 - 2 * trim >= MIN_SAMPLES for p in pieces]
+    steps = np.diff(run.time)
+    gaps = [{"after_s": float(run.time[k - 1]), "lost_s": float(steps[k - 1])}
+            for k in np.flatnonzero(steps > threshold) + 1]
+    record = {
+        "max_step_s": threshold,
+        "gaps": gaps,
+        "pieces": [{"name": p.name, "from_s": float(p.time[0]), "to_s": float(p.time[-1]), "kept": bool(keep)}
+                   for p, keep in zip(pieces, long_enough, strict=True)],
+    }
+    if not any(long_enough):
+        longest = max(pieces, key=lambda p: float(p.time[-1] - p.time[0]))
+        raise InputError(
+            run.path, "column 'time'",
+            f"the log has {len(gaps)} gap(s) longer than {threshold:.3g} s (the first after {gaps[0]['after_s']:.6g} s, "
+            f"{gaps[0]['lost_s']:.3g} s lost), and no stretch between them is long enough to prepare (the longest, "
+            f"{float(longest.time[-1] - longest.time[0]):.3g} s, needs {(2 * trim + MIN_SAMPLES) / rate:.3g} s)",
+            "log without dropouts, or set gaps.max_step_s in the measurement list above the longest lost stretch "
+            "(it is then interpolated across)")
+    prepared = []
+    for piece, keep in zip(pieces, long_enough, strict=True):
+        if keep:
+            done = prepare_run(piece, cutoff_hz=cutoff, order=settings["order"], sample_rate_hz=rate)
+            prepared.append(dataclasses.replace(done, filter={**done.filter, "gaps": {**record, "run": run.name}}))
+    return prepared
 
 
 def load_prepared_runs(
@@ -154,10 +235,18 @@ def load_prepared_runs(
 ) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
     """:func:`read_runs` then :func:`prepare_runs`, when the model's joints are known beforehand.
 
-    Returns (entries, prepared runs in the same order, settings of :func:`measurement_settings`).
+    Returns (entries, prepared runs, settings of :func:`measurement_settings`): each prepared run with its entry,
+    a run split at its logging gaps (:func:`prepare_pieces`) as several pieces of the same entry.
     """
     entries, runs, settings = read_runs(measurement_list, root)
-    return entries, prepare_runs(runs, settings, known_joints, limits), settings
+    return _by_piece(entries, prepare_runs(runs, settings, known_joints, limits), settings)
+
+
+def _by_piece(entries: Sequence[MeasurementEntry], pieces: Sequence[Sequence[PreparedRun]], settings: dict[str, Any],
+              ) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
+    """(each piece's entry, the pieces, settings): a run split at its gaps counts as several runs of its role."""
+    return ([entry for entry, own in zip(entries, pieces, strict=True) for _ in own],
+            [piece for own in pieces for piece in own], settings)
 
 
 def prepare_for_model(
@@ -166,7 +255,7 @@ def prepare_for_model(
     """Every run of a measurement list read, checked against the URDF's joints and limits, and prepared.
 
     A run column naming a joint the URDF lacks is refused in the run's own terms (the file to edit is the
-    run). Returns (entries, prepared runs in the same order, settings of :func:`measurement_settings`).
+    run). Returns (entries, prepared runs, settings of :func:`measurement_settings`), as :func:`load_prepared_runs`.
     """
     from sim2real.assets.dynamics import RigidBodyModel
 
@@ -179,5 +268,6 @@ def prepare_for_model(
                              f"name the columns after the URDF's joints ({', '.join(probe.joint_names)})")
     probe = RigidBodyModel(urdf_path, runs[0].joint_names)
     limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(probe.joint_names, probe.lower, probe.upper, strict=True)}
-    prepared = [with_command_floor(run) for run in prepare_runs(runs, settings, probe.joint_names, limits)]
-    return entries, prepared, settings
+    pieces = [[with_command_floor(piece) for piece in own]
+              for own in prepare_runs(runs, settings, probe.joint_names, limits)]
+    return _by_piece(entries, pieces, settings)

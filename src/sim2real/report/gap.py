@@ -134,7 +134,7 @@ def compute_gap(
         p = c.run
         per_run = torque_metrics(p.tau, c.residual, joints)
         runs_out.append({
-            "name": e.name, "path": Path(e.path).as_posix(), "role": e.role, "torque_source": p.torque_source,
+            "name": p.name, "path": Path(e.path).as_posix(), "role": e.role, "torque_source": p.torque_source,
             "samples": int(p.time.size), "duration_s": float(p.time[-1] - p.time[0]),
             "has_commands": p.tau_cmd is not None, "filter": p.filter,
             "torque_rmse": per_run["torque_rmse"],

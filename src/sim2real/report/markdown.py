@@ -176,6 +176,26 @@ def _where_nominal_text(where: Mapping[str, Any]) -> str:
             f"{', '.join(REGIME_LABELS[r] for r in where['summary']['regimes'])} on {', '.join(where['summary']['joints'])}.")
 
 
+def _gaps_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
+    """What the runs' logging gaps did (sim2real.measurements.prepare.prepare_pieces): where each run was split, and
+    the pieces left out as too short; nothing when no run has a gap."""
+    records = {r["filter"]["gaps"]["run"]: r["filter"]["gaps"] for r in runs if "gaps" in r["filter"]}
+    if not records:
+        return []
+    lines = ["Logging gaps (stamps further apart than the filter can bridge; each piece between them is prepared on "
+             "its own, never interpolated across):", ""]
+    for run, record in records.items():
+        lost = ", ".join(f"{g['lost_s']:.3g} s after {g['after_s']:.2f} s" for g in record["gaps"])
+        left = [p for p in record["pieces"] if not p["kept"]]
+        text = (f"- {run}: {len(record['gaps'])} gap(s) longer than {record['max_step_s']:.3g} s ({lost}); "
+                f"{len(record['pieces']) - len(left)} piece(s) kept")
+        if left:
+            text += (", left out as too short once the filter's edges are trimmed: "
+                     + ", ".join(f"{p['from_s']:.2f}-{p['to_s']:.2f} s" for p in left))
+        lines.append(text + ".")
+    return [*lines, ""]
+
+
 def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> str:
     """gap.md: numbers a reviewer reads in a pull request, then the figures."""
     joints = gap["joints"]
@@ -194,6 +214,7 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
               f"order {f['order']}, cutoff {f['cutoff_hz']:g} Hz; velocity: {f['velocity']}; "
               f"acceleration: {f['acceleration']}; {f['applied_to']}; "
               f"{f['trimmed_s_each_end']:g} s trimmed at each end.", ""]
+    lines += _gaps_lines(gap["runs"])
     model = m.get("model")
     nominal_rung = gap["ladder"][0]["metrics"]["torque_rmse"] if model and gap.get("ladder") else None
     lines += ["## Torque domain (inverse dynamics on measured motion)", ""]
