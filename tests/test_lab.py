@@ -628,3 +628,25 @@ def test_a_logger_that_loses_samples_costs_the_loop_nothing(shared_lab):
     across.write_text(yaml.safe_dump({"runs": lossy, "gaps": {"max_step_s": 1.0}}))
     runs, interpolated = last_rung_x_floor(across)
     assert [p.name for p in runs] == ["fit", "holdout"] and interpolated.max() > 3.0, interpolated
+
+
+def test_a_log_at_30_hz_of_an_arm_controlled_at_1_khz_takes_the_loop_to_the_floor(shared_lab):
+    """real_arm_like_30hz: the real_arm_like arm logged at 30 Hz, as a ROS 2 joint_states recording, its controller
+    at 1 kHz. The log holds every 33rd control step of the 1 kHz run (the same rows), says so in its metadata, and
+    the user's loop from an empty model ends at the floor on every joint, wrist included."""
+    import pandas as pd
+
+    lab = shared_lab
+    whole = yaml.safe_load(lab.measurement_list("real_arm_like").read_text())["runs"]
+    slow = yaml.safe_load(lab.measurement_list("real_arm_like_30hz").read_text())["runs"]
+    for full, logged in zip(whole, slow, strict=True):
+        full_table, table = pd.read_csv(full["path"]), pd.read_csv(logged["path"])
+        pd.testing.assert_frame_equal(full_table.iloc[::33].reset_index(drop=True), table)
+        meta = yaml.safe_load(Path(logged["path"]).with_suffix(".yaml").read_text())
+        assert meta["sample_rate_hz"] == pytest.approx(1000.0 / 33)
+    documents = lab.follow("real_arm_like_30hz")
+    last = documents[-1]
+    assert last["diagnosis"]["status"] == "at_noise_floor", last["diagnosis"]["verdict"]
+    assert last["ladder"][-1]["effects"][:2] == ["link_inertia", "asymmetric_friction"]
+    x_floor = last["ladder"][-1]["metrics"]["torque_x_floor"]["per_joint"]
+    assert max(x_floor.values()) <= 1.5, x_floor

@@ -235,7 +235,15 @@ def simulate_run(
         stamps = time + jitter * rng.standard_normal(steps)
         time = np.maximum.accumulate(np.clip(stamps, time - 0.45 * dt, time + 0.45 * dt))
     logged = _logged_rows(time, sensors.get("dropouts") or {}, rng)
+    logged[np.arange(steps) % log_every(scenario) != 0] = False  # a logger slower than the controller
     return time[logged], {k: v[logged] for k, v in signals.items() if k in columns}, truth
+
+
+def log_every(scenario: Mapping[str, Any]) -> int:
+    """The logger writes every this many control steps: ``sensors.log_rate_hz`` (default: the control rate,
+    ``sample_rate_hz``), rounded to a whole number of steps."""
+    rate = float(scenario["sample_rate_hz"])
+    return max(1, int(round(rate / float(scenario["sensors"].get("log_rate_hz") or rate))))
 
 
 def _logged_rows(time: np.ndarray, dropouts: Mapping[str, Any], rng: np.random.Generator) -> np.ndarray:
@@ -280,7 +288,7 @@ def run_lab_scenario_run(
         "robot": robot,
         "source": "synthetic",
         "control_mode": "torque",
-        "sample_rate_hz": float(settings["sample_rate_hz"]),
+        "sample_rate_hz": float(settings["sample_rate_hz"]) / log_every(settings),
         **({"torque_sensor": _torque_sensor(settings, Path(lab_config))} if "tau" in signals else {}),
         "notes": f"virtual lab scenario '{scenario}', run '{run}' (seed {runs[run]['seed']}"
                  + (f", designed excitation '{runs[run]['excitation']}'" if excitation is not None else "") + "); "
