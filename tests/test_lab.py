@@ -586,16 +586,29 @@ def test_reading_the_lab_config_does_not_load_the_simulator() -> None:
     assert done.returncode == 0, done.stderr
 
 
+DEMO_EFFECTS = ["link_inertia", "asymmetric_friction", "stribeck_friction", "rotor_inertia"]
+
+
+def _last_rung_x_floor(lab, measurements: Path) -> tuple[list, np.ndarray]:
+    """The demo's model (:data:`DEMO_EFFECTS`) fitted on a measurement list: (its prepared runs, the last rung's
+    holdout residual per joint x its floor)."""
+    from sim2real.identification import sysid
+    from sim2real.measurements import load_prepared_runs, noise_floor_of
+    from sysid_lab import FAST_FIT
+
+    entries, prepared, _ = load_prepared_runs(measurements, PANDA_JOINTS, "/")
+    data = [sysid.stack_runs([sysid.RunSamples.of(p, noise_floor_of(p)) for e, p in zip(entries, prepared)
+                              if e.role == role], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]) for role in ("fit", "holdout")]
+    document, _ = sysid.fit_ladder(DEMO_EFFECTS, lab.nominal, *data, {"fit": FAST_FIT}, "panda", diagnose=False)
+    return prepared, np.array(list(document["ladder"][-1]["metrics"]["torque_x_floor"]["per_joint"].values()))
+
+
 def test_a_logger_that_loses_samples_costs_the_loop_nothing(shared_lab):
     """real_arm_like_dropouts: the real_arm_like arm, its logger losing three 0.3 s stretches of each run. The lab
     draws the losses last, so every row it keeps is real_arm_like's to the bit. Prepared piece by piece (never
     interpolated across a lost stretch), the model the demo ends with sits at the floor on every joint, as on the
     whole log; interpolated across (gaps.max_step_s above the losses), the same model misses by several floors."""
     import pandas as pd
-
-    from sim2real.identification import sysid
-    from sim2real.measurements import load_prepared_runs, noise_floor_of
-    from sysid_lab import FAST_FIT
 
     lab = shared_lab
     whole = yaml.safe_load(lab.measurement_list("real_arm_like").read_text())["runs"]
@@ -608,17 +621,7 @@ def test_a_logger_that_loses_samples_costs_the_loop_nothing(shared_lab):
         same = full_table.set_index("time").loc[kept_table["time"]].reset_index()
         pd.testing.assert_frame_equal(same, kept_table)
 
-    effects = ["link_inertia", "asymmetric_friction", "stribeck_friction", "rotor_inertia"]
-    assert lab.ladder("real_arm_like_dropouts", effects, diagnose=False)["ladder"][-1]["effects"] == effects
-
-    def last_rung_x_floor(measurements):
-        entries, prepared, _ = load_prepared_runs(measurements, PANDA_JOINTS, "/")
-        data = [sysid.stack_runs([sysid.RunSamples.of(p, noise_floor_of(p)) for e, p in zip(entries, prepared)
-                                  if e.role == role], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]) for role in ("fit", "holdout")]
-        document, _ = sysid.fit_ladder(effects, lab.nominal, *data, {"fit": FAST_FIT}, "panda", diagnose=False)
-        return prepared, np.array(list(document["ladder"][-1]["metrics"]["torque_x_floor"]["per_joint"].values()))
-
-    pieces, split = last_rung_x_floor(listing)
+    pieces, split = _last_rung_x_floor(lab, listing)
     records = {p.filter["gaps"]["run"]: p.filter["gaps"] for p in pieces}
     assert sorted(records) == ["fit", "holdout"] and all(len(r["pieces"]) == 4 for r in records.values())
     kept = [piece["name"] for r in records.values() for piece in r["pieces"] if piece["kept"]]
@@ -626,7 +629,7 @@ def test_a_logger_that_loses_samples_costs_the_loop_nothing(shared_lab):
     assert np.all(split <= 1.5), split
     across = listing.with_name("across.yaml")
     across.write_text(yaml.safe_dump({"runs": lossy, "gaps": {"max_step_s": 1.0}}))
-    runs, interpolated = last_rung_x_floor(across)
+    runs, interpolated = _last_rung_x_floor(lab, across)
     assert [p.name for p in runs] == ["fit", "holdout"] and interpolated.max() > 3.0, interpolated
 
 
@@ -650,3 +653,27 @@ def test_a_log_at_30_hz_of_an_arm_controlled_at_1_khz_takes_the_loop_to_the_floo
     assert last["ladder"][-1]["effects"][:2] == ["link_inertia", "asymmetric_friction"]
     x_floor = last["ladder"][-1]["metrics"]["torque_x_floor"]["per_joint"]
     assert max(x_floor.values()) <= 1.5, x_floor
+
+
+def test_lone_torque_glitches_cost_the_loop_nothing(shared_lab, monkeypatch):
+    """real_arm_like_glitches: the real_arm_like arm whose torque log has 20 lone samples per run off by 20 N m. The
+    lab draws them last, so the log is real_arm_like's but at those samples. Prepared, every one is replaced and
+    counted, and the model the demo ends with fits as on the clean log; judged as logged, the same model misses by
+    several floors."""
+    import pandas as pd
+
+    import sim2real.measurements.prepare as prepare
+
+    lab = shared_lab
+    whole = yaml.safe_load(lab.measurement_list("real_arm_like").read_text())["runs"]
+    listing = lab.measurement_list("real_arm_like_glitches")
+    for full, logged in zip(whole, yaml.safe_load(listing.read_text())["runs"], strict=True):
+        difference = (pd.read_csv(logged["path"]) - pd.read_csv(full["path"])).to_numpy()
+        assert np.count_nonzero(difference) == 20 and np.allclose(np.abs(difference[difference != 0]), 20.0)
+    prepared, replaced = _last_rung_x_floor(lab, listing)
+    assert [sum(p.filter["torque_spikes"]["replaced"]["tau"].values()) for p in prepared] == [20, 20]
+    _, clean = _last_rung_x_floor(lab, lab.measurement_list("real_arm_like"))
+    assert np.all(clean <= 1.5) and np.allclose(replaced, clean, rtol=0.02), (replaced, clean)
+    monkeypatch.setattr(prepare, "SPIKE_SCALES", np.inf)  # judged as logged
+    _, as_logged = _last_rung_x_floor(lab, listing)
+    assert as_logged.max() > 3.0, as_logged

@@ -235,6 +235,12 @@ def simulate_run(
         stamps = time + jitter * rng.standard_normal(steps)
         time = np.maximum.accumulate(np.clip(stamps, time - 0.45 * dt, time + 0.45 * dt))
     logged = _logged_rows(time, sensors.get("dropouts") or {}, rng)
+    glitches = sensors.get("glitches") or {}
+    if int(glitches.get("count", 0)) > 0 and "tau" in signals:
+        # Lone samples of the torque sensor off by a fixed size (a bus error, a flipped bit), drawn after the rest.
+        count = int(glitches["count"])
+        rows, which = rng.choice(steps, size=count, replace=False), rng.integers(n, size=count)
+        signals["tau"][rows, which] += rng.choice([-1.0, 1.0], size=count) * float(glitches["size_nm"])
     logged[np.arange(steps) % log_every(scenario) != 0] = False  # a logger slower than the controller
     return time[logged], {k: v[logged] for k, v in signals.items() if k in columns}, truth
 

@@ -196,6 +196,22 @@ def _gaps_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
     return [*lines, ""]
 
 
+def _spike_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The lone torque samples each run had replaced (sim2real.measurements.prepare.torque_spikes); nothing when none."""
+    rows = []
+    for r in runs:
+        spikes = r["filter"].get("torque_spikes")
+        if spikes:
+            counts = "; ".join(f"`{kind}` " + ", ".join(f"{joint} {count}" for joint, count in joints.items())
+                               for kind, joints in spikes["replaced"].items())
+            rows.append(f"- {r['name']}: {counts}.")
+    if not rows:
+        return []
+    scales = next(r["filter"]["torque_spikes"]["scales"] for r in runs if r["filter"].get("torque_spikes"))
+    return [f"Torque spikes (a lone sample more than {scales:g}x its joint's noise from the median of it and its "
+            "neighbours: a bus error or a flipped bit, not a torque), each replaced by that median:", "", *rows, ""]
+
+
 def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> str:
     """gap.md: numbers a reviewer reads in a pull request, then the figures."""
     joints = gap["joints"]
@@ -214,7 +230,7 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
               f"order {f['order']}, cutoff {f['cutoff_hz']:g} Hz; velocity: {f['velocity']}; "
               f"acceleration: {f['acceleration']}; {f['applied_to']}; "
               f"{f['trimmed_s_each_end']:g} s trimmed at each end.", ""]
-    lines += _gaps_lines(gap["runs"])
+    lines += _gaps_lines(gap["runs"]) + _spike_lines(gap["runs"])
     model = m.get("model")
     nominal_rung = gap["ladder"][0]["metrics"]["torque_rmse"] if model and gap.get("ladder") else None
     lines += ["## Torque domain (inverse dynamics on measured motion)", ""]
