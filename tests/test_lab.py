@@ -677,3 +677,27 @@ def test_lone_torque_glitches_cost_the_loop_nothing(shared_lab, monkeypatch):
     monkeypatch.setattr(prepare, "SPIKE_SCALES", np.inf)  # judged as logged
     _, as_logged = _last_rung_x_floor(lab, listing)
     assert as_logged.max() > 3.0, as_logged
+
+
+def test_a_torque_logged_in_coarse_quanta_is_judged_in_its_own_noise(shared_lab, tmp_path):
+    """real_arm_like with joint 7's torque written in 0.5 N m steps (a CSV with few decimals, a current in ADC
+    counts): its second differences are mostly zero, so their spread is no floor; its rounding (0.5/sqrt(12) N m RMS)
+    is. Judged in it, joint 7 ends at its floor and the other joints where the clean log puts them; a floor of zero
+    would have let joint 7 take the fit and be named 'unexplained'."""
+    import pandas as pd
+
+    lab = shared_lab
+    runs = yaml.safe_load(lab.measurement_list("real_arm_like").read_text())["runs"]
+    for run in runs:
+        table = pd.read_csv(run["path"])
+        table["tau.panda_joint7"] = np.round(table["tau.panda_joint7"] / 0.5) * 0.5
+        path = tmp_path / Path(run["path"]).name
+        table.to_csv(path, index=False)
+        shutil.copy(Path(run["path"]).with_suffix(".yaml"), path.with_suffix(".yaml"))
+        run["path"] = str(path)
+    listing = tmp_path / "measurements.yaml"
+    listing.write_text(yaml.safe_dump({"runs": runs}))
+    prepared, coarse = _last_rung_x_floor(lab, listing)
+    assert all(p.raw_torque_sigma[6] == pytest.approx(0.5 / np.sqrt(12.0)) for p in prepared)
+    _, clean = _last_rung_x_floor(lab, lab.measurement_list("real_arm_like"))
+    assert coarse[6] <= 1.5 and np.allclose(coarse[:6], clean[:6], rtol=0.05), (coarse, clean)

@@ -96,8 +96,11 @@ def test_messy_real_log_irregular_stamps_repeats_no_commands_no_qd(tmp_path):
         (lambda h, r: [row.__setitem__(1, row[1] * 180 / np.pi + 90.0) for row in r], ["q.panda_joint1", "degrees"]),
         (lambda h, r: r.__delitem__(slice(500, None)), ["too short"]),
         (lambda h, r: h.__setitem__(4, "velocity.panda_joint2"), ["velocity.panda_joint2", "not part of"]),
+        (lambda h, r: [row.__setitem__(4, 0.0) for row in r], ["tau.panda_joint2", "same value (0) in every row",
+                                                              "measured nothing", "leave out every tau.<joint>"]),
     ],
-    ids=["nan", "time_not_increasing", "unknown_joint", "renamed_in_one_column", "degrees", "too_short", "bad_column"],
+    ids=["nan", "time_not_increasing", "unknown_joint", "renamed_in_one_column", "degrees", "too_short", "bad_column",
+         "dead_torque_channel"],
 )
 def test_bad_input_names_file_column_row(tmp_path, mutate, expected):
     header, rows = good_rows()

@@ -115,3 +115,20 @@ def test_since_reversal_restarts_at_every_change_of_direction():
     q = np.array([[0.0], [1.0], [2.0], [1.5], [0.5], [1.0]])
     qd = np.array([[1.0], [1.0], [1.0], [-1.0], [-1.0], [1.0]])
     assert since_reversal(q, qd, [slice(0, 6)])[:, 0].tolist() == [0.0, 1.0, 2.0, 0.0, -1.0, 0.0]
+
+
+def test_a_joint_without_a_measured_floor_is_judged_in_the_arms_units_as_the_ladder_does():
+    """A joint whose torque shows no white noise (floor 0) is judged against the floor the ladder uses
+    (fitting.judged_floors), never divided by zero: its row has numbers and the text says what is left."""
+    from sim2real.identification.fitting import judged_floors
+
+    fit, fit_residual = data("fit", 1, lambda t, q, qd, seed: on_joint(2, 0.5 * (1 - np.exp(-t / 6.0)), q.shape))
+    holdout, holdout_residual = data("holdout", 2, lambda t, q, qd, seed: on_joint(2, -0.4 * (1 - np.exp(-t / 6.0)), q.shape))
+    for torque in (fit, holdout):
+        torque.noise_floor[2] = 0.0
+    result = model_free_ceiling(fit, fit_residual, holdout, holdout_residual)
+    row = result["per_joint"]["j3"]
+    floor = judged_floors(holdout.noise_floor)[2]
+    assert floor == pytest.approx(0.2 * np.sqrt(2 * FLOOR**2 / 3))
+    assert row["rung_x_floor"] == pytest.approx(row["rung_rmse"] / floor, rel=1e-3) and row["kind"] == "not_motion"
+    assert "j3 (" in result["text"] and "x its floor" in result["text"]

@@ -24,10 +24,20 @@ if TYPE_CHECKING:
     from sim2real.measurements.runs import PreparedRun
 
 def white_noise_sigma(x: np.ndarray) -> np.ndarray:
-    """Per-column std of the white part of x from second differences (MAD-based, robust to the signal)."""
+    """Per-column std of the white part of x from second differences (MAD-based, robust to the signal), and at
+    least the RMS error of the column's quantum (:func:`quantum`/sqrt(12)): a torque logged in coarse steps (a CSV
+    written with few decimals, a current in ADC counts) has second differences that are mostly zero, yet its
+    rounding is noise no model explains."""
     d2 = x[2:] - 2 * x[1:-1] + x[:-2]
     mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
-    return 1.4826 * mad / np.sqrt(6.0)
+    return np.maximum(1.4826 * mad / np.sqrt(6.0), quantum(x) / np.sqrt(12.0))
+
+
+def quantum(x: np.ndarray) -> np.ndarray:
+    """Per column, the smallest nonzero step between consecutive samples (0 for a constant column): the logger's
+    resolution where it rounds, a vanishing number where it does not."""
+    steps = np.abs(np.diff(x, axis=0))
+    return np.array([np.min(column[column > 0]) if np.any(column > 0) else 0.0 for column in steps.T])
 
 
 @one_blas_thread  # its products' last digits: the same from the rule and from any caller

@@ -67,11 +67,7 @@ def torque_spikes(torque: np.ndarray) -> np.ndarray:
     flags = np.zeros(torque.shape, dtype=bool)
     if torque.shape[0] < 3:
         return flags
-    steps = np.abs(np.diff(torque, axis=0))
-    scale = np.maximum(white_noise_sigma(torque), np.median(steps, axis=0))
-    # A torque logged in steps of a quantum (a current-based estimate) can have neither: its quantum then.
-    quantum = np.array([np.min(col[col > 0], initial=np.inf) for col in steps.T])
-    scale = np.where(scale > 0, scale, np.where(np.isfinite(quantum), quantum, 0.0))
+    scale = np.maximum(white_noise_sigma(torque), np.median(np.abs(np.diff(torque, axis=0)), axis=0))
     flags[1:-1] = np.abs(torque[1:-1] - _median_of_three(torque)) > SPIKE_SCALES * scale
     return flags
 

@@ -223,6 +223,14 @@ def read_run(path: str | Path) -> Run:
                 f"NaN or infinite value ({bad_rows.size} such row(s))",
                 "remove or fill these rows (e.g. drop incomplete samples) before loading",
             )
+        if col.split(".", 1)[0] in ("tau", "tau_cmd") and column.size > 1 and np.all(column == column[0]):
+            # A torque that never moves while the arm does measured nothing: judged, it would be a residual
+            # no effect explains, and it has no noise to be judged in units of.
+            raise InputError(
+                path, f"column '{col}'", f"the same value ({float(column[0]):g}) in every row: a torque channel "
+                "that measured nothing (a dead sensor, a driver that did not publish)",
+                "log the joint's torque; to judge the commanded torque instead, leave out every tau.<joint> column",
+            )
 
     time = table["time"].to_numpy(dtype=float, copy=True)  # not a view that keeps the whole table alive
     steps = np.diff(time)

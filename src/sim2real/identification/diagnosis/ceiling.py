@@ -199,12 +199,13 @@ def _at_floor(rung: float, floor: float, noise_floor_factor: float) -> bool:
 
 
 def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any,
-                   holdout_residual: np.ndarray, noise_floor_factor: float) -> tuple[dict[str, Any], np.ndarray]:
+                   holdout_residual: np.ndarray, noise_floor_factor: float, floors: Sequence[float],
+                   ) -> tuple[dict[str, Any], np.ndarray]:
     """Joint ``j``'s row of :func:`model_free_ceiling` and its holdout residual after the better learner (the
-    rung's own where the joint is at its floor)."""
+    rung's own where the joint is at its floor); ``floors``: each joint's as the ladder judges by it."""
     from threadpoolctl import threadpool_limits
 
-    floor = float(holdout_data.noise_floor[j])
+    floor = float(floors[j])
     rung = float(np.sqrt(np.mean(holdout_residual[:, j] ** 2)))
     if _at_floor(rung, floor, noise_floor_factor):
         # nothing above the floor for a learner to explain: the ceiling is the rung itself
@@ -224,8 +225,8 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
         ceiling = float(np.sqrt(np.mean(after**2)))
         row: dict[str, Any] = {
             "rung_rmse": round(rung, 6), "ceiling_rmse": round(ceiling, 6),
-            "rung_x_floor": round(rung / floor, 3) if floor > 0 else None,
-            "ceiling_x_floor": round(ceiling / floor, 3) if floor > 0 else None,
+            "rung_x_floor": round(rung / floor, 3),
+            "ceiling_x_floor": round(ceiling / floor, 3),
             "ratio": round(ceiling / rung, 4) if rung > 0 else 1.0,
             "explained_beyond_noise": round(_excess_share(holdout_residual[:, j], after, floor), 4),
         }
@@ -256,16 +257,18 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
     each joint's numbers are those it has alone).
     """
     from sim2real.forked import map_forked
+    from sim2real.identification.fitting.scoring import judged_floors
 
     joints = list(holdout_data.joint_names)
+    floors = [float(f) for f in judged_floors(holdout_data.noise_floor)]
     learned = [j for j in range(len(joints)) if not _at_floor(
-        float(np.sqrt(np.mean(holdout_residual[:, j] ** 2))), float(holdout_data.noise_floor[j]), noise_floor_factor)]
+        float(np.sqrt(np.mean(holdout_residual[:, j] ** 2))), floors[j], noise_floor_factor)]
     if learned:  # the learners' modules imported once, before the fork; a model at its floor needs neither
         for module in ("sklearn.ensemble", "sklearn.linear_model"):
             importlib.import_module(module)
     rows = map_forked(_joint_ceiling, range(len(joints)), workers if learned else 1, {
         "fit_data": fit_data, "fit_residual": fit_residual, "holdout_data": holdout_data,
-        "holdout_residual": holdout_residual, "noise_floor_factor": float(noise_floor_factor)})
+        "holdout_residual": holdout_residual, "noise_floor_factor": float(noise_floor_factor), "floors": floors})
     per_joint = {joint: row for joint, (row, _) in zip(joints, rows, strict=True)}
     after = np.column_stack([column for _, column in rows])
     overall = float(np.sqrt(np.mean(after**2)))

@@ -35,13 +35,21 @@ def joint_weights(noise_floor: np.ndarray, weighting: str = "noise_floor") -> np
     return rms / np.maximum(floor, MIN_FLOOR_FRACTION * rms)
 
 
-def floor_units(residual: np.ndarray, noise_floor: np.ndarray) -> dict[str, Any]:
-    """A residual's RMS in units of each joint's noise floor: per joint and over the arm (RMS of the ratios).
-
-    1.0 is what white noise at the floor gives; the loop's decisions are taken in these units."""
+def judged_floors(noise_floor: np.ndarray) -> np.ndarray:
+    """Each joint's floor as the loop judges by it (:func:`joint_weights`): at least :data:`MIN_FLOOR_FRACTION` of
+    the arm's RMS floor, so a joint whose torque shows no white noise (logged in coarse quanta) is judged in the
+    arm's units, not divided by zero; ones where no joint has a floor."""
     floor = np.asarray(noise_floor, dtype=float)
     rms = float(np.sqrt(np.mean(floor**2))) if floor.size else 0.0
-    floor = np.maximum(floor, MIN_FLOOR_FRACTION * rms) if rms > 0 else np.ones_like(floor)
+    return np.maximum(floor, MIN_FLOOR_FRACTION * rms) if rms > 0 else np.ones_like(floor)
+
+
+def floor_units(residual: np.ndarray, noise_floor: np.ndarray) -> dict[str, Any]:
+    """A residual's RMS in units of each joint's noise floor (:func:`judged_floors`): per joint and over the arm
+    (RMS of the ratios).
+
+    1.0 is what white noise at the floor gives; the loop's decisions are taken in these units."""
+    floor = judged_floors(noise_floor)
     ratio = np.sqrt(np.mean(np.asarray(residual, dtype=float) ** 2, axis=0)) / floor
     return {"overall": float(np.sqrt(np.mean(ratio**2))), "per_joint": [float(v) for v in ratio]}
 
