@@ -93,7 +93,8 @@ def test_log_without_commands_skips_state_domain_and_says_why(lab, tmp_path):
 
 def test_unknown_joint_in_a_run_is_reported_against_the_model(lab, tmp_path):
     t = np.arange(3000) * 0.001
-    write_run(tmp_path / "x.csv", t, ["panda_joint1", "wrist_9"], {"q": np.zeros((3000, 2)), "tau": np.zeros((3000, 2))},
+    motion = np.column_stack([np.sin(t), np.cos(t)])  # a run that is fine but for its joint's name
+    write_run(tmp_path / "x.csv", t, ["panda_joint1", "wrist_9"], {"q": 0.1 * motion, "tau": motion},
               {"robot": "panda", "source": "real", "control_mode": "torque"})
     listing = tmp_path / "m.yaml"
     listing.write_text(yaml.safe_dump({"runs": [{"name": "x", "path": (tmp_path / "x.csv").as_posix(), "role": "fit"}]}))
