@@ -656,10 +656,10 @@ def test_a_log_at_30_hz_of_an_arm_controlled_at_1_khz_takes_the_loop_to_the_floo
 
 
 def test_lone_torque_glitches_cost_the_loop_nothing(shared_lab, monkeypatch):
-    """real_arm_like_glitches: the real_arm_like arm whose torque log has 20 lone samples per run off by 20 N m. The
-    lab draws them last, so the log is real_arm_like's but at those samples. Prepared, every one is replaced and
-    counted, and the model the demo ends with fits as on the clean log; judged as logged, the same model misses by
-    several floors."""
+    """real_arm_like_glitches: the real_arm_like arm whose log has 20 lone torque samples per run off by 20 N m and 10
+    lone positions off by 0.05 rad. The lab draws them last, so the log is real_arm_like's but at those samples.
+    Prepared, every one is replaced and counted, and the model the demo ends with fits as on the clean log; judged as
+    logged, the same model misses by several floors."""
     import pandas as pd
 
     import sim2real.measurements.prepare as prepare
@@ -668,10 +668,14 @@ def test_lone_torque_glitches_cost_the_loop_nothing(shared_lab, monkeypatch):
     whole = yaml.safe_load(lab.measurement_list("real_arm_like").read_text())["runs"]
     listing = lab.measurement_list("real_arm_like_glitches")
     for full, logged in zip(whole, yaml.safe_load(listing.read_text())["runs"], strict=True):
-        difference = (pd.read_csv(logged["path"]) - pd.read_csv(full["path"])).to_numpy()
-        assert np.count_nonzero(difference) == 20 and np.allclose(np.abs(difference[difference != 0]), 20.0)
+        difference = pd.read_csv(logged["path"]) - pd.read_csv(full["path"])
+        for kind, count, size in (("tau.", 20, 20.0), ("q.", 10, 0.05)):
+            moved = difference[[c for c in difference.columns if c.startswith(kind)]].to_numpy()
+            assert np.count_nonzero(moved) == count and np.allclose(np.abs(moved[moved != 0]), size), kind
+        assert np.count_nonzero(difference.to_numpy()) == 30
     prepared, replaced = _last_rung_x_floor(lab, listing)
-    assert [sum(p.filter["torque_spikes"]["replaced"]["tau"].values()) for p in prepared] == [20, 20]
+    assert [{kind: sum(counts.values()) for kind, counts in p.filter["spikes"]["replaced"].items()} for p in prepared] \
+        == [{"q": 10, "tau": 20}] * 2
     _, clean = _last_rung_x_floor(lab, lab.measurement_list("real_arm_like"))
     assert np.all(clean <= 1.5) and np.allclose(replaced, clean, rtol=0.02), (replaced, clean)
     monkeypatch.setattr(prepare, "SPIKE_SCALES", np.inf)  # judged as logged

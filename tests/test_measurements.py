@@ -320,46 +320,50 @@ def test_lone_torque_spikes_are_replaced_and_counted_steps_and_turns_are_not():
     """A bus error puts one torque sample far off: the median of it and its neighbours replaces it. A real torque's
     steps (friction reversing at 30 Hz) and smooth turns are never taken for one, with noise or without (a torque
     logged in quanta has no white noise to measure)."""
-    from sim2real.measurements.prepare import torque_spikes, without_spikes
+    from sim2real.measurements.prepare import lone_spikes, without_spikes
 
     rng = np.random.default_rng(3)
     t = np.arange(20000) * 0.001
     _, _, qdd = motion(t)
     clean = 2.0 * qdd + 0.8 * np.tanh(np.column_stack([np.cos(1.3 * t), np.sin(0.9 * t)]) / 0.01)
     noisy = clean + 0.03 * rng.standard_normal(clean.shape)
-    assert not torque_spikes(noisy).any() and not torque_spikes(clean).any()
+    assert not lone_spikes(noisy).any() and not lone_spikes(clean).any()
     spiked = noisy.copy()
     rows = rng.choice(np.arange(1, 19999), size=12, replace=False)
     spiked[rows, np.arange(12) % 2] += np.array([1.0, -1.0] * 6) * np.geomspace(0.75, 30.0, 12)  # 25 to 1000 sigma
-    flags = torque_spikes(spiked)
+    flags = lone_spikes(spiked)
     assert sorted(zip(*np.nonzero(flags))) == sorted(zip(rows, np.arange(12) % 2))
     assert np.max(np.abs(without_spikes(spiked, flags) - noisy)) < 0.2
     # 30 Hz: friction reversals are steps of 50 noise levels between two samples; logged in 0.01 N m quanta
     slow = clean[::33]
-    assert not torque_spikes(slow + 0.03 * rng.standard_normal(slow.shape)).any()
+    assert not lone_spikes(slow + 0.03 * rng.standard_normal(slow.shape)).any()
     quantized = np.round(slow / 0.01) * 0.01
     quantized[100, 1] += 1.0
-    assert list(zip(*np.nonzero(torque_spikes(quantized)))) == [(100, 1)]
+    assert list(zip(*np.nonzero(lone_spikes(quantized)))) == [(100, 1)]
 
 
 @given(steps=st.lists(st.floats(0.0, 10.0), min_size=3, max_size=60), offset=st.floats(-100.0, 100.0),
        gain=st.floats(0.01, 100.0))
 @settings(max_examples=60, deadline=None)
 def test_a_monotone_torque_has_no_spike_whatever_its_offset_and_units(steps, offset, gain):
-    from sim2real.measurements.prepare import torque_spikes
+    from sim2real.measurements.prepare import lone_spikes
 
     torque = offset + gain * np.cumsum(steps)[:, None] * np.array([1.0, -1.0])
-    assert not torque_spikes(torque).any()
+    assert not lone_spikes(torque).any()
 
 
-def test_a_prepared_run_counts_the_spikes_it_replaced(tmp_path):
+def test_a_prepared_run_counts_the_spikes_it_replaced_in_positions_and_torques(tmp_path):
     header, rows = good_rows()
     rows[1200][3] += 5.0  # tau.panda_joint1, 1.2 s
     rows[2100][4] -= 5.0  # tau.panda_joint2
     rows[2101][4] -= 5.0  # two samples in a row: not a lone spike, left (and judged) as logged
-    prepared = prepare_run(load_run(write_csv(tmp_path / "log.csv", header, rows)))
-    assert prepared.filter["torque_spikes"] == {"scales": 20.0, "replaced": {"tau": {"panda_joint1": 1}}}
-    assert "torque_spikes" not in prepare_run(load_run(write_csv(tmp_path / "clean.csv", *good_rows()))).filter
+    rows[1500][2] += 0.2  # q.panda_joint2: an encoder's glitch, which filtered and differentiated twice would be a
+    prepared = prepare_run(load_run(write_csv(tmp_path / "log.csv", header, rows)))  # kick of hundreds of rad/s^2
+    assert prepared.filter["spikes"] == {"scales": 20.0, "replaced": {"q": {"panda_joint2": 1},
+                                                                      "tau": {"panda_joint1": 1}}}
+    _, _, qdd = motion(prepared.time)
+    assert np.max(np.abs(prepared.qdd - qdd)) < 0.03  # as the log without the glitch
+    assert "spikes" not in prepare_run(load_run(write_csv(tmp_path / "clean.csv", *good_rows()))).filter
 
 
 def _two_logged_runs(tmp_path):

@@ -60,8 +60,8 @@ Column semantics of the written runs:
   The run's metadata says which (``torque_sensor: motor|link``) whenever it logs ``tau``.
 * ``time``: the logger's stamps: the sample instants plus Gaussian ``sensors.stamp_jitter_s`` (kept
   increasing), like a real log whose stamps wander around the control period; ``sensors.dropouts`` removes
-  stretches of rows, as a logger that loses samples does, ``sensors.glitches`` puts lone samples of ``tau``
-  far off, as a bus error does, and ``sensors.log_rate_hz`` keeps every k-th control
+  stretches of rows, as a logger that loses samples does, ``sensors.glitches`` and
+  ``sensors.encoder_glitches`` put lone samples of ``tau`` and ``q`` far off, as a bus error does, and ``sensors.log_rate_hz`` keeps every k-th control
   step, as a logger slower than the controller does (a 30 Hz recording of a 1 kHz arm).
 * ``q_cmd.<j>``: the desired trajectory.
 

@@ -235,14 +235,21 @@ def simulate_run(
         stamps = time + jitter * rng.standard_normal(steps)
         time = np.maximum.accumulate(np.clip(stamps, time - 0.45 * dt, time + 0.45 * dt))
     logged = _logged_rows(time, sensors.get("dropouts") or {}, rng)
-    glitches = sensors.get("glitches") or {}
-    if int(glitches.get("count", 0)) > 0 and "tau" in signals:
-        # Lone samples of the torque sensor off by a fixed size (a bus error, a flipped bit), drawn after the rest.
-        count = int(glitches["count"])
-        rows, which = rng.choice(steps, size=count, replace=False), rng.integers(n, size=count)
-        signals["tau"][rows, which] += rng.choice([-1.0, 1.0], size=count) * float(glitches["size_nm"])
+    # Lone samples off by a fixed size (a bus error, a flipped bit), drawn after the rest.
+    _glitch(signals["tau"], (sensors.get("glitches") or {}).get("count", 0),
+            (sensors.get("glitches") or {}).get("size_nm", 0.0), rng)
+    _glitch(signals["q"], (sensors.get("encoder_glitches") or {}).get("count", 0),
+            (sensors.get("encoder_glitches") or {}).get("size_rad", 0.0), rng)
     logged[np.arange(steps) % log_every(scenario) != 0] = False  # a logger slower than the controller
     return time[logged], {k: v[logged] for k, v in signals.items() if k in columns}, truth
+
+
+def _glitch(signal: np.ndarray, count: int, size: float, rng: np.random.Generator) -> None:
+    """``count`` samples of ``signal`` (random rows and joints) moved by ``size`` either way, in place; no draw
+    when there are none."""
+    if int(count) > 0:
+        rows, which = rng.choice(signal.shape[0], size=int(count), replace=False), rng.integers(signal.shape[1], size=int(count))
+        signal[rows, which] += rng.choice([-1.0, 1.0], size=int(count)) * float(size)
 
 
 def log_every(scenario: Mapping[str, Any]) -> int:

@@ -3,8 +3,8 @@
 0. A run is split at its logging gaps (:func:`split_at_gaps`: stretches the logger lost, longer than the filter
    can bridge) and each piece prepared on its own: interpolated across a lost stretch, the positions would be a
    straight line whose second derivative is no acceleration the arm made, and the torque one it never measured.
-   A lone torque sample far from both its neighbours (:func:`torque_spikes`: a bus error, a flipped bit) is
-   replaced by the median of the three; the run's ``filter["torque_spikes"]`` counts them per joint.
+   A lone sample of a position or a torque far from both its neighbours (:func:`lone_spikes`: an encoder's or a
+   bus's error, a flipped bit) is replaced by the median of the three; the run's ``filter["spikes"]`` counts them.
 1. Consecutive samples with identical positions (a logger faster than the state) are dropped:
    they carry a stale state, and keeping them would put steps into the differentiated signals.
 2. Everything is linearly interpolated onto a uniform grid (median time step, or ``sample_rate_hz``).
@@ -53,30 +53,32 @@ def gap_threshold_s(time: np.ndarray, cutoff_hz: float, max_step_s: float | None
     return max(GAP_MEDIAN_STEPS * float(np.median(np.diff(time))), GAP_FILTER_PERIODS / float(cutoff_hz))
 
 
-# A torque sample further than SPIKE_SCALES of its joint's scale (the white noise's, or the median step between
-# samples where that is larger) from the median of itself and its two neighbours is a glitch of the bus or the
-# sensor, not a torque: the median of three keeps every step and every smooth turn of a real torque, at 1 kHz and at
-# 30 Hz alike, and moves only a lone sample. No run of the lab's scenarios comes within half of it (at most 11 scales,
-# a controller's command chattering at a velocity reversal).
+# A sample further than SPIKE_SCALES of its column's scale (the white noise's, or the median step between samples
+# where that is larger) from the median of itself and its two neighbours is a glitch of the encoder, the bus or the
+# sensor, not a motion or a torque: the median of three keeps every step and every smooth turn of a real signal, at
+# 1 kHz and at 30 Hz alike, and moves only a lone sample. No run of the lab's scenarios comes within half of it (at
+# most 11 scales, a controller's command chattering at a velocity reversal).
 SPIKE_SCALES = 20.0
+# The logged signals searched for spikes: positions (before they are filtered and differentiated) and torques.
+SPIKE_SIGNALS = ("q", "tau", "tau_cmd")
 
 
-def torque_spikes(torque: np.ndarray) -> np.ndarray:
-    """(N, n) bool: the samples of ``torque`` (raw, (N, n)) that are single-sample spikes (:data:`SPIKE_SCALES`);
-    the first and last sample are never flagged."""
-    flags = np.zeros(torque.shape, dtype=bool)
-    if torque.shape[0] < 3:
+def lone_spikes(signal: np.ndarray) -> np.ndarray:
+    """(N, n) bool: the samples of ``signal`` (raw, (N, n)) that are lone spikes (:data:`SPIKE_SCALES`); the first
+    and last sample are never flagged."""
+    flags = np.zeros(signal.shape, dtype=bool)
+    if signal.shape[0] < 3:
         return flags
-    scale = np.maximum(white_noise_sigma(torque), np.median(np.abs(np.diff(torque, axis=0)), axis=0))
-    flags[1:-1] = np.abs(torque[1:-1] - _median_of_three(torque)) > SPIKE_SCALES * scale
+    scale = np.maximum(white_noise_sigma(signal), np.median(np.abs(np.diff(signal, axis=0)), axis=0))
+    flags[1:-1] = np.abs(signal[1:-1] - _median_of_three(signal)) > SPIKE_SCALES * scale
     return flags
 
 
-def without_spikes(torque: np.ndarray, flags: np.ndarray) -> np.ndarray:
-    """``torque`` with each flagged sample (:func:`torque_spikes`) replaced by the median of it and its neighbours."""
-    cleaned = torque.copy()
+def without_spikes(signal: np.ndarray, flags: np.ndarray) -> np.ndarray:
+    """``signal`` with each flagged sample (:func:`lone_spikes`) replaced by the median of it and its neighbours."""
+    cleaned = signal.copy()
     inner = cleaned[1:-1]
-    inner[flags[1:-1]] = _median_of_three(torque)[flags[1:-1]]
+    inner[flags[1:-1]] = _median_of_three(signal)[flags[1:-1]]
     return cleaned
 
 
@@ -112,10 +114,10 @@ def prepare_run(
     """Dedup, resample to a uniform grid, zero-phase filter q, differentiate: see the module docstring."""
     from scipy import signal
     spikes = {}
-    for kind in ("tau", "tau_cmd"):
+    for kind in SPIKE_SIGNALS:
         raw = getattr(run, kind)
         if raw is not None:
-            flags = torque_spikes(raw)
+            flags = lone_spikes(raw)
             if flags.any():
                 run = dataclasses.replace(run, **{kind: without_spikes(raw, flags)})
                 spikes[kind] = {j: int(c) for j, c in zip(run.joint_names, flags.sum(axis=0), strict=True) if c}
@@ -196,7 +198,7 @@ def prepare_run(
         "trimmed_s_each_end": float(trim * dt),
     }
     if spikes:
-        filter_info["torque_spikes"] = {"scales": SPIKE_SCALES, "replaced": spikes}
+        filter_info["spikes"] = {"scales": SPIKE_SCALES, "replaced": spikes}
     keep_raw = np.concatenate([[True], np.any(raw_torque[1:] != raw_torque[:-1], axis=1)])
     return PreparedRun(
         name=run.name, joint_names=list(run.joint_names), time=grid[sl], dt=dt, q=q_f[sl], qd=qd_f[sl],

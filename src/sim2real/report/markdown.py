@@ -197,19 +197,20 @@ def _gaps_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
 
 
 def _spike_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
-    """The lone torque samples each run had replaced (sim2real.measurements.prepare.torque_spikes); nothing when none."""
+    """The lone samples each run had replaced (sim2real.measurements.prepare.lone_spikes); nothing when none."""
     rows = []
     for r in runs:
-        spikes = r["filter"].get("torque_spikes")
+        spikes = r["filter"].get("spikes")
         if spikes:
             counts = "; ".join(f"`{kind}` " + ", ".join(f"{joint} {count}" for joint, count in joints.items())
                                for kind, joints in spikes["replaced"].items())
             rows.append(f"- {r['name']}: {counts}.")
     if not rows:
         return []
-    scales = next(r["filter"]["torque_spikes"]["scales"] for r in runs if r["filter"].get("torque_spikes"))
-    return [f"Torque spikes (a lone sample more than {scales:g}x its joint's noise from the median of it and its "
-            "neighbours: a bus error or a flipped bit, not a torque), each replaced by that median:", "", *rows, ""]
+    scales = next(r["filter"]["spikes"]["scales"] for r in runs if r["filter"].get("spikes"))
+    return [f"Spikes (a lone sample of a position or a torque more than {scales:g}x its column's noise from the median "
+            "of it and its neighbours: an encoder's or a bus's error, not a motion or a torque), each replaced by that "
+            "median:", "", *rows, ""]
 
 
 def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> str:
