@@ -3,13 +3,14 @@
 A real arm differs from its URDF in every way at once, and its wrist torques are ten times smaller
 than its shoulder's. The lab's ``real_arm_like`` (motor-side sensor), ``link_side_sensor`` (after the
 gearbox, like the Panda's tau_J, with part of the friction after the sensor), ``link_side_tau_only``
-(the same without commands, like a real tau_J log), ``wrist_friction`` (friction on joint 7 alone) and
-``real_arm_like_dropouts`` (a logger that loses stretches of samples) hide all of it. This script plays the user: it starts from an empty ``effects:``, adds what each
+(the same without commands, like a real tau_J log), ``wrist_friction`` (friction on joint 7 alone), the
+messy logs (``real_arm_like_dropouts``, ``_glitches``, ``_30hz``) and, with ``--robot ur5``, the UR5's
+``real_arm_like`` (torques from motor currents at 500 Hz) hide all of it. This script plays the user: it starts from an empty ``effects:``, adds what each
 verdict asks, and prints every round's verdicts and each joint's holdout residual in units of its own
 noise floor. Issue 18 is done when every joint of every link ends within 1.5x; until then this prints
 where it does not, so the next change can be judged joint by joint. The diagnosis sees only runs.
 
-    python benchmarks/bench_real_arm_loop.py [--scenario NAME ...] [--duration 8]
+    python benchmarks/bench_real_arm_loop.py [--robot panda|ur5] [--scenario NAME ...] [--duration 8]
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ def report(document: dict, round_: int, seconds: float | None = None) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robot", choices=("panda", "ur5"), default="panda",
+                        help="the dev arm and its configs/<robot>/lab.yaml (the UR5's: real_arm_like)")
     parser.add_argument("--scenario", action="append", choices=SCENARIOS)
     parser.add_argument("--duration", type=float, default=8.0, help="lab run length [s]")
     args = parser.parse_args()
@@ -60,8 +63,8 @@ def main() -> None:
 
     sysid_lab.LAB_DURATION_S = args.duration
     with tempfile.TemporaryDirectory() as tmp:
-        lab = Lab(Path(tmp))
-        for scenario in args.scenario or SCENARIOS:
+        lab = Lab(Path(tmp), args.robot)
+        for scenario in args.scenario or (SCENARIOS if args.robot == "panda" else ("real_arm_like",)):
             print(f"== {scenario}")
             lab.follow(scenario, report=report)
 

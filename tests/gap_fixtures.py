@@ -1,4 +1,4 @@
-"""Shared fixtures of the measurement/lab/gap tests: a small Panda model from example-robot-data.
+"""Shared fixtures of the measurement/lab/gap tests: a small Panda (or UR5) model from example-robot-data.
 
 The tests use the upstream Panda description directly (not the pipeline's build) so they run in
 seconds and do not depend on the URDF/MJCF stages.
@@ -17,33 +17,47 @@ import yaml
 PANDA_JOINTS = [f"panda_joint{i}" for i in range(1, 8)]
 
 
-def panda_description_dir() -> Path:
+def description_dir(name: str) -> Path:
+    """example-robot-data's ``robots/<name>`` (``panda_description``, ``ur_description``)."""
     for entry in sys.path:
-        candidate = Path(entry or ".") / "cmeel.prefix/share/example-robot-data/robots/panda_description"
+        candidate = Path(entry or ".") / "cmeel.prefix/share/example-robot-data/robots" / name
         if candidate.is_dir():
             return candidate
     raise FileNotFoundError("example-robot-data is not installed (pip install example-robot-data)")
 
 
+def panda_description_dir() -> Path:
+    return description_dir("panda_description")
+
+
 def build_dev_panda(directory: Path) -> tuple[Path, Path]:
     """Collision-only Panda URDF (absolute mesh paths) and the MJCF MuJoCo makes of it."""
-    base = panda_description_dir()
-    text = (base / "urdf" / "panda.urdf").read_text(encoding="utf-8")
+    return _build_dev(directory, "panda_description", "urdf/panda.urdf", "panda")
+
+
+def build_dev_ur5(directory: Path) -> tuple[Path, Path]:
+    """Collision-only UR5 URDF (absolute mesh paths) and the MJCF MuJoCo makes of it."""
+    return _build_dev(directory, "ur_description", "urdf/ur5_robot.urdf", "ur5")
+
+
+def _build_dev(directory: Path, description: str, urdf_file: str, robot: str) -> tuple[Path, Path]:
+    base = description_dir(description)
+    text = (base / urdf_file).read_text(encoding="utf-8")
     text = re.sub(r"<visual>.*?</visual>", "", text, flags=re.S)
-    text = text.replace("package://example-robot-data/robots/panda_description/", f"{base.resolve()}/")
+    text = text.replace(f"package://example-robot-data/robots/{description}/", f"{base.resolve()}/")
     directory.mkdir(parents=True, exist_ok=True)
-    urdf = directory / "panda.urdf"
+    urdf = directory / f"{robot}.urdf"
     urdf.write_text(text, encoding="utf-8")
     model = mujoco.MjModel.from_xml_path(str(urdf))
-    mjcf = directory / "panda.xml"
+    mjcf = directory / f"{robot}.xml"
     mujoco.mj_saveLastXML(str(mjcf), model)
     return urdf, mjcf
 
 
-def short_lab_config(directory: Path, duration_s: float = 6.0) -> Path:
-    """configs/panda/lab.yaml with shorter runs (same scenarios and effect sizes)."""
+def short_lab_config(directory: Path, duration_s: float = 6.0, robot: str = "panda") -> Path:
+    """configs/<robot>/lab.yaml with shorter runs (same scenarios and effect sizes)."""
     repo = Path(__file__).resolve().parents[1]
-    data = yaml.safe_load((repo / "configs" / "panda" / "lab.yaml").read_text(encoding="utf-8"))
+    data = yaml.safe_load((repo / "configs" / robot / "lab.yaml").read_text(encoding="utf-8"))
     data["defaults"]["duration_s"] = duration_s
     for scenario in data["scenarios"].values():
         if scenario and "duration_s" in scenario:

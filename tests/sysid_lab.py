@@ -18,10 +18,10 @@ import pandas as pd
 import yaml
 from threadpoolctl import threadpool_limits
 
-from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
+from gap_fixtures import build_dev_panda, build_dev_ur5, short_lab_config
 from sim2real.identification import links, sysid
 from sim2real.cache import FitCache
-from sim2real.lab import run_lab_scenario_run, scenario_runs
+from sim2real.lab import load_lab_config, run_lab_scenario_run, scenario_runs
 from sim2real.measurements import noise_floor_of, load_prepared_runs
 
 # Fast settings: decimated fit grid, few bootstrap replicates, a small refinement subset.
@@ -32,15 +32,21 @@ LAB_DURATION_S = 8.0
 WORKERS = min(2, os.cpu_count() or 1)
 
 
-class Lab:
-    """A dev Panda (URDF + MJCF MuJoCo makes of it), a short lab config, runs on demand."""
+DEV_ARMS = {"panda": build_dev_panda, "ur5": build_dev_ur5}
 
-    def __init__(self, directory: Path) -> None:
+
+class Lab:
+    """A dev arm (``robot``: a Panda or a UR5; its URDF + the MJCF MuJoCo makes of it), its short lab config
+    (configs/<robot>/lab.yaml), runs on demand."""
+
+    def __init__(self, directory: Path, robot: str = "panda") -> None:
         self.dir = directory
-        self.urdf, self.mjcf = build_dev_panda(directory)
-        self.lab_config = short_lab_config(directory, duration_s=LAB_DURATION_S)
+        self.robot = robot
+        self.urdf, self.mjcf = DEV_ARMS[robot](directory)
+        self.lab_config = short_lab_config(directory, duration_s=LAB_DURATION_S, robot=robot)
+        self.joints = list(load_lab_config(self.lab_config)["joints"])
         # The dev MJCF comes straight from the URDF: no extra armature, the flange is the last link.
-        self.nominal = sysid.load_nominal(self.urdf, PANDA_JOINTS)
+        self.nominal = sysid.load_nominal(self.urdf, self.joints)
         self._data: dict[str, tuple[sysid.TorqueData, sysid.TorqueData]] = {}
         self._followed: dict[tuple[str, int], list[dict[str, Any]]] = {}
         # Documents already fitted, by what was asked: the fits are deterministic, so a test asking again (another
@@ -53,7 +59,7 @@ class Lab:
         for run in scenario_runs(self.lab_config, scenario):
             path = out / f"{run['name']}.csv"
             if not path.exists():
-                run_lab_scenario_run(self.mjcf, self.lab_config, "panda", scenario, run["name"], path)
+                run_lab_scenario_run(self.mjcf, self.lab_config, self.robot, scenario, run["name"], path)
             runs.append({"name": run["name"], "path": str(path), "role": run["role"]})
         listing = out / "measurements.yaml"
         listing.write_text(yaml.safe_dump({"runs": runs}), encoding="utf-8")
@@ -77,7 +83,7 @@ class Lab:
 
     def prepared(self, measurement_list: Path) -> dict[str, list[Any]]:
         """Prepared runs of a measurement list, by role."""
-        entries, prepared, _ = load_prepared_runs(measurement_list, PANDA_JOINTS, "/")
+        entries, prepared, _ = load_prepared_runs(measurement_list, self.joints, "/")
         return {role: [run for entry, run in zip(entries, prepared, strict=True) if entry.role == role]
                 for role in ("fit", "holdout")}
 
@@ -91,7 +97,7 @@ class Lab:
             listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
             with threadpool_limits(limits=1, user_api="blas"):  # one BLAS thread per worker, as in run_sysid
                 self._documents[key], _ = sysid.fit_model(effects, self.nominal, self.prepared(listing),
-                                                          {"fit": FAST_FIT}, "panda", workers=WORKERS, cache=cache)
+                                                          {"fit": FAST_FIT}, self.robot, workers=WORKERS, cache=cache)
         return copy.deepcopy(self._documents[key])
 
     def follow(self, scenario: str, rounds: int = 7,
@@ -125,13 +131,13 @@ class Lab:
 
     def data(self, scenario: str) -> tuple[sysid.TorqueData, sysid.TorqueData]:
         if scenario not in self._data:
-            entries, prepared, _ = load_prepared_runs(self.measurement_list(scenario), PANDA_JOINTS, "/")
+            entries, prepared, _ = load_prepared_runs(self.measurement_list(scenario), self.joints, "/")
             by_role: dict[str, list[dict[str, Any]]] = {"fit": [], "holdout": []}
             for entry, run in zip(entries, prepared, strict=True):
                 by_role[entry.role].append(sysid.RunSamples.of(run, noise_floor_of(run)))
             self._data[scenario] = (
-                sysid.stack_runs(by_role["fit"], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]),
-                sysid.stack_runs(by_role["holdout"], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]),
+                sysid.stack_runs(by_role["fit"], self.joints, FAST_FIT["fit_rate_hz"]),
+                sysid.stack_runs(by_role["holdout"], self.joints, FAST_FIT["fit_rate_hz"]),
             )
         return self._data[scenario]
 
@@ -141,7 +147,7 @@ class Lab:
             fit_data, holdout_data = self.data(scenario)
             with threadpool_limits(limits=1, user_api="blas"):
                 self._documents[key], _ = sysid.fit_ladder(effects, self.nominal, fit_data, holdout_data,
-                                                           {"fit": FAST_FIT}, "panda", diagnose=diagnose,
+                                                           {"fit": FAST_FIT}, self.robot, diagnose=diagnose,
                                                            workers=WORKERS)
         return copy.deepcopy(self._documents[key])
 
