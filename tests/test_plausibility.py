@@ -100,6 +100,29 @@ def test_a_doubled_mass_is_flagged_on_its_body(info):
     assert intervals["bodies"]["panda_link3"]["implausible"] is None
 
 
+def test_a_tool_on_the_last_link_is_a_tool_a_bent_last_link_is_not(info):
+    """The last body carries tools: a 2 kg point mass 0.2 m out on the flange (nearly three times panda_link7's
+    0.74 kg) is a tool, no bend, though the CAD link alone would call it a divergence of 6.5 (implausible). The same
+    tool on a link whose own rotational inertia the fit tripled still shows: what lies beyond a tool is judged."""
+    from sim2real.identification.effects.link_inertia import point_mass, with_tool
+    from sim2real.identification.inertial import entropic_divergence
+
+    anchors = correction_anchors(info)
+    tool = np.zeros_like(anchors)
+    tool[-1] = point_mass(2.0, np.array([0.0, 0.0, 0.2]))
+    assert entropic_divergence(anchors + tool, anchors)[-1] > 5.0
+    body = body_changes(tool.reshape(-1), info)["panda_link7"]
+    assert body["implausible"] == [] and body["divergence"] == pytest.approx(0.0, abs=1e-9)
+    assert body["mass_change_kg"] == pytest.approx(2.0)
+    np.testing.assert_allclose(with_tool(anchors, anchors + tool), anchors + tool)
+    np.testing.assert_array_equal(with_tool(anchors, anchors - 0.1 * tool), anchors)  # a mass lost is no tool
+
+    cad = pin.Inertia.FromDynamicParameters(anchors[-1])
+    spun = tool.copy()
+    spun[-1] += pin.Inertia(cad.mass, cad.lever, 3.0 * cad.inertia).toDynamicParameters() - anchors[-1]
+    assert body_changes(spun.reshape(-1), info)["panda_link7"]["divergence"] > 0.3
+
+
 def test_gap_md_names_implausible_bodies_and_the_priors_weight(info):
     values = link_values(info, changed(info, "panda_link3", mass_scale=2.0))
     rung = {"effects": ["link_inertia"], "params": {"link_inertia": values}, "consistency": {"status": "optimal"}}
