@@ -34,8 +34,8 @@ MOVED_DIVERGENCE = 1e-3
 IMPLAUSIBLE_MASS_FRACTION = 0.5  # CAD masses of a built arm are off by tens of percent, not half the link
 HULL_TOLERANCE_M = 0.005  # collision meshes are simplified and cables ride outside them: 5 mm still counts inside
 # Entropic divergence from CAD (dimensionless; the last body's from CAD plus the tool it gained, with_tool).
-# Measured on the Panda lab demo (real_arm_like, 20 s runs): the complete rung ends at <= 2.0 on inner links (0.17 on
-# the last beyond the demo's hidden 0.35 kg payload; 3.1 against the CAD link alone), the lab's hidden CAD errors
+# Measured on the Panda lab demo (real_arm_like, 20 s runs): the complete rung ends at <= 2.0 on inner links (0.08 on
+# the last beyond the demo's hidden 0.35 kg payload; 2.6 against the CAD link alone), the lab's hidden CAD errors
 # themselves (mass +-25%, COM 25 mm) are 0.1-2.5 on all links but the thin link 2; rungs still missing friction or
 # the sensor bias reach 6-55 on some link, and the real arm of issue 18 reached 11-36.
 IMPLAUSIBLE_DIVERGENCE = 5.0
