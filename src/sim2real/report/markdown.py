@@ -230,7 +230,8 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
               f"{f['repeated_samples_dropped']} repeated samples dropped); q filtered by a {f['type']}, "
               f"order {f['order']}, cutoff {f['cutoff_hz']:g} Hz; velocity: {f['velocity']}; "
               f"acceleration: {f['acceleration']}; {f['applied_to']}; "
-              f"{f['trimmed_s_each_end']:g} s trimmed at each end.", ""]
+              f"{f['trimmed_s_each_end']:g} s trimmed at each end"
+              f"{' of each piece' if any('gaps' in r['filter'] for r in gap['runs']) else ''}.", ""]
     lines += _gaps_lines(gap["runs"]) + _spike_lines(gap["runs"])
     model = m.get("model")
     nominal_rung = gap["ladder"][0]["metrics"]["torque_rmse"] if model and gap.get("ladder") else None
