@@ -83,8 +83,10 @@ def without_spikes(signal: np.ndarray, flags: np.ndarray) -> np.ndarray:
 
 
 def _median_of_three(x: np.ndarray) -> np.ndarray:
-    """Rows 1..N-2 of ``x``: the median of each row and its two neighbours."""
-    return np.median(np.stack([x[:-2], x[1:-1], x[2:]]), axis=0)
+    """Rows 1..N-2 of ``x``: the median of each row and its two neighbours (elementwise, without stacking copies: a
+    10-minute log at 1 kHz is 4 million samples per signal)."""
+    before, here, after = x[:-2], x[1:-1], x[2:]
+    return np.maximum(np.minimum(before, here), np.minimum(np.maximum(before, here), after))
 
 
 def split_at_gaps(run: Run, max_step_s: float) -> list[Run]:
