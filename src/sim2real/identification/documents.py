@@ -12,6 +12,7 @@ import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.identification.effects import get_effect
+from sim2real.identification.effects.sensor_delay import actuation_beyond_sensor
 from sim2real.identification.fitting import FitResult, NominalModel
 
 def round_floats(tree: Any, digits: int = 6) -> Any:
@@ -56,8 +57,28 @@ def merge_link_values(results: Sequence[FitResult], nominal: NominalModel) -> tu
         by_link[name] = {"body": values, **({"actuator": effects[name]} if name in effects else {}),
                          "why": "the body link's value acts after the link-side sensor; the joint holds the sum"}
         effects[name] = merged
+    sensor, actuation = effects.get("sensor_delay"), effects.get("actuation_delay")
+    if sensor and actuation and len(results) > 1 and "actuation_delay" in results[1].values:
+        # The actuator link judges the sensor's reading against the command: its lag holds the sensor's too.
+        lag = float(actuation["delay"])
+        effects["actuation_delay"] = {**actuation, "delay": actuation_beyond_sensor(lag, float(sensor["delay"]))}
+        by_link["actuation_delay"] = {
+            "actuator": {"delay": lag}, "body": {"sensor_delay": sensor["delay"]},
+            "why": "the measured torque lags the command by the actuation's delay plus the sensor's own (sensor_delay, "
+                   "found on the body link): the actuators hold what is left of it",
+        }
     order = [name for result in results for name in result.effects]
     return {name: effects[name] for name in dict.fromkeys(order) if name in effects}, by_link
+
+
+def _intervals_of(results: Sequence[FitResult], by_link: Mapping[str, Any]) -> dict[str, Any]:
+    """Each effect's intervals; an actuation delay's moved with its value, the sensor's lag taken out."""
+    intervals = {name: values for result in results for name, values in result.intervals.items()}
+    if "actuation_delay" in by_link and "actuation_delay" in intervals:
+        sensor = float(by_link["actuation_delay"]["body"]["sensor_delay"])
+        intervals["actuation_delay"] = {"delay": [actuation_beyond_sensor(bound, sensor)
+                                                  for bound in intervals["actuation_delay"]["delay"]]}
+    return intervals
 
 
 def params_document(
@@ -72,7 +93,7 @@ def params_document(
         "robot": robot,
         "effects": effects,
         **({"by_link": by_link} if by_link else {}),
-        "intervals": {name: values for result in results for name, values in result.intervals.items()},
+        "intervals": _intervals_of(results, by_link),
         "order": list(dict.fromkeys(name for result in results for name in result.effects)),
         "joints": nominal.joint_names,
         "torque_source": torque_source,

@@ -163,7 +163,9 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
             {"effects": candidates_of_link("actuator", sensor),
              "why": "judged on the measured torque against the command: no body effect enters that link"
              + (" (the sensor is link-side: the drive's rotor inertia and friction lie before it)"
-                if sensor == "link" else "")},
+                if sensor == "link" else "")
+             + "; the sensor's own lag does (its reading lags the command too): the calibrated actuation delay is "
+             "what this link finds beyond the body link's sensor_delay"},
             {"effects": candidates_of_link("body", sensor),
              "why": "judged on the measured torque against the motion: no actuator effect enters that link"
              + (" (the sensor is motor-side: the drive's rotor inertia and friction lie after it)"
@@ -184,7 +186,7 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
              "scaled by 1/g (masses, inertias, armature and friction together): in the torque domain and in "
              "the replay alike. Only per-joint differences of the gain show. A joint torque sensor (tau) "
              "separates them"},
-            {"effects": ["torque_gain", "torque_bias"],
+            {"effects": ["torque_gain", "torque_bias", "sensor_delay"],
              "why": "errors of a torque sensor, and these runs have none: not tried"},
         ]
     else:

@@ -43,7 +43,8 @@ Column semantics of the written runs:
 * ``tau_cmd.<j>``: the controller's command at that stamp (PD + gravity or computed torque, both on
   the NOMINAL model, fed by the noisy sensors).
 * ``tau.<j>``: the joint torque sensor: the torque it sees times ``torque_gain`` plus ``torque_bias``
-  plus white noise ``sensors.torque_noise_std``. Where it sits is ``sensors.torque_sensor``:
+  plus white noise ``sensors.torque_noise_std``, after the sensor's own first-order low-pass of
+  ``sensors.torque_time_constant_s`` (its electronics' filter; none by default). Where it sits is ``sensors.torque_sensor``:
 
   - ``motor`` (the default, every scenario but the ``link_side_*`` ones): at the motor output, it sees the
     applied torque (the command after any delay, through the motor's gain and offset), before the

@@ -223,7 +223,8 @@ def simulate_run(
             if dahl is not None:  # the friction's memory follows the motion the step made
                 friction["dahl_state"] = dahl_step(friction["dahl_state"], real_data.qpos[qadr_r] - before, dahl[1])
 
-    seen = out_link if link_side else out_applied
+    seen = sensor_lowpass(out_link if link_side else out_applied, dt,
+                          float(sensors.get("torque_time_constant_s", 0.0)))
     tau_sensor = gain * seen + bias + float(sensors["torque_noise_std"]) * rng.standard_normal((steps, n))
     if drift is not None:
         tau_sensor = tau_sensor + drift
@@ -242,6 +243,19 @@ def simulate_run(
             (sensors.get("encoder_glitches") or {}).get("size_rad", 0.0), rng)
     logged[np.arange(steps) % log_every(scenario) != 0] = False  # a logger slower than the controller
     return time[logged], {k: v[logged] for k, v in signals.items() if k in columns}, truth
+
+
+def sensor_lowpass(torque: np.ndarray, dt: float, time_constant: float) -> np.ndarray:
+    """A sensor's first-order dynamics: ``torque`` (steps, n) at steps of ``dt`` through a low-pass of
+    ``time_constant`` s (exact for a torque held over each step), starting settled at the first value; unchanged
+    when ``time_constant`` is 0."""
+    if time_constant <= 0:
+        return torque
+    from scipy.signal import lfilter, lfilter_zi
+
+    a = float(np.exp(-dt / time_constant))
+    b, den = [1.0 - a], [1.0, -a]
+    return lfilter(b, den, torque, axis=0, zi=lfilter_zi(b, den)[:, None] * torque[:1])[0]
 
 
 def _glitch(signal: np.ndarray, count: int, size: float, rng: np.random.Generator) -> None:

@@ -25,6 +25,7 @@ from sim2real.identification.effects.hysteretic_friction import HystereticFricti
 from sim2real.identification.effects.link_inertia import LinkInertia
 from sim2real.identification.effects.payload import Payload
 from sim2real.identification.effects.rotor_inertia import RotorInertia
+from sim2real.identification.effects.sensor_delay import SensorDelay
 from sim2real.identification.effects.stribeck_friction import StribeckFriction
 from sim2real.identification.effects.torque_bias import TorqueBias
 from sim2real.identification.effects.torque_gain import TorqueGain
@@ -47,6 +48,7 @@ EFFECTS: dict[str, Effect] = {
         TorqueGain(),
         ActuatorGain(),
         CommandBias(),
+        SensorDelay(),
     )
 }
 

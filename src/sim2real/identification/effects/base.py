@@ -164,6 +164,11 @@ class Effect:
     in_urdf: ClassVar[bool] = False  # the calibrated URDF holds it (so the MJCF built from it does too)
 
     # --- inverse dynamics -------------------------------------------------------------------
+    def prediction_shift(self, delay: float, forward: bool) -> float:
+        """A time shift's move of the prediction (s; the prediction at t is the model at t + the move): the command
+        leads what it causes by an actuation delay, forward (from the command) and against the motion alike."""
+        return -delay if forward else delay
+
     def prepare(self, signals: Signals) -> dict[str, Any]:
         """Data-dependent state computed once on the fit data (e.g. an identifiable basis)."""
         return {}

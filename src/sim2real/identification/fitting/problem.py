@@ -72,12 +72,11 @@ class _Problem:
         return out
 
     def delay(self, nonlinear: dict[str, np.ndarray]) -> float:
-        """Time shift of the prediction: the command leads what it causes by the actuation delay."""
-        for effect in self.effects:
-            if effect.time_shift:
-                delay = float(nonlinear[effect.name][0])
-                return -delay if self.signals.forward else delay
-        return 0.0
+        """Time shift of the prediction (:meth:`Effect.prediction_shift`): the command leads what it causes by an
+        actuation delay; a sensor's reading lags the torque by its own."""
+        moves = [effect.prediction_shift(float(nonlinear[effect.name][0]), self.signals.forward)
+                 for effect in self.effects if effect.time_shift]
+        return float(sum(moves)) if moves else 0.0
 
     def block(self, effect: Effect, nonlinear: dict[str, np.ndarray]) -> np.ndarray:
         """One effect's columns (N, n, k) at the given nonlinear parameters (before the time shift)."""

@@ -1,0 +1,62 @@
+"""Sensor delay: the torque sensor's reading at t is the torque at t - d (one global d).
+
+A sensor's own dynamics: its electronics' filter, a drive's filtered current estimate, a bus that stamps the
+torque later than the encoder. Against the motion the measured torque lags what the motion needs, so the
+prediction of the reading at t is the model torque at t - d (a first-order low-pass of time constant T is
+such a lag of T at frequencies well below 1/T, where an identification motion lives). An error of the
+sensor, like its gain and bias: tried where a sensor's torque is judged against the motion, never on
+commands. It is removed from the judged torque, not written into the simulation; on the actuator link the
+measured torque lags the command by the sensor's delay plus the actuation's, so the calibrated model's
+actuation delay is what the actuator link finds beyond this one (:func:`actuation_beyond_sensor`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from sim2real.identification.effects.actuation_delay import MAX_DELAY, best_lag
+from sim2real.identification.effects.base import Effect, ParameterSpec, correlation_per_joint, per_joint_dict
+
+
+def actuation_beyond_sensor(actuator_lag: float, sensor_delay: float) -> float:
+    """The actuation's own delay (s): the measured torque lags the command by ``actuator_lag`` (the actuator
+    link's actuation_delay), of which ``sensor_delay`` is the sensor's lag behind what was applied."""
+    return max(0.0, float(actuator_lag) - float(sensor_delay))
+
+
+class SensorDelay(Effect):
+    name = "sensor_delay"
+    summary = "the torque sensor's reading lags the torque (its filter, a late stamp)"
+    signature = "residual proportional to minus the time derivative of the torque; the measured torque lags the model"
+    nonlinear = (ParameterSpec("delay", "s", 0.0, MAX_DELAY, False, "lag of the measured torque"),)
+    time_shift = True
+    sensor_side = True
+    joint_local = False
+
+    def prediction_shift(self, delay: float, forward: bool) -> float:
+        return -delay  # the reading at t is the torque at t - d
+
+    def nonlinear_init(self, signals):
+        return np.array([0.0])
+
+    def nonlinear_bounds(self, signals):
+        return np.array([0.0]), np.array([MAX_DELAY])
+
+    def values(self, theta, nonlinear, signals, state):
+        return {"delay": round(float(nonlinear[0]) if len(nonlinear) else 0.0, 6)}
+
+    def evidence(self, residual, signals):
+        rate = np.zeros_like(signals.tau_nominal)
+        for seg in signals.segments:
+            if seg.stop - seg.start > 2:
+                rate[seg] = -np.gradient(signals.tau_nominal[seg], signals.time[seg], axis=0)
+        out: dict[str, Any] = {
+            "signature": self.signature,
+            "statistic": "correlation of residual with -d(tau_model)/dt",
+            "per_joint": per_joint_dict(signals.joint_names, correlation_per_joint(residual, rate), 3),
+        }
+        if signals.tau is not None:
+            out["lag_s"] = per_joint_dict(signals.joint_names, best_lag(signals.tau_nominal, signals.tau, signals.time), 4)
+        return out
