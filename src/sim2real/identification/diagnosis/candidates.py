@@ -132,6 +132,28 @@ def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: 
     return np.sqrt(np.mean((term / unit) ** 2, axis=0))
 
 
+# A lag is fitted only where, linearised about no lag with every linear coefficient refitted beside it on the
+# holdout runs themselves (more than a fit on the fit runs can deliver there), it could remove this share of what
+# a candidate must remove to be named: a trial costs a rung's fit, and a log without a lag needs none.
+LAG_SCREEN_SHARE = 0.5
+
+
+def _lag_screen(current: fitting.FitResult, nominal: Any, data: Any, signals: Signals, residual: np.ndarray,
+                unit: np.ndarray, excess: np.ndarray, x_now: np.ndarray, limits: Mapping[str, float]) -> str | None:
+    """Why a lag of the judged torque is not fitted on these runs (None: it is; :func:`fitting.lag_score`)."""
+    delay, gain = fitting.lag_score(current, nominal, data, residual, unit, signals)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_joint = np.where(excess > 0, gain / excess, 0.0)
+    arm = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
+    above = x_now > limits["noise_floor_factor"]
+    if arm >= LAG_SCREEN_SHARE * limits["min_explained"] or np.any(
+            above & (per_joint >= LAG_SCREEN_SHARE * min(limits["joint_decisive"], limits["joint_min_explained"]))):
+        return None
+    return (f"a lag of the measured torque behind the model ({delay * 1e3:.2g} ms, linearised about none, every linear "
+            f"coefficient refitted beside it on the holdout runs) would remove at most {arm:.0%} of what lies above "
+            "the noise floor: not fitted")
+
+
 def add_line(effect: str) -> str:
     """The exact line to add under ``effects:`` in configs/{robot}/model.yaml."""
     return f"- {effect}"
@@ -305,6 +327,13 @@ def diagnose(
     ranked_candidates = []
     residuals_after: dict[str, np.ndarray] = {}
     tried, skipped = candidates_to_try(model_effects, holdout_data.torque_source, holdout_signals.forward, candidates)
+    for name in [n for n in tried if EFFECTS[n].lag_screened and current is not None
+                 and not any(EFFECTS[e].time_shift for e in current.effects)]:
+        reason = _lag_screen(current, nominal, holdout_data, holdout_signals, holdout_residual, unit, excess_now,
+                             x_now, limits)
+        if reason is not None:
+            tried.remove(name)
+            skipped.append({"effect": name, "reason": reason})
     trials = trial_fits(tried, workers, model_effects=list(model_effects), nominal=nominal, fit_data=fit_data,
                         holdout_data=holdout_data, nonlinear_fixed=nonlinear_fixed, settings=settings.get("fit"),
                         fit_signals=fit_signals, holdout_signals=holdout_signals, refinements=refinements)

@@ -157,6 +157,9 @@ class Effect:
     sensor_side: ClassVar[bool] = False  # an error of the torque sensor: meaningless on runs without one
     scales_judged: ClassVar[bool] = False  # its coefficient scales the whole judged torque (a gain)
     joint_local: ClassVar[bool] = True  # each parameter acts on its own joint only
+    # a lag of the judged torque: the diagnosis fits it only where a lag, linearised, could matter
+    # (sim2real.identification.fitting.lag_score)
+    lag_screened: ClassVar[bool] = False
     # values() also takes theta stacked over the bootstrap's replicates (replicates, size) with nonlinear
     # parameters shared by all of them, and gives Replicates where a value depends on theta, each number the one
     # it gives the replicate alone (tests/test_sysid.py holds every such effect to it)

@@ -34,6 +34,7 @@ class SensorDelay(Effect):
     time_shift = True
     sensor_side = True
     joint_local = False
+    lag_screened = True
 
     def prediction_shift(self, delay: float, forward: bool) -> float:
         return -delay  # the reading at t is the torque at t - d

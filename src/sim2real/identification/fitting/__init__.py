@@ -48,7 +48,7 @@ from sim2real.identification.fitting.data import (  # noqa: F401  (re-exported: 
     RunSamples, TorqueData, kept_segments, link_side, stack_runs,
 )
 from sim2real.identification.fitting.scoring import (  # noqa: F401  (re-exported: the package's names)
-    MIN_FLOOR_FRACTION, floor_units, holdout_metrics, joint_weights, judged_floors, predict,
+    MIN_FLOOR_FRACTION, floor_units, holdout_metrics, joint_weights, judged_floors, lag_score, predict,
 )
 from sim2real.identification.fitting.nominal import (  # noqa: F401  (re-exported: the package's names)
     NominalModel, body_ellipsoids, body_hulls, _body_points, _collision_points, load_nominal, make_signals,

@@ -73,3 +73,50 @@ def holdout_metrics(result: FitResult, nominal: NominalModel | None, data: Torqu
     residual = data.tau - predict(result, nominal, data, signals)
     return {"torque_rmse": rmse(residual, data.joint_names)}, residual
 
+
+
+LAG_CHUNK_ROWS = 1 << 14  # samples whose design rows a lag's score sums at a time (never the whole design)
+
+
+def lag_score(result: FitResult, nominal: NominalModel | None, data: TorqueData, residual: np.ndarray,
+              unit: np.ndarray, signals: Signals | None = None) -> tuple[float, np.ndarray]:
+    """What a lag of the judged torque behind the fitted model would remove of ``residual`` (``data``'s, the model's
+    holdout residual), linearised about no lag, with every linear coefficient of the model refitted beside it on
+    these very samples (optimistic: an upper bound of what a fit on other runs delivers here, to first order).
+
+    Returns the lag (s; 0 where only a lead would help: a reading cannot come before the torque) and, per joint, the
+    fall of the sum of squares of ``residual / unit``. The model's reading at t is its torque at t - d, so
+    d(prediction)/dd = -d(prediction)/dt. For a model without a time shift of its own; its design is summed
+    :data:`LAG_CHUNK_ROWS` samples at a time."""
+    if signals is None:
+        assert nominal is not None
+        signals = make_signals(nominal, data)
+    effects = [get_effect(name) for name in result.effects]
+    problem = _Problem(effects, signals, result.states)
+    prediction = data.tau - residual
+    slope = np.zeros_like(prediction)
+    for seg in signals.segments:
+        if seg.stop - seg.start > 2:
+            slope[seg] = -np.gradient(prediction[seg], signals.time[seg], axis=0)
+    r, g = residual / unit, slope / unit
+    blocks, _ = problem._blocks(result.nonlinear)
+    p = int(sum(block.shape[2] for block in blocks))
+    r_rest, g_rest = r.copy(), g.copy()  # each less its projection on the model's columns
+    if p:
+        gram, right = np.zeros((p, p)), np.zeros((p, 2))
+        for start in range(0, len(r), LAG_CHUNK_ROWS):
+            rows = slice(start, start + LAG_CHUNK_ROWS)
+            flat = (np.concatenate([block[rows] for block in blocks], axis=2) / unit[None, :, None]).reshape(-1, p)
+            gram += flat.T @ flat
+            right += flat.T @ np.stack([r[rows].reshape(-1), g[rows].reshape(-1)], axis=1)
+        coefficients = np.linalg.lstsq(gram, right, rcond=1e-12)[0]
+        for start in range(0, len(r), LAG_CHUNK_ROWS):
+            rows = slice(start, start + LAG_CHUNK_ROWS)
+            design = np.concatenate([block[rows] for block in blocks], axis=2) / unit[None, :, None]
+            r_rest[rows] -= design @ coefficients[:, 0]
+            g_rest[rows] -= design @ coefficients[:, 1]
+    energy = float(np.sum(g_rest**2))
+    delay = float(np.sum(r_rest * g_rest)) / energy if energy > 0 else 0.0
+    if delay <= 0:
+        return 0.0, np.zeros(r.shape[1])
+    return delay, np.sum(r_rest**2, axis=0) - np.sum((r_rest - delay * g_rest) ** 2, axis=0)
