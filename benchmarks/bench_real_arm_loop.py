@@ -4,7 +4,8 @@ A real arm differs from its URDF in every way at once, and its wrist torques are
 than its shoulder's. The lab's ``real_arm_like`` (motor-side sensor), ``link_side_sensor`` (after the
 gearbox, like the Panda's tau_J, with part of the friction after the sensor), ``link_side_tau_only``
 (the same without commands, like a real tau_J log), ``wrist_friction`` (friction on joint 7 alone), the
-messy logs (``real_arm_like_dropouts``, ``_glitches``, ``_30hz``) and, with ``--robot ur5``, the UR5's
+messy logs (``real_arm_like_dropouts``, ``_glitches``, ``_30hz``), a torque sensor with dynamics of its own
+(``real_arm_like_sensor_lag``) and, with ``--robot ur5``, the UR5's
 ``real_arm_like`` (torques from motor currents at 500 Hz) hide all of it. This script plays the user: it
 starts from an empty ``effects:``, adds what each
 verdict asks, and prints every round's verdicts and each joint's holdout residual in units of its own

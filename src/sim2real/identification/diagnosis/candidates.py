@@ -151,7 +151,7 @@ def _lag_screen(current: fitting.FitResult, nominal: Any, data: Any, signals: Si
         return None
     return (f"a lag of the measured torque behind the model ({delay * 1e3:.2g} ms, linearised about none, every linear "
             f"coefficient refitted beside it on the holdout runs) would remove at most {arm:.0%} of what lies above "
-            "the noise floor: not fitted")
+            "the noise floor, under half of what names a candidate")
 
 
 def add_line(effect: str) -> str:
