@@ -379,7 +379,7 @@ def model_effects(robot):
 def design_model_effects(wildcards):
     """What an excitation design reads of model.yaml, the effects whose columns it makes identifiable, as a param
     rather than the file as an input: a comment, a fit setting or an effect that adds no column (link_inertia,
-    payload, actuation_delay) reruns no design; another effect added, removed or moved does.
+    payload, actuation_delay, sensor_delay) reruns no design; another effect added, removed or moved does.
     """
     return _sim2real_excitation_config.identification_effects(
         model_effects(wildcards.robot)
