@@ -787,6 +787,8 @@ def test_a_torque_sensor_that_lags_is_named_and_the_loop_ends_at_its_floor(share
     assert 0.003 <= sensor_lag <= 0.006, sensor_lag
     actuator = last["actuator"]["ladder"][-1]
     assert actuator["effects"] == ["actuation_delay"] and actuator["params"]["actuation_delay"]["delay"] > 0.003
+    assert "sensor_delay" in last["actuator"]["diagnosis"]["lag_note"]  # the actuator link's verdict says whose lag
+    assert "lag_note" not in lab.follow("real_arm_like")[-1]["actuator"]["diagnosis"]
     document, results = sysid.fit_model([*effects, "actuation_delay"], lab.nominal, lab.prepared(listing),
                                         {"fit": FAST_FIT}, "panda", workers=WORKERS)
     params = params_document(results, lab.nominal, document["torque_source"], "panda")

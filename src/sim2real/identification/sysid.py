@@ -272,6 +272,7 @@ def fit_model(
             **{key: section[key] for key in ("ladder", "diagnosis", "noise_floor") if key in section},
         }
         _note_drive(document["actuator"].get("diagnosis"), "actuator", sensor)
+        _note_sensor_lag(document["actuator"].get("diagnosis"), link_result, result)
         confounded += section.get("diagnosis", {}).get("confounded", [])
         results.append(link_result)
     document["links"] = round_floats(links.separability(mode, effect_names, confounded, sensor))
@@ -313,6 +314,25 @@ def _actuator_link(
         holdout_signals=signals["holdout"], link="actuator",
         candidates=links.candidates_of_link("actuator", sensor), workers=workers, cache=cache,
     )
+
+
+def _note_sensor_lag(diagnosis: dict[str, Any] | None, actuator: FitResult, body: FitResult) -> None:
+    """The body link finds the sensor lagging: the actuator link, which judges its reading against the command,
+    sees that lag too; its verdict says what it means there."""
+    lag = float((body.values.get("sensor_delay") or {}).get("delay") or 0.0)
+    if not diagnosis or lag <= 0:
+        return
+    named = diagnosis.get("status") == "add_effect" and diagnosis["candidates"][0]["effect"] == "actuation_delay"
+    if "actuation_delay" not in actuator.effects and not named and diagnosis.get("status") == "at_noise_floor":
+        return
+    note = (f" The body link finds the torque sensor's reading {lag * 1e3:.2g} ms behind the motion (sensor_delay): "
+            "the measured torque lags the command by as much, which this link, judging the reading against the "
+            "command, counts as actuation delay; the calibrated actuators hold only what lies beyond the sensor's "
+            "(params.yaml, by_link)."
+            + (" A sensor's lag is a filter rather than a pure delay: at the command's rate its noise shows the "
+               "difference, which no effect of this link removes." if diagnosis.get("status") == "unexplained" else ""))
+    diagnosis["verdict"] += note
+    diagnosis["lag_note"] = note.strip()
 
 
 def _note_drive(diagnosis: dict[str, Any] | None, link: str, sensor: str) -> None:
