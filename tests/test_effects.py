@@ -254,3 +254,26 @@ def test_friction_effects_write_what_mujoco_and_urdf_can_hold(dev_mjcf):
     assert not get_effect("asymmetric_friction").in_urdf and not get_effect("stribeck_friction").in_urdf
     only_coulomb = {"effects": {"coulomb_friction": FRICTION_PARAMS["effects"]["coulomb_friction"]}}
     assert calibration_from_params(FRICTION_PARAMS) == calibration_from_params(only_coulomb)
+
+
+def test_a_sensor_delay_is_read_through_delayed_joint_torque_sensors(dev_mjcf):
+    """The calibrated MJCF of a model with sensor_delay: every actuated joint's torque read by a jointactuatorfrc sensor
+    MuJoCo delays by the identified lag; the motion is the same as without it."""
+    spec = dev_mjcf.copy()
+    apply_to_spec(spec, {"torque_source": "tau", "joints": JOINTS[1:], "effects": {"sensor_delay": {"delay": 0.004}}})
+    model = spec.compile()
+    assert model.nsensor == len(JOINTS) - 1  # the identified joints' (a gripper's, not identified, has none)
+    sensor = model.sensor("panda_joint2_torque")
+    assert model.sensor_type[sensor.id] == mujoco.mjtSensor.mjSENS_JOINTACTFRC
+    data = mujoco.MjData(model)
+    steps = int(round(0.004 / model.opt.timestep))
+    applied, read = [], []
+    for k in range(steps + 6):
+        data.ctrl[:] = 0.5 * k
+        mujoco.mj_step(model, data)
+        applied.append(data.actuator_force.copy())
+        read.append(data.sensordata.copy())
+    joint = model.actuator("motor_panda_joint2").id
+    assert np.allclose(np.array(read)[steps:, sensor.id], np.array(applied)[: len(applied) - steps, joint])
+    plain = dev_mjcf.copy().compile()
+    assert plain.nsensor == 0 and np.allclose(plain.body_mass, model.body_mass)

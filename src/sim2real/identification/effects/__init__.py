@@ -77,6 +77,7 @@ def _mjcf_context(spec: Any, params: dict[str, Any]) -> dict[str, Any]:
         "actuators": actuators,
         "torque_source": params.get("torque_source"),
         "last_link": params.get("last_link"),
+        "joints": params.get("joints"),  # the identified joints (None: every actuated one)
     }
 
 

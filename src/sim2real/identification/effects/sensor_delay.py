@@ -5,7 +5,9 @@ torque later than the encoder. Against the motion the measured torque lags what 
 prediction of the reading at t is the model torque at t - d (a first-order low-pass of time constant T is
 such a lag of T at frequencies well below 1/T, where an identification motion lives). An error of the
 sensor, like its gain and bias: tried where a sensor's torque is judged against the motion, never on
-commands. It is removed from the judged torque, not written into the simulation; on the actuator link the
+commands. It is removed from the judged torque and moves nothing of the simulated motion: the calibrated MJCF reads
+each actuated joint's torque through a ``jointactuatorfrc`` sensor (``<joint>_torque``) delayed by it (MuJoCo's
+sensor ``delay``), as the real sensor reads the applied torque, so a policy observes it as late. On the actuator link the
 measured torque lags the command by the sensor's delay plus the actuation's, so the calibrated model's
 actuation delay is what the actuator link finds beyond this one (:func:`actuation_beyond_sensor`).
 """
@@ -47,6 +49,26 @@ class SensorDelay(Effect):
 
     def values(self, theta, nonlinear, signals, state):
         return {"delay": round(float(nonlinear[0]) if len(nonlinear) else 0.0, 6)}
+
+    def apply_to_spec(self, spec, values, context):
+        import mujoco
+
+        delay = float(values["delay"])
+        if delay <= 0:
+            return
+        timestep = float(spec.option.timestep)
+        existing = {sensor.name: sensor for sensor in spec.sensors}
+        identified = context.get("joints")
+        for joint in sorted(j for j in context.get("actuators", {}) if identified is None or j in identified):
+            sensor = existing.get(f"{joint}_torque")
+            if sensor is None:
+                sensor = spec.add_sensor()
+                sensor.name = f"{joint}_torque"
+                sensor.type = mujoco.mjtSensor.mjSENS_JOINTACTFRC
+                sensor.objtype = mujoco.mjtObj.mjOBJ_JOINT
+                sensor.objname = joint
+            sensor.delay = delay
+            sensor.nsample = max(int(np.ceil(delay / timestep)) + 1, 2)
 
     def evidence(self, residual, signals):
         rate = np.zeros_like(signals.tau_nominal)
