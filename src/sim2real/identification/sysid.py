@@ -272,7 +272,7 @@ def fit_model(
             **{key: section[key] for key in ("ladder", "diagnosis", "noise_floor") if key in section},
         }
         _note_drive(document["actuator"].get("diagnosis"), "actuator", sensor)
-        _note_sensor_lag(document["actuator"].get("diagnosis"), link_result, result)
+        _note_sensor_lag(document["actuator"].get("diagnosis"), link_result, result, document.get("diagnosis"))
         confounded += section.get("diagnosis", {}).get("confounded", [])
         results.append(link_result)
     document["links"] = round_floats(links.separability(mode, effect_names, confounded, sensor))
@@ -316,21 +316,43 @@ def _actuator_link(
     )
 
 
-def _note_sensor_lag(diagnosis: dict[str, Any] | None, actuator: FitResult, body: FitResult) -> None:
-    """The body link finds the sensor lagging: the actuator link, which judges its reading against the command,
-    sees that lag too; its verdict says what it means there."""
-    lag = float((body.values.get("sensor_delay") or {}).get("delay") or 0.0)
-    if not diagnosis or lag <= 0:
+AGREEING_LAGS = (0.5, 1.5)  # the body link's lag over the actuator link's: the same lag, seen from both links
+
+
+def _note_sensor_lag(diagnosis: dict[str, Any] | None, actuator: FitResult, body: FitResult,
+                     body_diagnosis: Mapping[str, Any] | None = None) -> None:
+    """The actuator link judges the sensor's reading against the command, so a lag of the sensor shows there as an
+    actuation delay; only the body link (the reading against the motion) tells the two apart. Where the actuator link
+    holds or names an actuation delay, its verdict says what the body link finds: the sensor_delay of its model, or
+    its trial of one (``body_diagnosis``)."""
+    if not diagnosis:
         return
     named = diagnosis.get("status") == "add_effect" and diagnosis["candidates"][0]["effect"] == "actuation_delay"
-    if "actuation_delay" not in actuator.effects and not named and diagnosis.get("status") == "at_noise_floor":
+    held = "actuation_delay" in actuator.effects
+    lag = float((body.values.get("sensor_delay") or {}).get("delay") or 0.0)
+    if lag > 0 and (held or named or diagnosis.get("status") != "at_noise_floor"):
+        note = (f" The body link finds the torque sensor's reading {lag * 1e3:.2g} ms behind the motion (sensor_delay): "
+                "the measured torque lags the command by as much, which this link, judging the reading against the "
+                "command, counts as actuation delay; the calibrated actuators hold only what lies beyond the sensor's "
+                "(params.yaml, by_link)."
+                + (" A sensor's lag is a filter rather than a pure delay: at the command's rate its noise shows the "
+                   "difference, which no effect of this link removes." if diagnosis.get("status") == "unexplained" else ""))
+    elif (held or named) and "sensor_delay" not in body.effects:
+        trial = next((c for c in (body_diagnosis or {}).get("candidates", []) if c["effect"] == "sensor_delay"), None)
+        own = (actuator.values.get("actuation_delay") or {}).get("delay") if held else \
+            diagnosis["candidates"][0]["evidence"]["fitted"].get("delay")
+        found = float(trial["evidence"]["fitted"].get("delay") or 0.0) if trial else 0.0
+        # The body link's lag must be this one, and show above the body's noise, to say whose it is.
+        if not own or not AGREEING_LAGS[0] <= found / float(own) <= AGREEING_LAGS[1] \
+                or trial["explained_beyond_noise"] < DEFAULT_DIAGNOSIS["joint_min_explained"]:
+            return
+        note = (" This link cannot tell an actuation delay from a lag of the torque sensor (the reading lags the command "
+                f"either way); the body link can, and its trial of sensor_delay finds the reading {found * 1e3:.2g} ms "
+                f"behind the motion (this link: {float(own) * 1e3:.2g} ms), removing {trial['explained_beyond_noise']:.0%} "
+                "of what lies above its floor: the lag is the sensor's. Add '- sensor_delay' under 'effects:' and the "
+                "calibrated actuators hold only what lies beyond it.")
+    else:
         return
-    note = (f" The body link finds the torque sensor's reading {lag * 1e3:.2g} ms behind the motion (sensor_delay): "
-            "the measured torque lags the command by as much, which this link, judging the reading against the "
-            "command, counts as actuation delay; the calibrated actuators hold only what lies beyond the sensor's "
-            "(params.yaml, by_link)."
-            + (" A sensor's lag is a filter rather than a pure delay: at the command's rate its noise shows the "
-               "difference, which no effect of this link removes." if diagnosis.get("status") == "unexplained" else ""))
     diagnosis["verdict"] += note
     diagnosis["lag_note"] = note.strip()
 
