@@ -332,9 +332,9 @@ def _note_sensor_lag(diagnosis: dict[str, Any] | None, actuator: FitResult, body
     lag = float((body.values.get("sensor_delay") or {}).get("delay") or 0.0)
     if lag > 0 and (held or named or diagnosis.get("status") != "at_noise_floor"):
         note = (f" The body link finds the torque sensor's reading {lag * 1e3:.2g} ms behind the motion (sensor_delay): "
-                "the measured torque lags the command by as much, which this link, judging the reading against the "
-                "command, counts as actuation delay; the calibrated actuators hold only what lies beyond the sensor's "
-                "(params.yaml, by_link)."
+                "that much of the lag this link finds between the command and the reading is the sensor's, which this "
+                "link, judging the reading against the command, counts as actuation delay; the calibrated actuators "
+                "hold only what lies beyond it (params.yaml, by_link)."
                 + (" A sensor's lag is a filter rather than a pure delay: at the command's rate its noise shows the "
                    "difference, which no effect of this link removes." if diagnosis.get("status") == "unexplained" else ""))
     elif (held or named) and "sensor_delay" not in body.effects:

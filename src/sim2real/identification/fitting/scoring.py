@@ -74,7 +74,6 @@ def holdout_metrics(result: FitResult, nominal: NominalModel | None, data: Torqu
     return {"torque_rmse": rmse(residual, data.joint_names)}, residual
 
 
-
 LAG_CHUNK_ROWS = 1 << 14  # samples whose design rows a lag's score sums at a time (never the whole design)
 
 
