@@ -66,14 +66,20 @@ def best_lag(judged: np.ndarray, predicted: np.ndarray, time: np.ndarray, max_la
     return lags
 
 
-class ActuationDelay(Effect):
-    name = "actuation_delay"
-    summary = "delay between commanded and applied torque"
-    signature = "residual proportional to the time derivative of the torque; commanded torque leads the model"
-    nonlinear = (ParameterSpec("delay", "s", 0.0, MAX_DELAY, False, "actuation delay"),)
+def time_derivative(values: np.ndarray, time: np.ndarray, segments: list[slice]) -> np.ndarray:
+    """d(values)/dt along axis 0 within each run (zero on a run of two samples or fewer)."""
+    rate = np.zeros_like(values)
+    for seg in segments:
+        if seg.stop - seg.start > 2:
+            rate[seg] = np.gradient(values[seg], time[seg], axis=0)
+    return rate
+
+
+class TimeShift(Effect):
+    """A delay of the whole prediction by one global d in [0, MAX_DELAY] s: no columns, one nonlinear parameter,
+    refined from a grid at the sampling step (:mod:`sim2real.identification.fitting.refine`)."""
+
     time_shift = True
-    link = "actuator"
-    needs_commands = True
     joint_local = False
 
     def nonlinear_init(self, signals):
@@ -85,11 +91,17 @@ class ActuationDelay(Effect):
     def values(self, theta, nonlinear, signals, state):
         return {"delay": round(float(nonlinear[0]) if len(nonlinear) else 0.0, 6)}
 
+
+class ActuationDelay(TimeShift):
+    name = "actuation_delay"
+    summary = "delay between commanded and applied torque"
+    signature = "residual proportional to the time derivative of the torque; commanded torque leads the model"
+    nonlinear = (ParameterSpec("delay", "s", 0.0, MAX_DELAY, False, "actuation delay"),)
+    link = "actuator"
+    needs_commands = True
+
     def evidence(self, residual, signals):
-        rate = np.zeros_like(signals.tau_nominal)
-        for seg in signals.segments:
-            if seg.stop - seg.start > 2:
-                rate[seg] = np.gradient(signals.tau_nominal[seg], signals.time[seg], axis=0)
+        rate = time_derivative(signals.tau_nominal, signals.time, signals.segments)
         out: dict[str, Any] = {
             "signature": self.signature,
             "statistic": "correlation of residual with d(tau_model)/dt",

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.identification.effects.actuation_delay import MAX_DELAY, best_lag
-from sim2real.identification.effects.base import Effect, ParameterSpec, correlation_per_joint, per_joint_dict
+from sim2real.identification.effects.actuation_delay import MAX_DELAY, TimeShift, best_lag, time_derivative
+from sim2real.identification.effects.base import ParameterSpec, correlation_per_joint, per_joint_dict
 
 
 def actuation_beyond_sensor(actuator_lag: float, sensor_delay: float) -> float:
@@ -28,27 +28,16 @@ def actuation_beyond_sensor(actuator_lag: float, sensor_delay: float) -> float:
     return max(0.0, float(actuator_lag) - float(sensor_delay))
 
 
-class SensorDelay(Effect):
+class SensorDelay(TimeShift):
     name = "sensor_delay"
     summary = "the torque sensor's reading lags the torque (its filter, a late stamp)"
     signature = "residual proportional to minus the time derivative of the torque; the measured torque lags the model"
     nonlinear = (ParameterSpec("delay", "s", 0.0, MAX_DELAY, False, "lag of the measured torque"),)
-    time_shift = True
     sensor_side = True
-    joint_local = False
     lag_screened = True
 
     def prediction_shift(self, delay: float, forward: bool) -> float:
         return -delay  # the reading at t is the torque at t - d
-
-    def nonlinear_init(self, signals):
-        return np.array([0.0])
-
-    def nonlinear_bounds(self, signals):
-        return np.array([0.0]), np.array([MAX_DELAY])
-
-    def values(self, theta, nonlinear, signals, state):
-        return {"delay": round(float(nonlinear[0]) if len(nonlinear) else 0.0, 6)}
 
     def apply_to_spec(self, spec, values, context):
         import mujoco
@@ -71,10 +60,7 @@ class SensorDelay(Effect):
             sensor.nsample = max(int(np.ceil(delay / timestep)) + 1, 2)
 
     def evidence(self, residual, signals):
-        rate = np.zeros_like(signals.tau_nominal)
-        for seg in signals.segments:
-            if seg.stop - seg.start > 2:
-                rate[seg] = -np.gradient(signals.tau_nominal[seg], signals.time[seg], axis=0)
+        rate = -time_derivative(signals.tau_nominal, signals.time, signals.segments)
         out: dict[str, Any] = {
             "signature": self.signature,
             "statistic": "correlation of residual with -d(tau_model)/dt",

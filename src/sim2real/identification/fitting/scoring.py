@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects import Signals, get_effect
+from sim2real.identification.effects.actuation_delay import time_derivative
 from sim2real.identification.fitting.data import TorqueData
 from sim2real.identification.fitting.nominal import NominalModel, make_signals
 from sim2real.identification.fitting.problem import FitResult, _Problem
@@ -92,11 +93,7 @@ def lag_score(result: FitResult, nominal: NominalModel | None, data: TorqueData,
         signals = make_signals(nominal, data)
     effects = [get_effect(name) for name in result.effects]
     problem = _Problem(effects, signals, result.states)
-    prediction = data.tau - residual
-    slope = np.zeros_like(prediction)
-    for seg in signals.segments:
-        if seg.stop - seg.start > 2:
-            slope[seg] = -np.gradient(prediction[seg], signals.time[seg], axis=0)
+    slope = -time_derivative(data.tau - residual, signals.time, signals.segments)
     r, g = residual / unit, slope / unit
     blocks, _ = problem._blocks(result.nonlinear)
     p = int(sum(block.shape[2] for block in blocks))
