@@ -5,7 +5,7 @@ than its shoulder's. The lab's ``real_arm_like`` (motor-side sensor), ``link_sid
 gearbox, like the Panda's tau_J, with part of the friction after the sensor), ``link_side_tau_only``
 (the same without commands, like a real tau_J log), ``wrist_friction`` (friction on joint 7 alone), the
 messy logs (``real_arm_like_dropouts``, ``_glitches``, ``_30hz``), a torque sensor with dynamics of its own
-(``real_arm_like_sensor_lag``) and, with ``--robot ur5``, the UR5's
+(``real_arm_like_sensor_lag``), drives whose current loop lags the command (``real_arm_like_drive_lag``) and, with ``--robot ur5``, the UR5's
 ``real_arm_like`` (torques from motor currents at 500 Hz) hide all of it. This script plays the user: it
 starts from an empty ``effects:``, adds what each
 verdict asks, and prints every round's verdicts and each joint's holdout residual in units of its own
@@ -28,7 +28,7 @@ from sysid_lab import Lab  # noqa: E402  (the tests' lab helper: a dev Panda and
 FACTOR = 1.5
 SCENARIOS = ("real_arm_like", "link_side_sensor", "link_side_tau_only", "wrist_friction", "sensor_gains", "hysteresis",
              "drift", "ripple", "real_arm_like_dropouts", "real_arm_like_glitches", "real_arm_like_30hz",
-             "real_arm_like_sensor_lag")
+             "real_arm_like_sensor_lag", "real_arm_like_drive_lag")
 
 
 def report(document: dict, round_: int, seconds: float | None = None) -> None:

@@ -86,11 +86,11 @@ def test_demo_friction_follow_the_diagnosis_until_nothing_is_left(lab):
 
 def test_actuator_effects_are_not_offered_against_the_motion_when_a_sensor_measures_the_torque(lab):
     diagnosis = lab.ladder("clean", [])["diagnosis"]
-    actuator_effects = {"actuation_delay", "actuator_gain", "command_bias"}
+    actuator_effects = {"actuation_delay", "actuation_lag", "actuator_gain", "command_bias"}
     assert not actuator_effects & {c["effect"] for c in diagnosis["candidates"]}
     skipped = {s["effect"] for s in diagnosis["skipped"]}
     # a lag of the sensor may be screened out too (a clean log has none): never an actuator effect tried
-    assert actuator_effects <= skipped and skipped - actuator_effects <= {"sensor_delay"}
+    assert actuator_effects <= skipped and skipped - actuator_effects <= {"sensor_delay", "sensor_lag"}
 
 
 def test_a_trial_that_does_not_solve_is_reported_not_ranked_as_explaining_nothing(lab, monkeypatch):

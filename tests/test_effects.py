@@ -277,3 +277,37 @@ def test_a_sensor_delay_is_read_through_delayed_joint_torque_sensors(dev_mjcf):
     assert np.allclose(np.array(read)[steps:, sensor.id], np.array(applied)[: len(applied) - steps, joint])
     plain = dev_mjcf.copy().compile()
     assert plain.nsensor == 0 and np.allclose(plain.body_mass, model.body_mass)
+
+
+def test_an_actuation_lag_is_an_exact_first_order_filter_of_the_actuators(dev_mjcf):
+    """The calibrated MJCF of a model with actuation_lag: each actuator filters its control (MuJoCo's filterexact,
+    actearly) as the lab's drive does (sim2real.filters.first_order_lag, a command held over each step)."""
+    from sim2real.filters import first_order_lag
+
+    spec = dev_mjcf.copy()
+    apply_to_spec(spec, {"torque_source": "tau", "effects": {"actuation_lag": {"time_constant": 0.004}}})
+    model = spec.compile()
+    joint = model.actuator("motor_panda_joint2").id
+    assert model.actuator_dyntype[joint] == mujoco.mjtDyn.mjDYN_FILTEREXACT
+    assert model.actuator_dynprm[joint, 0] == pytest.approx(0.004)
+    data = mujoco.MjData(model)
+    commands = np.r_[np.zeros(3), np.linspace(0.0, 2.0, 12), np.full(10, 2.0)]
+    applied = []
+    for command in commands:
+        data.ctrl[joint] = command
+        mujoco.mj_step(model, data)
+        applied.append(data.actuator_force[joint])
+    assert np.allclose(applied, first_order_lag(commands, model.opt.timestep, 0.004), atol=1e-12)
+    assert np.allclose(dev_mjcf.copy().compile().body_mass, model.body_mass)  # the arm itself unchanged
+
+
+def test_a_sensor_lag_and_a_sensor_delay_add_up_on_the_torque_sensors(dev_mjcf):
+    """MuJoCo's sensors have a delay and no filter: a sensor_lag is read through the same delayed sensors, its time
+    constant the delay (the same lag at a motion's frequencies), added to a sensor_delay's."""
+    spec = dev_mjcf.copy()
+    apply_to_spec(spec, {"torque_source": "tau", "effects": {"sensor_delay": {"delay": 0.002},
+                                                             "sensor_lag": {"time_constant": 0.003}}})
+    model = spec.compile()
+    sensor = model.sensor("panda_joint2_torque").id
+    assert model.sensor_delay[sensor] == pytest.approx(0.005)
+    assert model.sensor_history[sensor, 0] >= int(round(0.005 / model.opt.timestep)) + 1

@@ -738,17 +738,24 @@ def test_a_ur5_like_a_real_one_follows_the_loop_to_its_floor_with_its_tool_on_a_
     assert bodies["wrist_3_link"]["mass_change_kg"] > 0.3  # the tool, held on the last link
 
 
-def test_a_sensor_low_pass_is_exact_for_a_held_torque_and_absent_by_default():
-    from sim2real.lab.simulate import sensor_lowpass
+def test_a_first_order_lag_is_exact_for_a_held_torque_its_inverse_undoes_it_and_it_is_absent_by_default():
+    """The one low-pass of the lab's sensor and drive and of the fit's lag (sim2real.filters.first_order_lag)."""
+    from sim2real.filters import first_order_lag
 
     dt, constant = 0.001, 0.005
     step = np.ones((50, 2)) * [[2.0, -1.0]]
     step[0] = 0.0
-    response = sensor_lowpass(step, dt, constant)
+    response = first_order_lag(step, dt, constant)
     k = np.arange(1, 50)
     assert response[0] == pytest.approx([0.0, 0.0])
     assert np.allclose(response[1:], [[2.0, -1.0]] * (1 - np.exp(-k * dt / constant))[:, None])
-    assert sensor_lowpass(step, dt, 0.0) is step
+    assert first_order_lag(step, dt, 0.0) is step
+    # A smooth signal sampled coarser than the lag: joined linearly, exact whatever the step (here 2x the time
+    # constant); any trailing shape.
+    time = np.arange(0.0, 3.0, 0.01)
+    ramp = np.clip(time - 1.0, 0.0, None)[:, None, None] * np.ones((1, 2, 3))
+    exact = np.clip(time - 1.0 - constant * (1.0 - np.exp(-np.clip(time - 1.0, 0.0, None) / constant)), 0.0, None)
+    assert np.allclose(first_order_lag(ramp, 0.01, constant, between="linear")[:, 1, 2], exact, atol=1e-12)
 
 
 def test_a_torque_sensor_that_lags_is_named_and_the_loop_ends_at_its_floor(shared_lab):

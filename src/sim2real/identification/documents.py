@@ -57,27 +57,55 @@ def merge_link_values(results: Sequence[FitResult], nominal: NominalModel) -> tu
         by_link[name] = {"body": values, **({"actuator": effects[name]} if name in effects else {}),
                          "why": "the body link's value acts after the link-side sensor; the joint holds the sum"}
         effects[name] = merged
-    sensor, actuation = effects.get("sensor_delay"), effects.get("actuation_delay")
-    if sensor and actuation and len(results) > 1 and "actuation_delay" in results[1].values:
+    sensor = {n: v for n, v in body.values.items() if get_effect(n).time_shift and get_effect(n).sensor_side}
+    actuation = [n for n in (results[1].values if len(results) > 1 else {}) if _actuator_lag(n)]
+    if sensor and actuation:
         # The actuator link judges the sensor's reading against the command: its lag holds the sensor's too.
-        lag = float(actuation["delay"])
-        effects["actuation_delay"] = {**actuation, "delay": actuation_beyond_sensor(lag, float(sensor["delay"]))}
-        by_link["actuation_delay"] = {
-            "actuator": {"delay": lag}, "body": {"sensor_delay": sensor["delay"]},
-            "why": "the measured torque lags the command by the actuation's delay plus the sensor's own (sensor_delay, "
-                   "found on the body link): the actuators hold what is left of it",
-        }
+        names = ", ".join(sensor)
+        for name, taken in zip(actuation, _sensor_shares(results[1].values, actuation, sensor), strict=True):
+            key = _lag_key(name)
+            lag = float(effects[name][key])
+            effects[name] = {**effects[name], key: actuation_beyond_sensor(lag, taken)}
+            by_link[name] = {
+                "actuator": {key: lag}, "body": {n: v[_lag_key(n)] for n, v in sensor.items()},
+                "why": f"the measured torque lags the command by the actuation's {'delay' if key == 'delay' else 'lag'} "
+                       f"plus the sensor's own ({names}, "
+                       "found on the body link): the actuators hold what is left of it",
+            }
     order = [name for result in results for name in result.effects]
     return {name: effects[name] for name in dict.fromkeys(order) if name in effects}, by_link
 
 
+def _actuator_lag(name: str) -> bool:
+    return get_effect(name).time_shift and get_effect(name).link == "actuator"
+
+
+def _lag_key(name: str) -> str:
+    """A lag's one parameter in its values: ``delay`` or a first-order lag's ``time_constant``."""
+    return get_effect(name).nonlinear[0].name
+
+
+def _sensor_shares(values: Mapping[str, Any], actuation: Sequence[str], sensor: Mapping[str, Any]) -> list[float]:
+    """The sensor's lag (its delay and time constant: at a motion's frequencies lags add) as it is taken out of each
+    of the actuator link's lags in turn: what is left of it when each is reached."""
+    left = sum(float(v[_lag_key(n)]) for n, v in sensor.items())
+    shares = []
+    for name in actuation:
+        shares.append(left)
+        left -= float(values[name][_lag_key(name)]) - actuation_beyond_sensor(float(values[name][_lag_key(name)]), left)
+    return shares
+
+
 def _intervals_of(results: Sequence[FitResult], by_link: Mapping[str, Any]) -> dict[str, Any]:
-    """Each effect's intervals; an actuation delay's moved with its value, the sensor's lag taken out."""
+    """Each effect's intervals; an actuation lag's moved with its value, the sensor's lag taken out."""
     intervals = {name: values for result in results for name, values in result.intervals.items()}
-    if "actuation_delay" in by_link and "actuation_delay" in intervals:
-        sensor = float(by_link["actuation_delay"]["body"]["sensor_delay"])
-        intervals["actuation_delay"] = {"delay": [actuation_beyond_sensor(bound, sensor)
-                                                  for bound in intervals["actuation_delay"]["delay"]]}
+    actuation = [n for n in (results[1].values if len(results) > 1 else {}) if _actuator_lag(n) and n in by_link]
+    if actuation:
+        sensor = {n: {_lag_key(n): v} for n, v in by_link[actuation[0]]["body"].items()}
+        for name, taken in zip(actuation, _sensor_shares(results[1].values, actuation, sensor), strict=True):
+            if name in intervals:
+                key = _lag_key(name)
+                intervals[name] = {key: [actuation_beyond_sensor(bound, taken) for bound in intervals[name][key]]}
     return intervals
 
 

@@ -164,8 +164,8 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
              "why": "judged on the measured torque against the command: no body effect enters that link"
              + (" (the sensor is link-side: the drive's rotor inertia and friction lie before it)"
                 if sensor == "link" else "")
-             + "; the sensor's own lag does (its reading lags the command too): the calibrated actuation delay is "
-             "what this link finds beyond the body link's sensor_delay"},
+             + "; the sensor's own lag does (its reading lags the command too): the calibrated actuation lag is "
+             "what this link finds beyond the body link's (sensor_delay, sensor_lag)"},
             {"effects": candidates_of_link("body", sensor),
              "why": "judged on the measured torque against the motion: no actuator effect enters that link"
              + (" (the sensor is motor-side: the drive's rotor inertia and friction lie after it)"
@@ -173,8 +173,8 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
         ]
     elif mode == "commands_only":
         out["can_tell"] = [
-            {"effects": ["actuation_delay"],
-             "why": "a time shift of the whole torque, which no body effect makes; the replay of each rung "
+            {"effects": ["actuation_delay", "actuation_lag"],
+             "why": "a lag of the whole torque (a delay, or a filter's), which no body effect makes; the replay of each rung "
              "(replay position RMSE) shows it in the state domain too"},
             {"effects": ["command_bias"],
              "why": "a constant torque per joint; no body effect of the library is constant"},
@@ -186,7 +186,7 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
              "scaled by 1/g (masses, inertias, armature and friction together): in the torque domain and in "
              "the replay alike. Only per-joint differences of the gain show. A joint torque sensor (tau) "
              "separates them"},
-            {"effects": ["torque_gain", "torque_bias", "sensor_delay"],
+            {"effects": ["torque_gain", "torque_bias", "sensor_delay", "sensor_lag"],
              "why": "errors of a torque sensor, and these runs have none: not tried"},
         ]
     else:

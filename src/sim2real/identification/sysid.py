@@ -322,35 +322,48 @@ AGREEING_LAGS = (0.5, 1.5)  # the body link's lag over the actuator link's: the 
 def _note_sensor_lag(diagnosis: dict[str, Any] | None, actuator: FitResult, body: FitResult,
                      body_diagnosis: Mapping[str, Any] | None = None) -> None:
     """The actuator link judges the sensor's reading against the command, so a lag of the sensor shows there as an
-    actuation delay; only the body link (the reading against the motion) tells the two apart. Where the actuator link
-    holds or names an actuation delay, its verdict says what the body link finds: the sensor_delay of its model, or
-    its trial of one (``body_diagnosis``)."""
+    actuation lag (a delay, a first-order lag); only the body link (the reading against the motion) tells the two
+    apart. Where the actuator link holds or names an actuation lag, its verdict says what the body link finds: the
+    sensor lag of its model (sensor_delay, sensor_lag), or its trial of one (``body_diagnosis``)."""
     if not diagnosis:
         return
-    named = diagnosis.get("status") == "add_effect" and diagnosis["candidates"][0]["effect"] == "actuation_delay"
-    held = "actuation_delay" in actuator.effects
-    lag = float((body.values.get("sensor_delay") or {}).get("delay") or 0.0)
+
+    def actuation_lag(name: str) -> bool:
+        return get_effect(name).time_shift and get_effect(name).link == "actuator"
+
+    def sensor_lag(name: str) -> bool:
+        return get_effect(name).time_shift and get_effect(name).sensor_side
+
+    def lag_value(name: str, values: Mapping[str, Any]) -> float:
+        return float(values.get(get_effect(name).nonlinear[0].name) or 0.0)
+
+    top = diagnosis["candidates"][0] if diagnosis.get("candidates") else None
+    named = diagnosis.get("status") == "add_effect" and top is not None and actuation_lag(top["effect"])
+    held = [name for name in actuator.effects if actuation_lag(name)]
+    sensor = [name for name in body.effects if sensor_lag(name)]
+    lag = sum(lag_value(name, body.values.get(name) or {}) for name in sensor)
     if lag > 0 and (held or named or diagnosis.get("status") != "at_noise_floor"):
-        note = (f" The body link finds the torque sensor's reading {lag * 1e3:.2g} ms behind the motion (sensor_delay): "
-                "that much of the lag this link finds between the command and the reading is the sensor's, which this "
-                "link, judging the reading against the command, counts as actuation delay; the calibrated actuators "
-                "hold only what lies beyond it (params.yaml, by_link)."
+        note = (f" The body link finds the torque sensor's reading {lag * 1e3:.2g} ms behind the motion "
+                f"({', '.join(sensor)}): that much of the lag this link finds between the command and the reading is "
+                "the sensor's, which this link, judging the reading against the command, counts as actuation lag; the "
+                "calibrated actuators hold only what lies beyond it (params.yaml, by_link)."
                 + (" A sensor's lag is a filter rather than a pure delay: at the command's rate its noise shows the "
                    "difference, which no effect of this link removes." if diagnosis.get("status") == "unexplained" else ""))
-    elif (held or named) and "sensor_delay" not in body.effects:
-        trial = next((c for c in (body_diagnosis or {}).get("candidates", []) if c["effect"] == "sensor_delay"), None)
-        own = (actuator.values.get("actuation_delay") or {}).get("delay") if held else \
-            diagnosis["candidates"][0]["evidence"]["fitted"].get("delay")
-        found = float(trial["evidence"]["fitted"].get("delay") or 0.0) if trial else 0.0
+    elif (held or named) and not sensor:
+        trials = [c for c in (body_diagnosis or {}).get("candidates", []) if sensor_lag(c["effect"])]
+        trial = max(trials, key=lambda c: c["explained_beyond_noise"], default=None)
+        own = (sum(lag_value(name, actuator.values.get(name) or {}) for name in held) if held
+               else lag_value(top["effect"], top["evidence"]["fitted"]))
+        found = lag_value(trial["effect"], trial["evidence"]["fitted"]) if trial else 0.0
         # The body link's lag must be this one, and show above the body's noise, to say whose it is.
         if not own or not AGREEING_LAGS[0] <= found / float(own) <= AGREEING_LAGS[1] \
                 or trial["explained_beyond_noise"] < DEFAULT_DIAGNOSIS["joint_min_explained"]:
             return
-        note = (" This link cannot tell an actuation delay from a lag of the torque sensor (the reading lags the command "
-                f"either way); the body link can, and its trial of sensor_delay finds the reading {found * 1e3:.2g} ms "
+        note = (" This link cannot tell an actuation lag from a lag of the torque sensor (the reading lags the command "
+                f"either way); the body link can, and its trial of {trial['effect']} finds the reading {found * 1e3:.2g} ms "
                 f"behind the motion (this link: {float(own) * 1e3:.2g} ms), removing {trial['explained_beyond_noise']:.0%} "
-                "of what lies above its floor: the lag is the sensor's. Add '- sensor_delay' under 'effects:' and the "
-                "calibrated actuators hold only what lies beyond it.")
+                f"of what lies above its floor: the lag is the sensor's. Add '- {trial['effect']}' under 'effects:' and "
+                "the calibrated actuators hold only what lies beyond it.")
     else:
         return
     diagnosis["verdict"] += note

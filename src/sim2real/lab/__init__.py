@@ -18,6 +18,8 @@ joint order or a ``{joint: value}`` map):
   that sensor then sees the share (see ``tau`` below).
 * ``rotor_inertia`` ``{armature}`` kg*m^2: added to the joint armature.
 * ``actuation_delay`` ``{delay_s}``: the applied torque is the command delayed by delay_s.
+* ``actuation_lag`` ``{time_constant_s}``: the applied torque follows the (delayed) command through a
+  first-order low-pass of that time constant, as a drive's current loop of finite bandwidth does.
 * ``actuator_gain`` ``{gain}`` and ``command_bias`` ``{bias}`` N*m: the motor applies
   gain * (delayed command) + bias, as a motor constant off by some percent or a drive's current offset
   would; a motor-side torque sensor measures that applied torque (a link-side one what reaches the link).

@@ -20,6 +20,7 @@ EFFECTS = (
     "torque_drift",
     "rotor_inertia",
     "actuation_delay",
+    "actuation_lag",
     "payload",
     "link_inertia",
     "torque_bias",

@@ -12,6 +12,7 @@ import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.files import write_yaml
+from sim2real.filters import first_order_lag
 from sim2real.lab.arm import _apply_spec_effects, _gains_and_biases, arm_spec, compile_arm, drop_inert_meshes
 from sim2real.lab.config import EFFECTS, _per_joint, load_lab_config, read_excitation, scenario_runs
 from sim2real.lab.hidden import (
@@ -152,6 +153,13 @@ def simulate_run(
     if "actuation_delay" in effects:
         delay_steps = int(round(float(effects["actuation_delay"]["delay_s"]) * rate))
         truth["actuation_delay"] = {"delay_s": delay_steps * dt}
+    # A drive's current loop: the applied torque follows its target through a first-order low-pass (exact for a
+    # target held over the control step, as sim2real.filters.first_order_lag), settled at the first one.
+    lag_keep = 0.0
+    if "actuation_lag" in effects:
+        constant = float(effects["actuation_lag"]["time_constant_s"])
+        lag_keep = float(np.exp(-dt / constant)) if constant > 0 else 0.0
+        truth["actuation_lag"] = {"time_constant_s": constant}
     scales = _gains_and_biases(effects, joints, path, truth)
     motor_gain, motor_bias = scales["actuator_gain"], scales["command_bias"]
     gain, bias = scales["torque_gain"], scales["torque_bias"]
@@ -194,6 +202,8 @@ def simulate_run(
         out_cmd[k] = cmd
         # Actuation delay: the motor applies an older command, through its own gain and offset.
         applied = motor_gain * out_cmd[max(k - delay_steps, 0)] + motor_bias
+        if lag_keep > 0.0 and k > 0:
+            applied = lag_keep * out_applied[k - 1] + (1.0 - lag_keep) * applied
         out_q[k], out_qd[k], out_applied[k] = q_meas, qd_meas, applied
         real_data.ctrl[ctrl_index] = applied
         if link_side:
@@ -223,7 +233,7 @@ def simulate_run(
             if dahl is not None:  # the friction's memory follows the motion the step made
                 friction["dahl_state"] = dahl_step(friction["dahl_state"], real_data.qpos[qadr_r] - before, dahl[1])
 
-    seen = sensor_lowpass(out_link if link_side else out_applied, dt,
+    seen = first_order_lag(out_link if link_side else out_applied, dt,
                           float(sensors.get("torque_time_constant_s", 0.0)))
     tau_sensor = gain * seen + bias + float(sensors["torque_noise_std"]) * rng.standard_normal((steps, n))
     if drift is not None:
@@ -243,19 +253,6 @@ def simulate_run(
             (sensors.get("encoder_glitches") or {}).get("size_rad", 0.0), rng)
     logged[np.arange(steps) % log_every(scenario) != 0] = False  # a logger slower than the controller
     return time[logged], {k: v[logged] for k, v in signals.items() if k in columns}, truth
-
-
-def sensor_lowpass(torque: np.ndarray, dt: float, time_constant: float) -> np.ndarray:
-    """A sensor's first-order dynamics: ``torque`` (steps, n) at steps of ``dt`` through a low-pass of
-    ``time_constant`` s (exact for a torque held over each step), starting settled at the first value; unchanged
-    when ``time_constant`` is 0."""
-    if time_constant <= 0:
-        return torque
-    from scipy.signal import lfilter, lfilter_zi
-
-    a = float(np.exp(-dt / time_constant))
-    b, den = [1.0 - a], [1.0, -a]
-    return lfilter(b, den, torque, axis=0, zi=lfilter_zi(b, den)[:, None] * torque[:1])[0]
 
 
 def _glitch(signal: np.ndarray, count: int, size: float, rng: np.random.Generator) -> None:
@@ -336,6 +333,8 @@ def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, ou
     dt = 1.0 / float(settings["sample_rate_hz"])
     if "actuation_delay" in effects:
         truth["actuation_delay"] = {"delay_s": round(float(effects["actuation_delay"]["delay_s"]) / dt) * dt}
+    if "actuation_lag" in effects:
+        truth["actuation_lag"] = {"time_constant_s": float(effects["actuation_lag"]["time_constant_s"])}
     _gains_and_biases(effects, joints, Path(lab_config), truth)
     _hysteretic_friction(effects, joints, Path(lab_config), truth)
     _cogging(effects, joints, Path(lab_config), truth)

@@ -107,6 +107,7 @@ def _multiple_shooting(model: mujoco.MjModel, qadr: np.ndarray, dadr: np.ndarray
     control = np.zeros((n_seg, seg, model.nu))
     ctrl_cols = np.array([model.actuator(f"motor_{j}").id for j in joints])
     starts = np.arange(n_seg) * seg
+    filtered = _filtered_commands(model, ctrl_cols, prepared)
     for b, start in enumerate(starts):
         mujoco.mj_resetData(model, data)
         data.time = prepared.time[start]
@@ -119,6 +120,9 @@ def _multiple_shooting(model: mujoco.MjModel, qadr: np.ndarray, dadr: np.ndarray
                 rows = start - nsample + np.arange(nsample)
                 mujoco.mj_initCtrlHistory(model, data, int(actuator), prepared.time[0] + prepared.dt * rows,
                                           prepared.tau_cmd[np.clip(rows, 0, None), index])
+        for actuator, commands in filtered.items():
+            # A filtered actuator (a drive's low-pass) starts each segment where the commands before it left it.
+            data.act[model.actuator_actadr[actuator]] = commands[max(start - 1, 0)]
         mujoco.mj_getState(model, data, initial[b], spec)
         control[b][:, ctrl_cols] = prepared.tau_cmd[start:start + seg]
     state, _ = rollout.rollout(model, [mujoco.MjData(model) for _ in range(2)], initial, control)
@@ -128,6 +132,24 @@ def _multiple_shooting(model: mujoco.MjModel, qadr: np.ndarray, dadr: np.ndarray
     qd_sim = state[:, :, qpos_off + model.nq + dadr].reshape(-1, len(joints))
     index = (starts[:, None] + 1 + np.arange(seg)[None, :]).reshape(-1)
     return q_sim, qd_sim, index
+
+
+def _filtered_commands(model: mujoco.MjModel, ctrl_cols: np.ndarray, prepared: PreparedRun) -> dict[int, np.ndarray]:
+    """Each first-order filtered actuator's activation after every sample of the run: its logged commands (delayed by
+    its actuator delay, held before the log) through its filter, settled at the first (:func:`first_order_lag`,
+    as MuJoCo's ``filterexact`` holds the control over a step)."""
+    from sim2real.filters import first_order_lag
+
+    out = {}
+    for index, actuator in enumerate(ctrl_cols):
+        if model.actuator_dyntype[actuator] not in (mujoco.mjtDyn.mjDYN_FILTER, mujoco.mjtDyn.mjDYN_FILTEREXACT):
+            continue
+        commands = prepared.tau_cmd[:, index]
+        delay = float(model.actuator_delay[actuator])
+        if delay > 0:
+            commands = np.interp(prepared.time - delay, prepared.time, commands)
+        out[int(actuator)] = first_order_lag(commands, prepared.dt, float(model.actuator_dynprm[actuator, 0]))
+    return out
 
 
 def state_domain(mjcf_path: str | Path, runs: Sequence[TorqueComparison], horizon_s: float,

@@ -54,7 +54,7 @@ from sim2real.identification import fitting
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Signals, per_joint_dict
 from sim2real.identification.diagnosis.caveats import (
-    NESTED_IN, caveats, implausible_bodies, not_told_apart_verdict, recommend, separating_runs, ties,
+    NESTED_IN, caveats, implausible_bodies, not_told_apart_verdict, recommend, same_lag, separating_runs, ties,
     trades_with_model,
 )
 from sim2real.forked import map_forked
@@ -435,7 +435,12 @@ def diagnose(
         after = best["evidence"]["per_joint_x_floor_after"]
         twins = [b for a, b in confounded if a == best["effect"]] + [a for a, b in confounded if b == best["effect"]]
         twins = [t for t in twins if t not in {c["effect"] for c in group}]  # the ties' sentence names those
-        twin_text = (f" These data cannot tell it apart from {', '.join(twins)} (the same prediction to within "
+        shapes = [t for t in twins if same_lag(best["effect"], t)]
+        twins = [t for t in twins if t not in shapes]
+        shape_text = (f" These data cannot tell it from {', '.join(shapes)}: two shapes of the same lag, which part "
+                      "only where the judged torque changes within it (a faster log, a command's own noise); either "
+                      "line holds the lag these runs show, and the one named removes the most." if shapes else "")
+        twin_text = shape_text + (f" These data cannot tell it apart from {', '.join(twins)} (the same prediction to within "
                      f"{CONFOUNDED_NOISE_FRACTION:g}x the noise floor). The run that would: "
                      + separating_runs(best["effect"], twins, robot)
                      + " designs it (the motion on which their fitted predictions differ most, within the limits of "

@@ -18,6 +18,7 @@ import numpy as np
 
 from sim2real.identification import fitting
 from sim2real.design_names import separation_name
+from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Signals
 
 # Effects that are special cases of another: never tried once the larger one is in the model, and never a tie
@@ -112,6 +113,15 @@ def implausible_bodies(result: fitting.FitResult) -> list[str]:
             if body.get("implausible")]
 
 
+def same_lag(a: str, b: str) -> bool:
+    """Whether two effects are two shapes of one lag (a delay and a first-order lag of the same place,
+    :mod:`sim2real.identification.effects.timing`): they part only where the judged torque changes within the lag,
+    which no motion within the arm's limits makes, so no designed run separates them; the ranking decides."""
+    first, second = EFFECTS[a], EFFECTS[b]
+    return (a != b and first.time_shift and second.time_shift and first.link == second.link
+            and first.sensor_side == second.sensor_side)
+
+
 def nested_pair(a: str, b: str) -> bool:
     """Whether one of two effects is a special case of the other (:data:`NESTED_IN`)."""
     return b in NESTED_IN.get(a, ()) or a in NESTED_IN.get(b, ())
@@ -134,8 +144,9 @@ def ties(candidates: list[dict[str, Any]], residuals: Mapping[str, np.ndarray], 
     best_blocks = _block_sse(residuals[best["effect"]], blocks)
     out = []
     for c in candidates[1:]:
-        # A nested pair is parsimony's to decide (_rank); on other joints it is another effect, not a rival.
-        if (not c["decisive"] or nested_pair(best["effect"], c["effect"])
+        # A nested pair is parsimony's to decide (_rank), two shapes of one lag the ranking's (same_lag); on other
+        # joints it is another effect, not a rival.
+        if (not c["decisive"] or nested_pair(best["effect"], c["effect"]) or same_lag(best["effect"], c["effect"])
                 or _overlap(best["joints"], c["joints"]) < TIE_JOINT_OVERLAP):
             continue
         same, difference, spread = tied(_block_sse(residuals[c["effect"]], blocks), best_blocks)

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from sim2real.identification.effects.actuation_delay import ActuationDelay
+from sim2real.identification.effects.actuation_lag import ActuationLag
 from sim2real.identification.effects.actuator_gain import ActuatorGain
 from sim2real.identification.effects.asymmetric_friction import AsymmetricFriction
 from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals
@@ -26,6 +27,7 @@ from sim2real.identification.effects.link_inertia import LinkInertia
 from sim2real.identification.effects.payload import Payload
 from sim2real.identification.effects.rotor_inertia import RotorInertia
 from sim2real.identification.effects.sensor_delay import SensorDelay
+from sim2real.identification.effects.sensor_lag import SensorLag
 from sim2real.identification.effects.stribeck_friction import StribeckFriction
 from sim2real.identification.effects.torque_bias import TorqueBias
 from sim2real.identification.effects.torque_gain import TorqueGain
@@ -42,6 +44,7 @@ EFFECTS: dict[str, Effect] = {
         HystereticFriction(),
         RotorInertia(),
         ActuationDelay(),
+        ActuationLag(),
         Payload(),
         LinkInertia(),
         TorqueBias(),
@@ -49,6 +52,7 @@ EFFECTS: dict[str, Effect] = {
         ActuatorGain(),
         CommandBias(),
         SensorDelay(),
+        SensorLag(),
     )
 }
 

@@ -150,7 +150,8 @@ class Effect:
     signature: ClassVar[str]  # in words: what the residual looks like when this effect is missing
     parameters: ClassVar[tuple[ParameterSpec, ...]] = ()
     nonlinear: ClassVar[tuple[ParameterSpec, ...]] = ()  # refined by nonlinear least squares
-    time_shift: ClassVar[bool] = False  # a delay of the whole prediction instead of columns
+    time_shift: ClassVar[bool] = False  # a lag of the whole prediction instead of columns (effects.timing)
+    lowpass: ClassVar[bool] = False  # a time shift shaped as a first-order lag (its time constant), not a delay
     link: ClassVar[str] = "body"  # "actuator": command -> applied torque; "body": applied torque -> motion
     drive: ClassVar[bool] = False  # in the drive (motor to link): its link follows the torque sensor's position
     needs_commands: ClassVar[bool] = False  # only observable when the judged torque is the command
@@ -171,6 +172,12 @@ class Effect:
         """A time shift's move of the prediction (s; the prediction at t is the model at t + the move): the command
         leads what it causes by an actuation delay, forward (from the command) and against the motion alike."""
         return -delay if forward else delay
+
+    def prediction_lag(self, time_constant: float, forward: bool) -> float:
+        """A first-order lag's time constant on the prediction (s; positive: the model through a low-pass, negative:
+        through its inverse): forward, the applied torque is the command through the drive's low-pass; against the
+        motion, the command is what the low-pass turns into the applied torque."""
+        return time_constant if forward else -time_constant
 
     def prepare(self, signals: Signals) -> dict[str, Any]:
         """Data-dependent state computed once on the fit data (e.g. an identifiable basis)."""

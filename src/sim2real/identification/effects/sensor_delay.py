@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.identification.effects.actuation_delay import MAX_DELAY, TimeShift, best_lag, time_derivative
+from sim2real.identification.effects.timing import MAX_DELAY, TimeShift, best_lag, time_derivative
 from sim2real.identification.effects.base import ParameterSpec, correlation_per_joint, per_joint_dict
 
 
@@ -26,6 +26,28 @@ def actuation_beyond_sensor(actuator_lag: float, sensor_delay: float) -> float:
     """The actuation's own delay (s): the measured torque lags the command by ``actuator_lag`` (the actuator
     link's actuation_delay), of which ``sensor_delay`` is the sensor's lag behind what was applied."""
     return max(0.0, float(actuator_lag) - float(sensor_delay))
+
+
+def delay_torque_sensors(spec: Any, delay: float, context: dict[str, Any]) -> None:
+    """Each identified actuated joint's torque read through a ``jointactuatorfrc`` sensor ``<joint>_torque``
+    (added where missing) that MuJoCo delays by ``delay`` more (sensor ``delay``, ``nsample``: its history)."""
+    import mujoco
+
+    if delay <= 0:
+        return
+    timestep = float(spec.option.timestep)
+    existing = {sensor.name: sensor for sensor in spec.sensors}
+    identified = context.get("joints")
+    for joint in sorted(j for j in context.get("actuators", {}) if identified is None or j in identified):
+        sensor = existing.get(f"{joint}_torque")
+        if sensor is None:
+            sensor = spec.add_sensor()
+            sensor.name = f"{joint}_torque"
+            sensor.type = mujoco.mjtSensor.mjSENS_JOINTACTFRC
+            sensor.objtype = mujoco.mjtObj.mjOBJ_JOINT
+            sensor.objname = joint
+        sensor.delay = float(sensor.delay) + delay  # a sensor_lag's as well, in either order
+        sensor.nsample = max(int(np.ceil(sensor.delay / timestep)) + 1, 2)
 
 
 class SensorDelay(TimeShift):
@@ -40,24 +62,7 @@ class SensorDelay(TimeShift):
         return -delay  # the reading at t is the torque at t - d
 
     def apply_to_spec(self, spec, values, context):
-        import mujoco
-
-        delay = float(values["delay"])
-        if delay <= 0:
-            return
-        timestep = float(spec.option.timestep)
-        existing = {sensor.name: sensor for sensor in spec.sensors}
-        identified = context.get("joints")
-        for joint in sorted(j for j in context.get("actuators", {}) if identified is None or j in identified):
-            sensor = existing.get(f"{joint}_torque")
-            if sensor is None:
-                sensor = spec.add_sensor()
-                sensor.name = f"{joint}_torque"
-                sensor.type = mujoco.mjtSensor.mjSENS_JOINTACTFRC
-                sensor.objtype = mujoco.mjtObj.mjOBJ_JOINT
-                sensor.objname = joint
-            sensor.delay = delay
-            sensor.nsample = max(int(np.ceil(delay / timestep)) + 1, 2)
+        delay_torque_sensors(spec, float(values["delay"]), context)
 
     def evidence(self, residual, signals):
         rate = -time_derivative(signals.tau_nominal, signals.time, signals.segments)

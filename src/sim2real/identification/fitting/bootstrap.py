@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects import Effect, Signals
-from sim2real.identification.effects.actuation_delay import MAX_DELAY
+from sim2real.identification.effects.timing import MAX_DELAY
 from sim2real.identification.effects.base import Replicates
 from sim2real.identification.fitting.problem import _Problem, _applied, _flatten_theta
 from sim2real.identification.inertial import DesignRows, column_norms
@@ -49,12 +49,13 @@ def _block_bootstrap(
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]] | None:
     """(linear, nonlinear) parameters of block-bootstrap replicates (blocks of time resampled, all joints
     together), each effect's stacked over the replicates: (replicates, size). The linear ones are solved again
-    on each resample; a delay moves by one Gauss-Newton step of the prediction linearised about the estimate,
-    from the same resampled blocks, so it has an interval too (its nonlinear parameters (replicates, 1)). Other
-    nonlinear parameters (friction smoothing) are held: the estimate's, as they are. None without replicates."""
+    on each resample; the lags (a delay, a first-order lag's time constant) move by one Gauss-Newton step of the
+    prediction linearised about the estimate, from the same resampled blocks, so they have intervals too (their
+    nonlinear parameters (replicates, 1)). Other nonlinear parameters (friction smoothing) are held: the estimate's, as
+    they are. None without replicates."""
     replicates = int(settings["bootstrap_replicates"])
-    shift = next((e for e in problem.effects if e.time_shift), None)
-    if replicates <= 0 or (sum(sizes) == 0 and shift is None):
+    shifts = [e for e in problem.effects if e.time_shift]
+    if replicates <= 0 or (sum(sizes) == 0 and not shifts):
         return None
     signals = problem.signals
     weights = problem.weights
@@ -62,7 +63,7 @@ def _block_bootstrap(
     # The replicates solve the same weighted problem as the fit. Without a time shift the weighted design's rows
     # are put together block by block (DesignRows; on a long log the whole would be the largest array here).
     design: np.ndarray | DesignRows
-    if problem.delay(nonlinear) == 0.0:
+    if not problem.retimed(nonlinear):
         columns = [b for b in problem._blocks(nonlinear)[0] if b.shape[2]]
         design = problem.weighted_rows(columns) if columns else np.zeros((len(signals.time) * joints, 0))
     else:
@@ -74,11 +75,13 @@ def _block_bootstrap(
     p = design.shape[1]
     scale = column_norms(design)
     scale[scale == 0] = 1.0
-    if shift is not None:
-        delay = float(nonlinear[shift.name][0])
-        low, high = max(delay - DELAY_STEP_S, 0.0), delay + DELAY_STEP_S
-        slope = weights * (problem.predict(theta, {**nonlinear, shift.name: np.array([high])})
-                           - problem.predict(theta, {**nonlinear, shift.name: np.array([low])})) / (high - low)
+    lags = np.array([float(nonlinear[shift.name][0]) for shift in shifts])
+    slopes = []  # each lag's d(prediction)/d(lag), central differences
+    for shift, lag in zip(shifts, lags, strict=True):
+        low, high = max(lag - DELAY_STEP_S, 0.0), lag + DELAY_STEP_S
+        slopes.append(weights * (problem.predict(theta, {**nonlinear, shift.name: np.array([high])})
+                                 - problem.predict(theta, {**nonlinear, shift.name: np.array([low])})) / (high - low))
+    if shifts:
         left = weights * (tau - problem.predict(theta, nonlinear))
     dt = float(np.median(np.diff(signals.time))) if len(signals.time) > 1 else 1.0
     block = max(2, int(round(float(settings["bootstrap_block_s"]) / dt)))
@@ -91,20 +94,22 @@ def _block_bootstrap(
             y = target[start:stop].reshape(-1)
             grams.append(a.T @ a)
             rhs.append(a.T @ y)
-            if shift is not None:
-                delay_grams.append(float(np.sum(slope[start:stop] ** 2)))
-                delay_rhs.append(float(np.sum(slope[start:stop] * left[start:stop])))
+            if shifts:
+                delay_grams.append([[float(np.sum(a_[start:stop] * b_[start:stop])) for b_ in slopes] for a_ in slopes])
+                delay_rhs.append([float(np.sum(a_[start:stop] * left[start:stop])) for a_ in slopes])
     grams_arr, rhs_arr = np.asarray(grams), np.asarray(rhs)
-    delay_grams_arr, delay_rhs_arr = np.asarray(delay_grams), np.asarray(delay_rhs)
+    # (blocks, lags, lags) and (blocks, lags); one lag: the same sums as scalars
+    delay_grams_arr = np.asarray(delay_grams, dtype=float).reshape(len(delay_grams), len(shifts), len(shifts))
+    delay_rhs_arr = np.asarray(delay_rhs, dtype=float).reshape(len(delay_rhs), len(shifts))
     # Replicates are unconstrained solves; their spread around the full-sample solve is centred on the
     # estimate (which may be the consistent one), so intervals describe the estimate the rung reports.
     full = np.linalg.lstsq(grams_arr.sum(axis=0), rhs_arr.sum(axis=0), rcond=1e-12)[0] / scale
     estimate = _flatten_theta(problem.effects, theta, sizes)
-    weights = np.trace(grams_arr, axis1=1, axis2=2) if p else delay_grams_arr
+    weights = np.trace(grams_arr, axis1=1, axis2=2) if p else np.trace(delay_grams_arr, axis1=1, axis2=2)
     stretch = (small_sample_stretch(weights, float(settings["confidence"]))
                if settings.get("bootstrap_few_blocks_correction", True) else 1.0)
-    # The delay's steps are centred like the linear solves: the refinement ran on a subset of the samples.
-    full_step = delay_rhs_arr.sum() / delay_grams_arr.sum() if shift is not None and delay_grams_arr.sum() > 0 else 0.0
+    # The lags' steps are centred like the linear solves: the refinement ran on a subset of the samples.
+    full_step = _lag_steps(*_summed(delay_grams_arr, delay_rhs_arr, np.arange(len(grams))[None]))[0] if shifts else None
     # One draw for all replicates: the same stream as one draw per replicate, row after row (numpy's bit
     # generator keeps the unused half of a 64-bit word between calls; tests/test_sysid.py holds it to that).
     picks = np.random.default_rng(int(settings["seed"])).integers(0, len(grams), size=(replicates, len(grams)))
@@ -119,14 +124,39 @@ def _block_bootstrap(
     bounds = np.cumsum([0, *sizes])
     stacked = {e.name: thetas[:, bounds[k] : bounds[k + 1]] for k, e in enumerate(problem.effects)}
     replicate_nonlinear = dict(nonlinear)
-    if shift is not None:
-        replicate_grams, replicate_rhs = delay_grams_arr[picks].sum(axis=1), delay_rhs_arr[picks].sum(axis=1)
-        moved = replicate_grams > 0  # a resample without the delay's information keeps the estimate
-        with np.errstate(divide="ignore", invalid="ignore"):
-            steps = replicate_rhs / replicate_grams - full_step
-        delays = np.where(moved, np.clip(delay + stretch * steps, 0.0, MAX_DELAY), nonlinear[shift.name][0])
-        replicate_nonlinear[shift.name] = delays[:, None]
+    if shifts:
+        steps = _lag_steps(*_summed(delay_grams_arr, delay_rhs_arr, picks))
+        for k, shift in enumerate(shifts):
+            moved = np.isfinite(steps[:, k])  # a resample without the lag's information keeps the estimate
+            replicate_nonlinear[shift.name] = np.where(
+                moved, np.clip(lags[k] + stretch * (steps[:, k] - full_step[k]), 0.0, MAX_DELAY), lags[k])[:, None]
     return stacked, replicate_nonlinear
+
+
+def _summed(grams: np.ndarray, rhs: np.ndarray, picks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row of ``picks``' sum of the blocks' lag sums (grams (blocks, lags, lags), rhs (blocks, lags)), each entry
+    summed along its own contiguous row (the order, and so the bits, of one lag's scalar sums)."""
+    k = rhs.shape[1]
+    summed_grams = np.empty((len(picks), k, k))
+    summed_rhs = np.empty((len(picks), k))
+    for i in range(k):
+        summed_rhs[:, i] = np.ascontiguousarray(rhs[:, i])[picks].sum(axis=1)
+        for j in range(k):
+            summed_grams[:, i, j] = np.ascontiguousarray(grams[:, i, j])[picks].sum(axis=1)
+    return summed_grams, summed_rhs
+
+
+def _lag_steps(grams: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Gauss-Newton steps of the lags, (replicates, lags) from (replicates, lags, lags) and (replicates, lags): one lag
+    divided as a scalar; NaN where a resample holds none of the lags' information."""
+    if grams.shape[1] == 1:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(grams[:, :, 0] > 0, rhs / grams[:, :, 0], np.nan)
+    out = np.full(rhs.shape, np.nan)
+    for r in range(len(grams)):
+        if np.linalg.matrix_rank(grams[r]) == grams.shape[1]:
+            out[r] = np.linalg.solve(grams[r], rhs[r])
+    return out
 
 
 def replicate_intervals(

@@ -193,7 +193,7 @@ def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndar
     # Without a time shift the effects' columns are solved as they are, never put together into one design (on a
     # long log the largest array of a fit); the same values, so the same bits. The refinement's small problem
     # keeps its one design, whose moving columns are rewritten in place at each step (reuse_design): faster.
-    direct = problem.delay(nonlinear) == 0.0 and not problem.reuse_design
+    direct = not problem.retimed(nonlinear) and not problem.reuse_design
     if direct:
         columns, sizes = problem._blocks(nonlinear)
         blocks = [b for b in columns if b.shape[2]]

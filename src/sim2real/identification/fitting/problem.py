@@ -13,7 +13,7 @@ import numpy as np
 from sim2real import blas
 from sim2real.identification import inertial
 from sim2real.identification.effects import Effect, Signals
-from sim2real.identification.effects.actuation_delay import shift_prediction
+from sim2real.identification.effects.timing import retime
 from sim2real.identification.fitting.data import kept_segments
 
 
@@ -75,8 +75,23 @@ class _Problem:
         """Time shift of the prediction (:meth:`Effect.prediction_shift`): the command leads what it causes by an
         actuation delay; a sensor's reading lags the torque by its own."""
         moves = [effect.prediction_shift(float(nonlinear[effect.name][0]), self.signals.forward)
-                 for effect in self.effects if effect.time_shift]
+                 for effect in self.effects if effect.time_shift and not effect.lowpass]
         return float(sum(moves)) if moves else 0.0
+
+    def lag(self, nonlinear: dict[str, np.ndarray]) -> float:
+        """First-order lag of the prediction (:meth:`Effect.prediction_lag`; a sum of time constants: at the
+        frequencies of a motion two low-passes in a row lag by the sum of theirs)."""
+        lags = [effect.prediction_lag(float(nonlinear[effect.name][0]), self.signals.forward)
+                for effect in self.effects if effect.time_shift and effect.lowpass]
+        return float(sum(lags)) if lags else 0.0
+
+    def retimed(self, nonlinear: dict[str, np.ndarray]) -> bool:
+        """Whether the prediction is moved in time at all (a delay or a first-order lag)."""
+        return self.delay(nonlinear) != 0.0 or self.lag(nonlinear) != 0.0
+
+    def retime(self, values: np.ndarray, nonlinear: dict[str, np.ndarray]) -> np.ndarray:
+        """``values`` (samples first) as the model's lags move the prediction (:func:`effects.timing.retime`)."""
+        return retime(values, self.signals.time, self.signals.segments, self.delay(nonlinear), self.lag(nonlinear))
 
     def block(self, effect: Effect, nonlinear: dict[str, np.ndarray]) -> np.ndarray:
         """One effect's columns (N, n, k) at the given nonlinear parameters (before the time shift)."""
@@ -96,11 +111,10 @@ class _Problem:
 
     def shift(self, columns: np.ndarray, effects: Sequence[Effect], sizes: Sequence[int],
               nonlinear: dict[str, np.ndarray]) -> np.ndarray:
-        """Columns as they enter the prediction: shifted by the delay, except a drive's on the actuator link
-        (the command is delayed; the rotor inertia and friction act on the motion as it is)."""
-        delay = self.delay(nonlinear)
-        shifted = shift_prediction(columns, self.signals.time, self.signals.segments, delay)
-        if delay != 0.0 and self.signals.forward:
+        """Columns as they enter the prediction: moved by the lags (:meth:`retime`), except a drive's on the
+        actuator link (the command is delayed; the rotor inertia and friction act on the motion as it is)."""
+        shifted = self.retime(columns, nonlinear)
+        if self.retimed(nonlinear) and self.signals.forward:
             held = np.concatenate([np.full(size, effect.drive) for effect, size in zip(effects, sizes, strict=True)]
                                   or [np.zeros(0, dtype=bool)])
             shifted[:, :, held] = columns[:, :, held]
@@ -111,9 +125,8 @@ class _Problem:
         return self.shift(design, self.effects, sizes, nonlinear), sizes
 
     def base(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray]) -> np.ndarray:
-        """The prediction without the linear columns: nominal and offsets, shifted; plus the unshifted term."""
-        out = shift_prediction(self.signals.tau_nominal + self.offsets(theta), self.signals.time,
-                               self.signals.segments, self.delay(nonlinear))
+        """The prediction without the linear columns: nominal and offsets, moved by the lags; plus the unshifted term."""
+        out = self.retime(self.signals.tau_nominal + self.offsets(theta), nonlinear)
         return out if self.signals.unshifted is None else out + self.signals.unshifted
 
     def design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:
@@ -186,7 +199,7 @@ class _Problem:
 
         Without a time shift the design is put together a few thousand samples at a time, never whole (on a
         long log the largest array of a fit): the same bits, as matmul multiplies sample by sample."""
-        if shifted is None and self.delay(nonlinear) == 0.0:
+        if shifted is None and not self.retimed(nonlinear):
             return self.predict_from_blocks(theta, nonlinear, *self._blocks(nonlinear), base=base)
         design, sizes = self.shifted_design(nonlinear) if shifted is None else shifted
         base = self.base(theta, nonlinear) if base is None else base

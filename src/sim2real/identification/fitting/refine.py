@@ -13,7 +13,7 @@ import numpy as np
 from scipy import optimize
 
 from sim2real.identification.effects import Signals
-from sim2real.identification.effects.actuation_delay import MAX_DELAY
+from sim2real.identification.effects.timing import MAX_DELAY
 from sim2real.identification.fitting.linear import _GramCache, _linear_fit
 from sim2real.identification.fitting.problem import _Problem, subset_signals
 

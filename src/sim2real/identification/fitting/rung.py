@@ -237,7 +237,7 @@ def _consistent_fit(
     # In the data term's units (each joint by its floor). On a long log the largest array of the fit: without a
     # time shift its rows are put together a chunk at a time (DesignRows), never whole; the same bits.
     weighted: np.ndarray | DesignRows
-    if problem.delay(nonlinear) == 0.0:
+    if not problem.retimed(nonlinear):
         weighted = problem.weighted_rows([b[2] for b in blocks])
     else:
         weighted = problem.shift(np.concatenate([b[2] for b in blocks], axis=2), [b[0] for b in blocks],

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects import Signals, get_effect
-from sim2real.identification.effects.actuation_delay import time_derivative
+from sim2real.identification.effects.timing import time_derivative
 from sim2real.identification.fitting.data import TorqueData
 from sim2real.identification.fitting.nominal import NominalModel, make_signals
 from sim2real.identification.fitting.problem import FitResult, _Problem

@@ -1,0 +1,42 @@
+"""Actuation lag: the torque applied is the command through a first-order low-pass of time constant T (one
+global T): a drive's current loop, whose bandwidth is finite.
+
+actuation_delay's lag with a filter's shape (:mod:`sim2real.identification.effects.timing`): the same lag at a motion's
+frequencies, and unlike a delay it attenuates what the command changes within T (a controller's noise at 1 kHz), which
+is where the actuator link (the measured torque against the command) tells the two apart. Against the motion, with
+commands alone, the command predicted is what the low-pass turns into the model's torque (its inverse). MJCF holds it
+exactly: actuator ``dyntype="filterexact"``, ``dynprm`` T, ``actearly`` (the force follows the filtered command of the
+same step, as a drive's does).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sim2real.identification.effects.actuation_delay import ActuationDelay
+from sim2real.identification.effects.base import ParameterSpec
+from sim2real.identification.effects.timing import MAX_DELAY
+
+
+class ActuationLag(ActuationDelay):
+    name = "actuation_lag"
+    summary = "the applied torque follows the command through a low-pass (a drive's current loop)"
+    signature = ("residual proportional to the time derivative of the torque; the commanded torque leads the model and "
+                 "its fast changes are not applied")
+    nonlinear = (ParameterSpec("time_constant", "s", 0.0, MAX_DELAY, False, "time constant of the drive's low-pass"),)
+    lowpass = True
+    # fitted only where a lag could matter (sim2real.identification.fitting.lag_score): the delay is the lag of
+    # every actuator link's diagnosis, the filter its other shape
+    lag_screened = True
+
+    def apply_to_spec(self, spec: Any, values: Any, context: Any) -> None:
+        import mujoco
+
+        time_constant = float(values["time_constant"])
+        if time_constant <= 0:
+            return
+        for actuator in context.get("actuators", {}).values():
+            act = spec.actuator(actuator)
+            act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+            act.dynprm[0] = time_constant
+            act.actearly = True
