@@ -327,13 +327,14 @@ def diagnose(
     ranked_candidates = []
     residuals_after: dict[str, np.ndarray] = {}
     tried, skipped = candidates_to_try(model_effects, holdout_data.torque_source, holdout_signals.forward, candidates)
-    for name in [n for n in tried if EFFECTS[n].lag_screened and current is not None
-                 and not any(EFFECTS[e].time_shift for e in current.effects)]:
-        reason = _lag_screen(current, nominal, holdout_data, holdout_signals, holdout_residual, unit, excess_now,
-                             x_now, limits)
-        if reason is not None:
-            tried.remove(name)
-            skipped.append({"effect": name, "reason": reason})
+    lags = [n for n in tried if EFFECTS[n].lag_screened and current is not None
+            and not any(EFFECTS[e].time_shift for e in current.effects)]
+    # One score for every shape of the lag (a delay, a first-order lag): linearised about none, they are the same.
+    reason = _lag_screen(current, nominal, holdout_data, holdout_signals, holdout_residual, unit, excess_now, x_now,
+                         limits) if lags else None
+    for name in lags if reason is not None else []:
+        tried.remove(name)
+        skipped.append({"effect": name, "reason": reason})
     trials = trial_fits(tried, workers, model_effects=list(model_effects), nominal=nominal, fit_data=fit_data,
                         holdout_data=holdout_data, nonlinear_fixed=nonlinear_fixed, settings=settings.get("fit"),
                         fit_signals=fit_signals, holdout_signals=holdout_signals, refinements=refinements)
