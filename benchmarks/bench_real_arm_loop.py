@@ -6,7 +6,8 @@ gearbox, like the Panda's tau_J, with part of the friction after the sensor), ``
 (the same without commands, like a real tau_J log), ``wrist_friction`` (friction on joint 7 alone), the
 messy logs (``real_arm_like_dropouts``, ``_glitches``, ``_30hz``), a torque sensor with dynamics of its own
 (``real_arm_like_sensor_lag``), drives whose current loop lags the command (``real_arm_like_drive_lag``) and, with ``--robot ur5``, the UR5's
-``real_arm_like`` (torques from motor currents at 500 Hz) hide all of it. This script plays the user: it
+``real_arm_like`` (torques from motor currents at 500 Hz) and ``real_arm_like_current_lag`` (those currents filtered)
+hide all of it. This script plays the user: it
 starts from an empty ``effects:``, adds what each
 verdict asks, and prints every round's verdicts and each joint's holdout residual in units of its own
 noise floor. Issue 18 is done when every joint of every link ends within 1.5x; until then this prints
@@ -29,6 +30,7 @@ FACTOR = 1.5
 SCENARIOS = ("real_arm_like", "link_side_sensor", "link_side_tau_only", "wrist_friction", "sensor_gains", "hysteresis",
              "drift", "ripple", "real_arm_like_dropouts", "real_arm_like_glitches", "real_arm_like_30hz",
              "real_arm_like_sensor_lag", "real_arm_like_drive_lag")
+UR5_SCENARIOS = ("real_arm_like", "real_arm_like_current_lag")
 
 
 def report(document: dict, round_: int, seconds: float | None = None) -> None:
@@ -58,8 +60,9 @@ def report(document: dict, round_: int, seconds: float | None = None) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robot", choices=("panda", "ur5"), default="panda",
-                        help="the dev arm and its configs/<robot>/lab.yaml (the UR5's: real_arm_like)")
-    parser.add_argument("--scenario", action="append", choices=SCENARIOS)
+                        help="the dev arm and its configs/<robot>/lab.yaml (the UR5's: real_arm_like, "
+                        "real_arm_like_current_lag)")
+    parser.add_argument("--scenario", action="append", choices=sorted({*SCENARIOS, *UR5_SCENARIOS}))
     parser.add_argument("--duration", type=float, default=8.0, help="lab run length [s]")
     args = parser.parse_args()
     import sysid_lab
@@ -67,7 +70,7 @@ def main() -> None:
     sysid_lab.LAB_DURATION_S = args.duration
     with tempfile.TemporaryDirectory() as tmp:
         lab = Lab(Path(tmp), args.robot)
-        for scenario in args.scenario or (SCENARIOS if args.robot == "panda" else ("real_arm_like",)):
+        for scenario in args.scenario or (SCENARIOS if args.robot == "panda" else UR5_SCENARIOS):
             print(f"== {scenario}")
             lab.follow(scenario, report=report)
 

@@ -138,10 +138,18 @@ def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: 
 LAG_SCREEN_SHARE = 0.5
 
 
+def _leads(name: str, forward: bool) -> bool:
+    """Whether a lag effect moves the prediction ahead in time (a command judged against the motion it causes)."""
+    effect = EFFECTS[name]
+    return (effect.prediction_lag(1.0, forward) < 0) if effect.lowpass else (effect.prediction_shift(1.0, forward) > 0)
+
+
 def _lag_screen(current: fitting.FitResult, nominal: Any, data: Any, signals: Signals, residual: np.ndarray,
-                unit: np.ndarray, excess: np.ndarray, x_now: np.ndarray, limits: Mapping[str, float]) -> str | None:
-    """Why a lag of the judged torque is not fitted on these runs (None: it is; :func:`fitting.lag_score`)."""
-    delay, gain = fitting.lag_score(current, nominal, data, residual, unit, signals)
+                unit: np.ndarray, excess: np.ndarray, x_now: np.ndarray, limits: Mapping[str, float],
+                lead: bool = False) -> str | None:
+    """Why a lag of the judged torque (with ``lead``: a lead) is not fitted on these runs (None: it is;
+    :func:`fitting.lag_score`)."""
+    delay, gain = fitting.lag_score(current, nominal, data, residual, unit, signals, lead=lead)
     with np.errstate(invalid="ignore", divide="ignore"):
         per_joint = np.where(excess > 0, gain / excess, 0.0)
     arm = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
@@ -149,7 +157,8 @@ def _lag_screen(current: fitting.FitResult, nominal: Any, data: Any, signals: Si
     if arm >= LAG_SCREEN_SHARE * limits["min_explained"] or np.any(
             above & (per_joint >= LAG_SCREEN_SHARE * min(limits["joint_decisive"], limits["joint_min_explained"]))):
         return None
-    return (f"a lag of the measured torque behind the model ({delay * 1e3:.2g} ms, linearised about none, every linear "
+    return (f"a {'lead of the judged torque ahead of' if lead else 'lag of the measured torque behind'} the model "
+            f"({delay * 1e3:.2g} ms, linearised about none, every linear "
             f"coefficient refitted beside it on the holdout runs) would remove at most {arm:.0%} of what lies above "
             "the noise floor, under half of what names a candidate")
 
@@ -180,9 +189,10 @@ def _rank(candidates: list[dict[str, Any]], tolerance: float) -> list[dict[str, 
         return ranked  # nothing is named: the order is only what comes closest
     limit = best["evidence"]["x_floor_after"] + tolerance
     close = [c for c in ranked if c["decisive"] == best["decisive"] and c["evidence"]["x_floor_after"] <= limit]
-    # Among those that do as well, one that keeps every inertia plausible first, then the simplest.
+    # Among those that do as well, one that keeps every inertia plausible first, then the simplest: of two shapes of
+    # one lag, the delay (a filter gives the simulation a state of its own).
     simplest = min(close, key=lambda c: (bool(c["evidence"]["implausible_bodies"]), c["evidence"]["parameters"],
-                                         -c["explained"], c["effect"]))
+                                         EFFECTS[c["effect"]].lowpass, -c["explained"], c["effect"]))
     return [simplest] + [c for c in ranked if c is not simplest]
 
 
@@ -196,6 +206,8 @@ def _confounded(
     pairs = []
     for i, a in enumerate(useful):
         for b in useful[i + 1 :]:
+            if same_lag(a, b):
+                continue  # two shapes of one lag: no run separates them (the verdict's shape sentence says so)
             if float(np.sqrt(np.mean((residuals[a] - residuals[b]) ** 2))) <= tolerance:
                 pairs.append((a, b))
     return pairs
@@ -329,12 +341,16 @@ def diagnose(
     tried, skipped = candidates_to_try(model_effects, holdout_data.torque_source, holdout_signals.forward, candidates)
     lags = [n for n in tried if EFFECTS[n].lag_screened and current is not None
             and not any(EFFECTS[e].time_shift for e in current.effects)]
-    # One score for every shape of the lag (a delay, a first-order lag): linearised about none, they are the same.
-    reason = _lag_screen(current, nominal, holdout_data, holdout_signals, holdout_residual, unit, excess_now, x_now,
-                         limits) if lags else None
-    for name in lags if reason is not None else []:
-        tried.remove(name)
-        skipped.append({"effect": name, "reason": reason})
+    # One score for every shape of a lag (a delay, a first-order lag): linearised about none, they are the same; a
+    # command judged against the motion leads it instead.
+    reasons = {lead: _lag_screen(current, nominal, holdout_data, holdout_signals, holdout_residual, unit, excess_now,
+                                 x_now, limits, lead)
+               for lead in sorted({_leads(name, holdout_signals.forward) for name in lags})}
+    for name in lags:
+        reason = reasons[_leads(name, holdout_signals.forward)]
+        if reason is not None:
+            tried.remove(name)
+            skipped.append({"effect": name, "reason": reason})
     trials = trial_fits(tried, workers, model_effects=list(model_effects), nominal=nominal, fit_data=fit_data,
                         holdout_data=holdout_data, nonlinear_fixed=nonlinear_fixed, settings=settings.get("fit"),
                         fit_signals=fit_signals, holdout_signals=holdout_signals, refinements=refinements)
@@ -436,11 +452,15 @@ def diagnose(
         after = best["evidence"]["per_joint_x_floor_after"]
         twins = [b for a, b in confounded if a == best["effect"]] + [a for a, b in confounded if b == best["effect"]]
         twins = [t for t in twins if t not in {c["effect"] for c in group}]  # the ties' sentence names those
-        shapes = [t for t in twins if same_lag(best["effect"], t)]
-        twins = [t for t in twins if t not in shapes]
+        shapes = [c["effect"] for c in candidates if same_lag(best["effect"], c["effect"]) and c["effect"] in residuals_after
+                  and c["explained"] >= float(limits["min_gain"]) and float(np.sqrt(np.mean(
+                      (residuals_after[best["effect"]] - residuals_after[c["effect"]]) ** 2))) <= CONFOUNDED_NOISE_FRACTION]
         shape_text = (f" These data cannot tell it from {', '.join(shapes)}: two shapes of the same lag, which part "
                       "only where the judged torque changes within it (a faster log, a command's own noise); either "
-                      "line holds the lag these runs show, and the one named removes the most." if shapes else "")
+                      "line holds the lag these runs show, and "
+                      + ("the filter is named: it removes the most." if EFFECTS[best["effect"]].lowpass else
+                         "the delay is named, the plainer of the two (a filter gives the simulation a state of its "
+                         "own).") if shapes else "")
         twin_text = shape_text + (f" These data cannot tell it apart from {', '.join(twins)} (the same prediction to within "
                      f"{CONFOUNDED_NOISE_FRACTION:g}x the noise floor). The run that would: "
                      + separating_runs(best["effect"], twins, robot)

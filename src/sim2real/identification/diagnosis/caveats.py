@@ -116,7 +116,8 @@ def implausible_bodies(result: fitting.FitResult) -> list[str]:
 def same_lag(a: str, b: str) -> bool:
     """Whether two effects are two shapes of one lag (a delay and a first-order lag of the same place,
     :mod:`sim2real.identification.effects.timing`): they part only where the judged torque changes within the lag,
-    which no motion within the arm's limits makes, so no designed run separates them; the ranking decides."""
+    which no motion within the arm's limits makes, so no designed run separates them; the ranking decides (within
+    what the data can tell, the delay: :func:`sim2real.identification.diagnosis.candidates._rank`)."""
     first, second = EFFECTS[a], EFFECTS[b]
     return (a != b and first.time_shift and second.time_shift and first.link == second.link
             and first.sensor_side == second.sensor_side)

@@ -79,21 +79,22 @@ LAG_CHUNK_ROWS = 1 << 14  # samples whose design rows a lag's score sums at a ti
 
 
 def lag_score(result: FitResult, nominal: NominalModel | None, data: TorqueData, residual: np.ndarray,
-              unit: np.ndarray, signals: Signals | None = None) -> tuple[float, np.ndarray]:
+              unit: np.ndarray, signals: Signals | None = None, lead: bool = False) -> tuple[float, np.ndarray]:
     """What a lag of the judged torque behind the fitted model would remove of ``residual`` (``data``'s, the model's
     holdout residual), linearised about no lag, with every linear coefficient of the model refitted beside it on
     these very samples (optimistic: an upper bound of what a fit on other runs delivers here, to first order).
 
     Returns the lag (s; 0 where only a lead would help: a reading cannot come before the torque) and, per joint, the
     fall of the sum of squares of ``residual / unit``. The model's reading at t is its torque at t - d, so
-    d(prediction)/dd = -d(prediction)/dt. For a model without a time shift of its own; its design is summed
+    d(prediction)/dd = -d(prediction)/dt; with ``lead``, the judged torque leads the model (a command against the
+    motion it causes: t + d). For a model without a time shift of its own; its design is summed
     :data:`LAG_CHUNK_ROWS` samples at a time."""
     if signals is None:
         assert nominal is not None
         signals = make_signals(nominal, data)
     effects = [get_effect(name) for name in result.effects]
     problem = _Problem(effects, signals, result.states)
-    slope = -time_derivative(data.tau - residual, signals.time, signals.segments)
+    slope = (1.0 if lead else -1.0) * time_derivative(data.tau - residual, signals.time, signals.segments)
     r, g = residual / unit, slope / unit
     blocks, _ = problem._blocks(result.nonlinear)
     p = int(sum(block.shape[2] for block in blocks))
