@@ -240,7 +240,8 @@ def test_an_actuation_delay_is_called_the_sensors_lag_only_where_the_body_link_f
 
     def noted(delay: float, share: float) -> str | None:
         diagnosis = {"status": "at_noise_floor", "verdict": "Nothing to add.", "candidates": []}
-        trial = {"effect": "sensor_delay", "explained_beyond_noise": share, "evidence": {"fitted": {"delay": delay}}}
+        trial = {"effect": "sensor_delay", "explained_beyond_noise": share,
+                 "evidence": {"fitted": {"delay": delay}, "x_floor_after": 1.2}}
         _note_sensor_lag(diagnosis, actuator, body, {"candidates": [trial]})
         assert diagnosis["verdict"].startswith("Nothing to add.")
         return diagnosis.get("lag_note")
@@ -250,6 +251,19 @@ def test_an_actuation_delay_is_called_the_sensors_lag_only_where_the_body_link_f
     assert noted(0.035, 0.45) is None  # another lag than the actuator link's
     assert noted(0.0075, 0.05) is None  # within the body's noise
     assert noted(0.0, 0.0) is None
+
+    def named_shape(filter_after: float) -> str:
+        """The line the note asks for when the body link tried both shapes of the sensor's lag."""
+        diagnosis = {"status": "at_noise_floor", "verdict": "Nothing to add.", "candidates": []}
+        trials = [{"effect": "sensor_delay", "explained_beyond_noise": 0.45,
+                   "evidence": {"fitted": {"delay": 0.0075}, "x_floor_after": 1.2}},
+                  {"effect": "sensor_lag", "explained_beyond_noise": 0.5,
+                   "evidence": {"fitted": {"time_constant": 0.0077}, "x_floor_after": filter_after}}]
+        _note_sensor_lag(diagnosis, actuator, body, {"candidates": trials})
+        return "sensor_lag" if "- sensor_lag" in diagnosis["lag_note"] else "sensor_delay"
+
+    assert named_shape(1.15) == "sensor_delay"  # no better than the data can tell: the plainer shape
+    assert named_shape(1.0) == "sensor_lag"  # clearly better: the filter
     with_it = SimpleNamespace(effects=["link_inertia", "sensor_delay"], values={"sensor_delay": {"delay": 0.0046}})
     diagnosis = {"status": "unexplained", "verdict": "No effect explains it.", "candidates": []}
     _note_sensor_lag(diagnosis, actuator, with_it, None)

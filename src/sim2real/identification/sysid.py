@@ -351,7 +351,12 @@ def _note_sensor_lag(diagnosis: dict[str, Any] | None, actuator: FitResult, body
                    "difference, which no effect of this link removes." if diagnosis.get("status") == "unexplained" else ""))
     elif (held or named) and not sensor:
         trials = [c for c in (body_diagnosis or {}).get("candidates", []) if sensor_lag(c["effect"])]
-        trial = max(trials, key=lambda c: c["explained_beyond_noise"], default=None)
+        # Of its shapes, the one the body link's ranking would name: the delay where the filter does no better than the
+        # data can tell (sim2real.identification.diagnosis.candidates._rank).
+        reach = min((c["evidence"]["x_floor_after"] for c in trials), default=0.0)
+        trial = min((c for c in trials if c["evidence"]["x_floor_after"]
+                     <= reach + float(DEFAULT_DIAGNOSIS["parsimony_noise_fraction"])),
+                    key=lambda c: (get_effect(c["effect"]).lowpass, c["evidence"]["x_floor_after"]), default=None)
         own = (sum(lag_value(name, actuator.values.get(name) or {}) for name in held) if held
                else lag_value(top["effect"], top["evidence"]["fitted"]))
         found = lag_value(trial["effect"], trial["evidence"]["fitted"]) if trial else 0.0
