@@ -285,10 +285,16 @@ def test_an_actuation_lag_is_an_exact_first_order_filter_of_the_actuators(dev_mj
     from sim2real.filters import first_order_lag
 
     spec = dev_mjcf.copy()
-    apply_to_spec(spec, {"torque_source": "tau", "effects": {"actuation_lag": {"time_constant": 0.004}}})
+    key = spec.add_key()
+    key.name, key.ctrl = "home", [0.1 * (k + 1) for k in range(len(spec.actuators))]
+    apply_to_spec(spec, {"torque_source": "tau", "joints": JOINTS[1:],
+                         "effects": {"actuation_lag": {"time_constant": 0.004}}})
     model = spec.compile()
     joint = model.actuator("motor_panda_joint2").id
     assert model.actuator_dyntype[joint] == mujoco.mjtDyn.mjDYN_FILTEREXACT
+    # the identified joints' actuators only, each keyframe's filter settled at its control
+    assert model.actuator_dyntype[model.actuator("motor_panda_joint1").id] == mujoco.mjtDyn.mjDYN_NONE
+    assert model.key_act[0][model.actuator_actadr[joint]] == pytest.approx(model.key_ctrl[0][joint])
     assert model.actuator_dynprm[joint, 0] == pytest.approx(0.004)
     data = mujoco.MjData(model)
     commands = np.r_[np.zeros(3), np.linspace(0.0, 2.0, 12), np.full(10, 2.0)]

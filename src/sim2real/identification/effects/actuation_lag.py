@@ -6,7 +6,8 @@ frequencies, and unlike a delay it attenuates what the command changes within T 
 is where the actuator link (the measured torque against the command) tells the two apart. Against the motion, with
 commands alone, the command predicted is what the low-pass turns into the model's torque (its inverse). MJCF holds it
 exactly: actuator ``dyntype="filterexact"``, ``dynprm`` T, ``actearly`` (the force follows the filtered command of the
-same step, as a drive's does).
+same step, as a drive's does), on the identified joints' actuators, each keyframe's filter settled at its control. On
+a position servo the filter acts on its target, as MuJoCo's actuator ``delay`` does.
 """
 
 from __future__ import annotations
@@ -35,8 +36,15 @@ class ActuationLag(ActuationDelay):
         time_constant = float(values["time_constant"])
         if time_constant <= 0:
             return
-        for actuator in context.get("actuators", {}).values():
-            act = spec.actuator(actuator)
-            act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
-            act.dynprm[0] = time_constant
-            act.actearly = True
+        identified = context.get("joints")
+        for joint, actuator in sorted(context.get("actuators", {}).items()):
+            if identified is None or joint in identified:
+                act = spec.actuator(actuator)
+                act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+                act.dynprm[0] = time_constant
+                act.actearly = True
+        # A keyframe starts each filter settled at its control (a filter's state would otherwise start at zero).
+        stateful = [k for k, act in enumerate(spec.actuators) if act.dyntype != mujoco.mjtDyn.mjDYN_NONE]
+        for key in spec.keys:
+            if len(key.ctrl) == len(spec.actuators):
+                key.act = [float(key.ctrl[k]) for k in stateful]
