@@ -348,30 +348,40 @@ def diagnose(
     tried, skipped = candidates_to_try(model_effects, holdout_data.torque_source, holdout_signals.forward, candidates)
     lags = [n for n in tried if EFFECTS[n].lag_screened and current is not None
             and not any(EFFECTS[e].time_shift for e in current.effects)]
-    # One score for every shape of a lag (a delay, a first-order lag): linearised about none, they are the same; a
-    # command judged against the motion leads it instead.
+    # A shape of a lag beside another shape tried unscreened (the actuator link's delay, whose trial sees further than
+    # a linearisation about no lag) waits for that trial (below); the others are screened by a lag's score, one for
+    # every shape (linearised about none they are the same; a command judged against the motion leads it instead).
+    waiting = {n: next(s for s in tried if same_lag(n, s) and not EFFECTS[s].lag_screened) for n in lags
+               if any(same_lag(n, s) and not EFFECTS[s].lag_screened for s in tried)}
+    screened = [n for n in lags if n not in waiting]
     reasons = {lead: _lag_screen(current, nominal, holdout_data, holdout_signals, holdout_residual, unit, excess_now,
                                  x_now, limits, lead)
-               for lead in sorted({_leads(name, holdout_signals.forward) for name in lags})}
+               for lead in sorted({_leads(name, holdout_signals.forward) for name in screened})}
     for name in lags:
-        reason = reasons[_leads(name, holdout_signals.forward)]
+        reason = reasons[_leads(name, holdout_signals.forward)] if name in screened else ""
         if reason is not None:
             tried.remove(name)
-            skipped.append({"effect": name, "reason": reason})
+            if name in screened:
+                skipped.append({"effect": name, "reason": reason})
     trial_inputs = {"model_effects": list(model_effects), "nominal": nominal, "fit_data": fit_data,
                     "holdout_data": holdout_data, "nonlinear_fixed": nonlinear_fixed, "settings": settings.get("fit"),
                     "fit_signals": fit_signals, "holdout_signals": holdout_signals, "refinements": refinements}
     trials = trial_fits(tried, workers, **trial_inputs)
-    # A shape of a lag screened out beside another shape tried unscreened (the actuator link's delay, whose trial
-    # sees further than a linearisation about no lag) is fitted after all where that trial removes what the screen
-    # asks of a lag: the data, not the order of the library, choose the shape.
-    second = [s["effect"] for s in skipped if s["effect"] in lags and any(
-        same_lag(s["effect"], n) and _worth_a_lag(sse_now - _sse(trials[n][1] / unit), excess_now, x_now, limits)
-        for n in tried)]
+    # The data, not the order of the library, choose the shape: where the other shape's trial removes what the screen
+    # asks of a lag, this one is fitted too.
+    second = []
+    for name, other in waiting.items():
+        gain = sse_now - _sse(trials[other][1] / unit)
+        if _worth_a_lag(gain, excess_now, x_now, limits):
+            second.append(name)
+        else:
+            share = float(gain.sum() / excess_now.sum()) if excess_now.sum() > 0 else 0.0
+            skipped.append({"effect": name, "reason": f"its other shape, {other}, tried beside it, removes "
+                            f"{max(share, 0.0):.0%} of what lies above the noise floor, under half of what names a "
+                            "candidate"})
     if second:
         trials.update(trial_fits(second, workers, **trial_inputs))
         tried += second
-        skipped = [s for s in skipped if s["effect"] not in second]
     failed: dict[str, dict[str, float]] = {}
     for name in tried:
         effect = EFFECTS[name]
