@@ -315,6 +315,35 @@ def test_action_delay_uses_mujoco_actuator_delay(stats_setup: tuple[dict[str, An
     assert steps_until_force == int(np.ceil(delay / model.opt.timestep - 1e-9))
 
 
+def test_action_lag_randomizes_the_calibrated_actuators_filter_and_is_refused_without_one(
+        mjcf: dict[str, Path], tmp_path: Path) -> None:
+    """An arm calibrated with actuation_lag drives its joints through MuJoCo's first-order filter; action_lag draws
+    that filter's time constant per episode, within its range. A model without a filter is refused, naming the key
+    and what puts a filter there; the identified time constant is checked against the randomized range."""
+    from sim2real.identification.effects import apply_to_spec
+
+    config = {"physics_randomization": {"action_lag": {
+        "mode": "reset", "distribution": "uniform", "lag_range": [2, 6], "unit": "milliseconds",
+        "actuator_names": ["panda_joint*"]}}}
+    spec = mujoco.MjSpec.from_file(str(mjcf["panda"]))
+    with pytest.raises(InputError, match="action_lag/actuator_names.*first-order filter.*actuation_lag"):
+        dr.resolve_config(copy.deepcopy(config), spec.compile(), config_path="dr.yaml")
+    apply_to_spec(spec, {"torque_source": "tau", "effects": {"actuation_lag": {"time_constant": 0.004}}})
+    base = spec.compile()
+    resolved = dr.resolve_config(copy.deepcopy(config), base, config_path="dr.yaml")
+    lagged = _ids(base, mujoco.mjtObj.mjOBJ_ACTUATOR, resolved, "lag")
+    assert len(lagged) and all(base.actuator_dyntype[i] == mujoco.mjtDyn.mjDYN_FILTEREXACT for i in lagged)
+    randomizer = dr.DomainRandomizer(resolved, base, seed=3)
+    drawn = np.array([randomizer.reset().actuator_dynprm[lagged, 0] for _ in range(300)])
+    assert drawn.min() >= 0.002 and drawn.max() <= 0.006 and drawn.std() > 0.0005
+    assert np.all(base.actuator_dynprm[lagged, 0] == 0.004)  # the base model is never modified
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"robot": "panda", "effects": {"actuation_lag": {"time_constant": 0.004}}}))
+    coverage = dr.coverage_summary(resolved, params)
+    records = [r for r in coverage["records"] if r["channel"] == "lag"]
+    assert records and all(r["covered"] for r in records)
+
+
 def test_model_without_history_buffer_is_refused(stats_setup: tuple[dict[str, Any], mujoco.MjModel], mjcf: dict[str, Path]) -> None:
     resolved, _ = stats_setup
     plain = mujoco.MjModel.from_xml_path(str(mjcf["panda"]))

@@ -33,6 +33,8 @@ IDENTIFIED_ALIASES: dict[str, str] = {
     "actuation_delay": "delay",
     "action_delay": "delay",
     "delay": "delay",
+    "actuation_lag": "lag",
+    "action_lag": "lag",
     "mass": "mass",
     "body_mass": "mass",
     "link_mass": "mass",
@@ -78,6 +80,7 @@ SYSID_QUANTITIES: dict[tuple[str, str], str] = {
     ("coulomb_friction", "friction"): "frictionloss",
     ("rotor_inertia", "armature"): "armature",
     ("actuation_delay", "delay"): "delay",
+    ("actuation_lag", "time_constant"): "lag",
     # A motor gain scales its actuator's gainprm[0] (a servo's kp), which the kp channel randomizes.
     ("actuator_gain", "gain"): "kp",
 }

@@ -51,6 +51,8 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("joint_armature", "armature", "range", "joint", "kg*m^2", 1, 0.0, False, "scale", "joint armature"),
     Parameter("joint_frictionloss", "frictionloss", "range", "joint", "N*m", 1, 0.0, False, "scale", "joint friction loss"),
     Parameter("action_delay", "delay", "delay_range", "actuator", "s", 1, 0.0, False, "abs", "action delay"),
+    Parameter("action_lag", "lag", "lag_range", "actuator", "s", 1, 0.0, False, "abs",
+              "action lag (a first-order filter's time constant)"),
     Parameter("gravity", "gravity", "range", "model", "m/s^2", 3, None, False, "add", "gravity"),
 )
 PARAMETER_BY_CHANNEL = {p.channel: p for p in PARAMETERS}
@@ -103,6 +105,8 @@ def get_values(model: mujoco.MjModel, channel: str, ids: np.ndarray) -> np.ndarr
         return model.dof_frictionloss[_joint_dofs(model, ids)][:, None].copy()
     if channel == "delay":
         return model.actuator_delay[ids][:, None].copy()
+    if channel == "lag":
+        return model.actuator_dynprm[ids, 0][:, None].copy()
     if channel == "gravity":
         return np.asarray(model.opt.gravity, dtype=float)[None, :].copy()
     raise KeyError(channel)
@@ -141,11 +145,16 @@ def set_values(model: mujoco.MjModel, base: mujoco.MjModel, channel: str, ids: n
         model.dof_frictionloss[_joint_dofs(model, ids)] = values[:, 0]
     elif channel == "delay":
         model.actuator_delay[ids] = values[:, 0]
+    elif channel == "lag":
+        model.actuator_dynprm[ids, 0] = values[:, 0]
     elif channel == "gravity":
         model.opt.gravity[:] = values[0]
     else:
         raise KeyError(channel)
 
+
+# Actuator dynamics with a first-order filter's time constant in dynprm[0] (the action_lag channel's elements).
+_FILTERS = (int(mujoco.mjtDyn.mjDYN_FILTER), int(mujoco.mjtDyn.mjDYN_FILTEREXACT))
 
 # Channels whose change alters quantities MuJoCo precomputes at qpos0 (mj_setConst).
 CONST_CHANNELS = frozenset({"mass", "com_offset", "armature"})
@@ -170,6 +179,8 @@ def candidate_elements(model: mujoco.MjModel, parameter_element: str, channel: s
         return [(i, n) for i, n in enumerate(names) if n and int(model.jnt_type[i]) in _HINGE_OR_SLIDE]
     if parameter_element == "actuator":
         names = _names(model, mujoco.mjtObj.mjOBJ_ACTUATOR, model.nu)
+        if channel == "lag":  # a time constant only a first-order filter has
+            return [(i, n) for i, n in enumerate(names) if n and int(model.actuator_dyntype[i]) in _FILTERS]
         return [(i, n) for i, n in enumerate(names) if n]
     raise KeyError(parameter_element)
 

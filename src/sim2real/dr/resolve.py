@@ -91,7 +91,10 @@ def _resolve_physics_channel(
         selector_key = SELECTOR_KEY[parameter.element]
         patterns = term_cfg.get(selector_key, ["*"])
         what = {"body": "body with mass" if parameter.channel == "mass" else "body", "geom": "colliding geom",
-                "joint": "hinge/slide joint", "actuator": "actuator"}[parameter.element]
+                "joint": "hinge/slide joint",
+                "actuator": ("actuator with a first-order filter (dyntype filter or filterexact, which '- actuation_lag' "
+                             "in model.yaml writes into the calibrated MJCF)" if parameter.channel == "lag"
+                             else "actuator")}[parameter.element]
         elements = _match_selector(
             patterns,
             candidate_elements(model, parameter.element, parameter.channel),

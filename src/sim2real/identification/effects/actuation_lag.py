@@ -26,8 +26,8 @@ class ActuationLag(ActuationDelay):
                  "its fast changes are not applied")
     nonlinear = (ParameterSpec("time_constant", "s", 0.0, MAX_DELAY, False, "time constant of the drive's low-pass"),)
     lowpass = True
-    # fitted only where a lag could matter (sim2real.identification.fitting.lag_score): the delay is the lag of
-    # every actuator link's diagnosis, the filter its other shape
+    # fitted only where a lag could matter: beside the delay, which every diagnosis of its link tries, where the
+    # delay's trial removes enough (sim2real.identification.diagnosis.candidates)
     lag_screened = True
 
     def apply_to_spec(self, spec: Any, values: Any, context: Any) -> None:
