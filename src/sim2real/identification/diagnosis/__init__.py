@@ -3,6 +3,8 @@
 * :mod:`~sim2real.identification.diagnosis.candidates`: every effect of the library not in the model fitted on top of it as
   its rung would be, ranked by the holdout residual it removes (each joint in units of its own floor), ties
   and confounded pairs called so, the verdict;
+* :mod:`~sim2real.identification.diagnosis.lags`: when a lag (a delay, a first-order lag) is worth a trial, and what a
+  verdict says of its two shapes;
 * :mod:`~sim2real.identification.diagnosis.caveats`: what keeps a verdict from being a clean decision (ties, inertias left
   implausible, trades with the model) and what it must then say;
 * :mod:`~sim2real.identification.diagnosis.ceiling`: the model-free ceiling, a flexible learner on the motion fitted to the

@@ -54,10 +54,12 @@ from sim2real.identification import fitting
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Signals, per_joint_dict
 from sim2real.identification.diagnosis.caveats import (
-    NESTED_IN, caveats, implausible_bodies, not_told_apart_verdict, recommend, same_lag, separating_runs, ties,
+    NESTED_IN, caveats, implausible_bodies, not_told_apart_verdict, recommend, separating_runs, ties,
     trades_with_model,
 )
 from sim2real.forked import map_forked
+from sim2real.identification.diagnosis.lags import (after_other_shape, other_shapes, same_lag, screen_lags,
+                                                     shapes_sentence)
 from sim2real.identification.inertial import import_solver
 
 DEFAULT_DIAGNOSIS: dict[str, float] = {
@@ -130,44 +132,6 @@ def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: 
     without = dataclasses.replace(result, theta={**result.theta, name: np.zeros_like(coefficients)})
     term = fitting.predict(result, nominal, data, signals) - fitting.predict(without, nominal, data, signals)
     return np.sqrt(np.mean((term / unit) ** 2, axis=0))
-
-
-# A lag is fitted only where, linearised about no lag with every linear coefficient refitted beside it on the
-# holdout runs themselves (more than a fit on the fit runs can deliver there), it could remove this share of what
-# a candidate must remove to be named: a trial costs a rung's fit, and a log without a lag needs none.
-LAG_SCREEN_SHARE = 0.5
-
-
-def _leads(name: str, forward: bool) -> bool:
-    """Whether a lag effect moves the prediction ahead in time (a command judged against the motion it causes)."""
-    effect = EFFECTS[name]
-    return (effect.prediction_lag(1.0, forward) < 0) if effect.lowpass else (effect.prediction_shift(1.0, forward) > 0)
-
-
-def _worth_a_lag(gain: np.ndarray, excess: np.ndarray, x_now: np.ndarray, limits: Mapping[str, float]) -> bool:
-    """Whether removing ``gain`` (per joint, of the squared residual in floor units) is worth fitting a lag: half of
-    what names a candidate, arm-wide or on a joint above its floor (:data:`LAG_SCREEN_SHARE`)."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        per_joint = np.where(excess > 0, gain / excess, 0.0)
-    arm = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
-    above = x_now > limits["noise_floor_factor"]
-    return bool(arm >= LAG_SCREEN_SHARE * limits["min_explained"] or np.any(
-        above & (per_joint >= LAG_SCREEN_SHARE * min(limits["joint_decisive"], limits["joint_min_explained"]))))
-
-
-def _lag_screen(current: fitting.FitResult, nominal: Any, data: Any, signals: Signals, residual: np.ndarray,
-                unit: np.ndarray, excess: np.ndarray, x_now: np.ndarray, limits: Mapping[str, float],
-                lead: bool = False) -> str | None:
-    """Why a lag of the judged torque (with ``lead``: a lead) is not fitted on these runs (None: it is;
-    :func:`fitting.lag_score`)."""
-    delay, gain = fitting.lag_score(current, nominal, data, residual, unit, signals, lead=lead)
-    if _worth_a_lag(gain, excess, x_now, limits):
-        return None
-    arm = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
-    return (f"a {'lead of the judged torque ahead of' if lead else 'lag of the measured torque behind'} the model "
-            f"({delay * 1e3:.2g} ms, linearised about none, every linear "
-            f"coefficient refitted beside it on the holdout runs) would remove at most {arm:.0%} of what lies above "
-            "the noise floor, under half of what names a candidate")
 
 
 def add_line(effect: str) -> str:
@@ -346,39 +310,14 @@ def diagnose(
     ranked_candidates = []
     residuals_after: dict[str, np.ndarray] = {}
     tried, skipped = candidates_to_try(model_effects, holdout_data.torque_source, holdout_signals.forward, candidates)
-    lags = [n for n in tried if EFFECTS[n].lag_screened and current is not None
-            and not any(EFFECTS[e].time_shift for e in current.effects)]
-    # A shape of a lag beside another shape tried unscreened (the actuator link's delay, whose trial sees further than
-    # a linearisation about no lag) waits for that trial (below); the others are screened by a lag's score, one for
-    # every shape (linearised about none they are the same; a command judged against the motion leads it instead).
-    waiting = {n: next(s for s in tried if same_lag(n, s) and not EFFECTS[s].lag_screened) for n in lags
-               if any(same_lag(n, s) and not EFFECTS[s].lag_screened for s in tried)}
-    screened = [n for n in lags if n not in waiting]
-    reasons = {lead: _lag_screen(current, nominal, holdout_data, holdout_signals, holdout_residual, unit, excess_now,
-                                 x_now, limits, lead)
-               for lead in sorted({_leads(name, holdout_signals.forward) for name in screened})}
-    for name in lags:
-        reason = reasons[_leads(name, holdout_signals.forward)] if name in screened else ""
-        if reason is not None:
-            tried.remove(name)
-            if name in screened:
-                skipped.append({"effect": name, "reason": reason})
+    # A lag is fitted only where it could matter (diagnosis.lags): screened, or waiting for its other shape's trial.
+    waiting = screen_lags(tried, skipped, current, nominal, holdout_data, holdout_signals, holdout_residual, unit,
+                          excess_now, x_now, limits)
     trial_inputs = {"model_effects": list(model_effects), "nominal": nominal, "fit_data": fit_data,
                     "holdout_data": holdout_data, "nonlinear_fixed": nonlinear_fixed, "settings": settings.get("fit"),
                     "fit_signals": fit_signals, "holdout_signals": holdout_signals, "refinements": refinements}
     trials = trial_fits(tried, workers, **trial_inputs)
-    # The data, not the order of the library, choose the shape: where the other shape's trial removes what the screen
-    # asks of a lag, this one is fitted too.
-    second = []
-    for name, other in waiting.items():
-        gain = sse_now - _sse(trials[other][1] / unit)
-        if _worth_a_lag(gain, excess_now, x_now, limits):
-            second.append(name)
-        else:
-            share = float(gain.sum() / excess_now.sum()) if excess_now.sum() > 0 else 0.0
-            skipped.append({"effect": name, "reason": f"its other shape, {other}, tried beside it, removes "
-                            f"{max(share, 0.0):.0%} of what lies above the noise floor, under half of what names a "
-                            "candidate"})
+    second = after_other_shape(waiting, trials, skipped, unit, sse_now, excess_now, x_now, limits)
     if second:
         trials.update(trial_fits(second, workers, **trial_inputs))
         tried += second
@@ -480,20 +419,8 @@ def diagnose(
         after = best["evidence"]["per_joint_x_floor_after"]
         twins = [b for a, b in confounded if a == best["effect"]] + [a for a, b in confounded if b == best["effect"]]
         twins = [t for t in twins if t not in {c["effect"] for c in group}]  # the ties' sentence names those
-        # Another shape of the named lag that does as well as the data can tell (_rank's tolerance) or predicts the
-        # same torque (_confounded's): a tie, said as one.
-        shapes = [c["effect"] for c in candidates if same_lag(best["effect"], c["effect"]) and c["effect"] in residuals_after
-                  and c["explained"] >= float(limits["min_gain"]) and (
-                      abs(c["evidence"]["x_floor_after"] - best["evidence"]["x_floor_after"])
-                      <= float(limits["parsimony_noise_fraction"])
-                      or float(np.sqrt(np.mean((residuals_after[best["effect"]] - residuals_after[c["effect"]]) ** 2)))
-                      <= CONFOUNDED_NOISE_FRACTION)]
-        shape_text = (f" These data cannot tell it from {', '.join(shapes)}: two shapes of the same lag, which part "
-                      "only where the judged torque changes within it (a faster log, a command's own noise); either "
-                      "line holds the lag these runs show, and "
-                      + ("the filter is named: it removes the most." if EFFECTS[best["effect"]].lowpass else
-                         "the delay is named, the plainer of the two (a filter gives the simulation a state of its "
-                         "own).") if shapes else "")
+        shape_text = shapes_sentence(best, other_shapes(best, candidates, residuals_after, limits,
+                                                                   CONFOUNDED_NOISE_FRACTION))
         twin_text = shape_text + (f" These data cannot tell it apart from {', '.join(twins)} (the same prediction to within "
                      f"{CONFOUNDED_NOISE_FRACTION:g}x the noise floor). The run that would: "
                      + separating_runs(best["effect"], twins, robot)

@@ -18,7 +18,7 @@ import numpy as np
 
 from sim2real.identification import fitting
 from sim2real.design_names import separation_name
-from sim2real.identification.effects import EFFECTS
+from sim2real.identification.diagnosis.lags import same_lag
 from sim2real.identification.effects.base import Signals
 
 # Effects that are special cases of another: never tried once the larger one is in the model, and never a tie
@@ -111,16 +111,6 @@ def implausible_bodies(result: fitting.FitResult) -> list[str]:
     link = (result.values or {}).get("link_inertia") or {}
     return [f"{name} ({', '.join(body['implausible'])})" for name, body in (link.get("bodies") or {}).items()
             if body.get("implausible")]
-
-
-def same_lag(a: str, b: str) -> bool:
-    """Whether two effects are two shapes of one lag (a delay and a first-order lag of the same place,
-    :mod:`sim2real.identification.effects.timing`): they part only where the judged torque changes within the lag,
-    which no motion within the arm's limits makes, so no designed run separates them; the ranking decides (within
-    what the data can tell, the delay: :func:`sim2real.identification.diagnosis.candidates._rank`)."""
-    first, second = EFFECTS[a], EFFECTS[b]
-    return (a != b and first.time_shift and second.time_shift and first.link == second.link
-            and first.sensor_side == second.sensor_side)
 
 
 def nested_pair(a: str, b: str) -> bool:

@@ -1,0 +1,133 @@
+"""A lag's place in the diagnosis: when one is worth a trial, and what a verdict says of its two shapes.
+
+A lag (:mod:`sim2real.identification.effects.timing`: a delay, or a first-order lag) costs a rung's fit to try, and a
+log without one needs none. A lag is tried where, linearised about no lag with every linear coefficient refitted
+beside it on the holdout runs themselves (more than a fit on the fit runs can deliver there), it could remove half
+of what a candidate must remove to be named (:func:`screen_lags`); a shape of a lag beside another shape the link tries
+anyway (the actuator link's delay) waits for that trial instead, and is fitted where it removes as much
+(:func:`after_other_shape`). Two shapes of one lag part only where the judged torque changes within it: where the
+data cannot tell them apart the verdict says so (:func:`other_shapes`, :func:`shapes_sentence`), and no designed run is
+promised (:func:`same_lag`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from sim2real.identification import fitting
+from sim2real.identification.effects import EFFECTS
+from sim2real.identification.effects.base import Signals
+
+# The share of what names a candidate that a lag must be able to remove to be tried.
+LAG_SCREEN_SHARE = 0.5
+
+
+def same_lag(a: str, b: str) -> bool:
+    """Whether two effects are two shapes of one lag (a delay and a first-order lag of the same place): they part
+    only where the judged torque changes within the lag, which no motion within the arm's limits makes, so no designed
+    run separates them; the ranking decides (within what the data can tell, the delay:
+    :func:`sim2real.identification.diagnosis.candidates._rank`)."""
+    first, second = EFFECTS[a], EFFECTS[b]
+    return (a != b and first.time_shift and second.time_shift and first.link == second.link
+            and first.sensor_side == second.sensor_side)
+
+
+def leads(name: str, forward: bool) -> bool:
+    """Whether a lag effect moves the prediction ahead in time (a command judged against the motion it causes)."""
+    effect = EFFECTS[name]
+    return (effect.prediction_lag(1.0, forward) < 0) if effect.lowpass else (effect.prediction_shift(1.0, forward) > 0)
+
+
+def worth_a_lag(gain: np.ndarray, excess: np.ndarray, x_now: np.ndarray, limits: Mapping[str, float]) -> bool:
+    """Whether removing ``gain`` (per joint, of the squared residual in floor units) is worth fitting a lag: half of
+    what names a candidate, arm-wide or on a joint above its floor (:data:`LAG_SCREEN_SHARE`)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_joint = np.where(excess > 0, gain / excess, 0.0)
+    arm = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
+    above = x_now > limits["noise_floor_factor"]
+    return bool(arm >= LAG_SCREEN_SHARE * limits["min_explained"] or np.any(
+        above & (per_joint >= LAG_SCREEN_SHARE * min(limits["joint_decisive"], limits["joint_min_explained"]))))
+
+
+def _screen_reason(current: fitting.FitResult, nominal: Any, data: Any, signals: Signals, residual: np.ndarray,
+                   unit: np.ndarray, excess: np.ndarray, x_now: np.ndarray, limits: Mapping[str, float],
+                   lead: bool = False) -> str | None:
+    """Why a lag of the judged torque (with ``lead``: a lead) is not fitted on these runs (None: it is;
+    :func:`fitting.lag_score`)."""
+    delay, gain = fitting.lag_score(current, nominal, data, residual, unit, signals, lead=lead)
+    if worth_a_lag(gain, excess, x_now, limits):
+        return None
+    arm = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
+    return (f"a {'lead of the judged torque ahead of' if lead else 'lag of the measured torque behind'} the model "
+            f"({delay * 1e3:.2g} ms, linearised about none, every linear "
+            f"coefficient refitted beside it on the holdout runs) would remove at most {arm:.0%} of what lies above "
+            "the noise floor, under half of what names a candidate")
+
+
+def screen_lags(tried: list[str], skipped: list[dict[str, str]], current: fitting.FitResult | None, nominal: Any,
+           data: Any, signals: Signals, residual: np.ndarray, unit: np.ndarray, excess: np.ndarray, x_now: np.ndarray,
+           limits: Mapping[str, float]) -> dict[str, str]:
+    """Take out of ``tried`` the lags not worth a trial on these runs (into ``skipped``, each with why) and those
+    that wait for their other shape's trial; returns the waiting ones, each with the shape it waits for. Only a model
+    without a lag of its own is screened (with one, the other shape is the question). One score for every shape:
+    linearised about none they are the same (a command judged against the motion leads it instead)."""
+    if current is None or any(EFFECTS[e].time_shift for e in current.effects):
+        return {}
+    lags = [n for n in tried if EFFECTS[n].lag_screened]
+    waiting = {n: next(s for s in tried if same_lag(n, s) and not EFFECTS[s].lag_screened) for n in lags
+               if any(same_lag(n, s) and not EFFECTS[s].lag_screened for s in tried)}
+    screened = [n for n in lags if n not in waiting]
+    reasons = {lead: _screen_reason(current, nominal, data, signals, residual, unit, excess, x_now, limits, lead)
+               for lead in sorted({leads(name, signals.forward) for name in screened})}
+    for name in lags:
+        if name in waiting:
+            tried.remove(name)
+        elif reasons[leads(name, signals.forward)] is not None:
+            tried.remove(name)
+            skipped.append({"effect": name, "reason": reasons[leads(name, signals.forward)]})
+    return waiting
+
+
+def after_other_shape(waiting: Mapping[str, str], trials: Mapping[str, tuple[Any, np.ndarray]],
+                      skipped: list[dict[str, str]], unit: np.ndarray, sse_now: np.ndarray, excess: np.ndarray,
+                      x_now: np.ndarray, limits: Mapping[str, float]) -> list[str]:
+    """The waiting lags (:func:`screen_lags`) to fit after all: those whose other shape's trial removes what the screen
+    asks of a lag (the data, not the order of the library, choose the shape); the rest into ``skipped``, with what
+    that trial removed."""
+    second = []
+    for name, other in waiting.items():
+        gain = sse_now - np.sum((trials[other][1] / unit) ** 2, axis=0)
+        if worth_a_lag(gain, excess, x_now, limits):
+            second.append(name)
+        else:
+            share = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
+            skipped.append({"effect": name, "reason": f"its other shape, {other}, tried beside it, removes "
+                            f"{max(share, 0.0):.0%} of what lies above the noise floor, under half of what names a "
+                            "candidate"})
+    return second
+
+
+def other_shapes(best: Mapping[str, Any], candidates: Sequence[Mapping[str, Any]],
+                 residuals: Mapping[str, np.ndarray], limits: Mapping[str, Any], same_prediction: float) -> list[str]:
+    """The other shapes of the named lag that do as well as the data can tell (the ranking's tolerance) or predict
+    the same torque (within ``same_prediction`` RMS): a tie, said as one (:func:`shapes_sentence`). ``residuals``: in
+    floor units, by candidate."""
+    return [c["effect"] for c in candidates if same_lag(best["effect"], c["effect"]) and c["effect"] in residuals
+            and c["explained"] >= float(limits["min_gain"]) and (
+                abs(c["evidence"]["x_floor_after"] - best["evidence"]["x_floor_after"])
+                <= float(limits["parsimony_noise_fraction"])
+                or float(np.sqrt(np.mean((residuals[best["effect"]] - residuals[c["effect"]]) ** 2))) <= same_prediction)]
+
+
+def shapes_sentence(best: Mapping[str, Any], shapes: Sequence[str]) -> str:
+    """The verdict's sentence on a lag named where another shape of it does as well (empty without one)."""
+    if not shapes:
+        return ""
+    return (f" These data cannot tell it from {', '.join(shapes)}: two shapes of the same lag, which part only where the "
+            "judged torque changes within it (a faster log, a command's own noise); either line holds the lag these "
+            "runs show, and " + ("the filter is named: it removes the most." if EFFECTS[best["effect"]].lowpass else
+                                 "the delay is named, the plainer of the two (a filter gives the simulation a state of "
+                                 "its own)."))
