@@ -62,6 +62,10 @@ def test_apply_to_spec_writes_only_what_urdf_cannot_hold_by_default(dev_mjcf):
     actuator = model.actuator("motor_panda_joint3")
     assert model.actuator_gear[actuator.id][0] == pytest.approx(1 / 1.25)
     assert spec.actuator("motor_panda_joint3").delay == pytest.approx(0.008)
+    # Fitted on some joints, the delay goes to their actuators alone (a gripper's drive was not fitted).
+    spec = dev_mjcf.copy()
+    apply_to_spec(spec, {**PARAMS, "joints": JOINTS[1:]})
+    assert spec.actuator("motor_panda_joint1").delay == 0.0 and spec.actuator("motor_panda_joint3").delay > 0
 
 
 def test_apply_to_spec_can_calibrate_a_nominal_mjcf_completely(dev_mjcf):

@@ -6,7 +6,7 @@ model explains without any delay; with both logged, the actuator link sees it di
 torque at t is the command at t - d, :attr:`Signals.forward`). Against the motion, the prediction
 of the command at t is the model torque at t + d. d is refined by a bounded scalar search around
 the linear fit (variable projection), started from a grid at the sampling step.
-MJCF holds it as actuator ``delay``.
+MJCF holds it as actuator ``delay``, on the identified joints' actuators.
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.identification.effects.base import ParameterSpec, correlation_per_joint, per_joint_dict
+from sim2real.identification.effects.base import (ParameterSpec, correlation_per_joint, identified_actuators,
+                                                  per_joint_dict)
 from sim2real.identification.effects.timing import MAX_DELAY, TimeShift, best_lag, time_derivative
 
 
@@ -45,7 +46,7 @@ class ActuationDelay(TimeShift):
         if delay <= 0:
             return
         timestep = float(spec.option.timestep)
-        for actuator in context.get("actuators", {}).values():
+        for _, actuator in identified_actuators(context):
             act = spec.actuator(actuator)
             act.delay = delay
             act.nsample = max(int(np.ceil(delay / timestep)) + 1, 2)

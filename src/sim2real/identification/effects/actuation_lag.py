@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 from sim2real.identification.effects.actuation_delay import ActuationDelay
-from sim2real.identification.effects.base import ParameterSpec
+from sim2real.identification.effects.base import ParameterSpec, identified_actuators
 from sim2real.identification.effects.timing import MAX_DELAY
 
 
@@ -36,13 +36,11 @@ class ActuationLag(ActuationDelay):
         time_constant = float(values["time_constant"])
         if time_constant <= 0:
             return
-        identified = context.get("joints")
-        for joint, actuator in sorted(context.get("actuators", {}).items()):
-            if identified is None or joint in identified:
-                act = spec.actuator(actuator)
-                act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
-                act.dynprm[0] = time_constant
-                act.actearly = True
+        for _, actuator in identified_actuators(context):
+            act = spec.actuator(actuator)
+            act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+            act.dynprm[0] = time_constant
+            act.actearly = True
         # A keyframe starts each filter settled at its control (a filter's state would otherwise start at zero).
         stateful = [k for k, act in enumerate(spec.actuators) if act.dyntype != mujoco.mjtDyn.mjDYN_NONE]
         for key in spec.keys:

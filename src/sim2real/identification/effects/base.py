@@ -142,6 +142,14 @@ def per_joint_dict(joint_names: list[str], values: np.ndarray, digits: int = 4) 
     return {j: round(float(v), digits) for j, v in zip(joint_names, values, strict=True)}
 
 
+def identified_actuators(context: dict[str, Any]) -> list[tuple[str, str]]:
+    """(joint, actuator) of the MJCF's actuators that drive an identified joint (``context["joints"]``; None: every
+    one), by joint name: what an effect fitted on those joints may write (a gripper's drive was not fitted)."""
+    identified = context.get("joints")
+    return [(joint, actuator) for joint, actuator in sorted(context.get("actuators", {}).items())
+            if identified is None or joint in identified]
+
+
 class Effect:
     """Base class; one subclass per module in this package."""
 

@@ -19,7 +19,8 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.timing import MAX_DELAY, TimeShift, best_lag, time_derivative
-from sim2real.identification.effects.base import ParameterSpec, correlation_per_joint, per_joint_dict
+from sim2real.identification.effects.base import (ParameterSpec, correlation_per_joint, identified_actuators,
+                                                  per_joint_dict)
 
 
 def actuation_beyond_sensor(actuator_lag: float, sensor_delay: float) -> float:
@@ -37,8 +38,7 @@ def delay_torque_sensors(spec: Any, delay: float, context: dict[str, Any]) -> No
         return
     timestep = float(spec.option.timestep)
     existing = {sensor.name: sensor for sensor in spec.sensors}
-    identified = context.get("joints")
-    for joint in sorted(j for j in context.get("actuators", {}) if identified is None or j in identified):
+    for joint, _ in identified_actuators(context):
         sensor = existing.get(f"{joint}_torque")
         if sensor is None:
             sensor = spec.add_sensor()
