@@ -42,7 +42,8 @@ def identification_effects(model_effects: Sequence[str]) -> list[str]:
     reruns no design."""
     from sim2real.identification.effects import EFFECTS
 
-    names = [e for e in model_effects if e in EFFECTS and e not in INERTIAL_EFFECTS and not EFFECTS[e].time_shift]
+    names = [e for e in model_effects if e in EFFECTS and e not in INERTIAL_EFFECTS and not EFFECTS[e].time_shift
+             and EFFECTS[e].in_design]
     if not any("friction" in e for e in names):
         names += [e for e in DEFAULT_FRICTION if e not in names]
     return names

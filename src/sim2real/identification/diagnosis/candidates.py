@@ -58,6 +58,7 @@ from sim2real.identification.diagnosis.caveats import (
     trades_with_model,
 )
 from sim2real.forked import map_forked
+from sim2real.identification.diagnosis.screens import screen_ripples
 from sim2real.identification.diagnosis.lags import (after_other_shape, other_shapes, same_lag, screen_lags,
                                                      shapes_sentence)
 from sim2real.identification.inertial import import_solver
@@ -313,6 +314,9 @@ def diagnose(
     # A lag is fitted only where it could matter (diagnosis.lags): screened, or waiting for its other shape's trial.
     waiting = screen_lags(tried, skipped, current, nominal, holdout_data, holdout_signals, holdout_residual, unit,
                           excess_now, x_now, limits)
+    # A ripple is fitted only where some joint's residual repeats with its position (diagnosis.screens).
+    screen_ripples(tried, skipped, current, nominal, fit_data, fit_signals, holdout_data, holdout_residual, unit,
+                   excess_now, x_now, limits)
     trial_inputs = {"model_effects": list(model_effects), "nominal": nominal, "fit_data": fit_data,
                     "holdout_data": holdout_data, "nonlinear_fixed": nonlinear_fixed, "settings": settings.get("fit"),
                     "fit_signals": fit_signals, "holdout_signals": holdout_signals, "refinements": refinements}

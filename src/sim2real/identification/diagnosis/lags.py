@@ -3,7 +3,8 @@
 A lag (:mod:`sim2real.identification.effects.timing`: a delay, or a first-order lag) costs a rung's fit to try, and a
 log without one needs none. A lag is tried where, linearised about no lag with every linear coefficient refitted
 beside it on the holdout runs themselves (more than a fit on the fit runs can deliver there), it could remove half
-of what a candidate must remove to be named (:func:`screen_lags`); a shape of a lag beside another shape the link tries
+of what a candidate must remove to be named (:func:`screen_lags`,
+:func:`~sim2real.identification.diagnosis.screens.worth_a_trial`); a shape of a lag beside another shape the link tries
 anyway (the actuator link's delay) waits for that trial instead, and is fitted where it removes as much
 (:func:`after_other_shape`). Two shapes of one lag part only where the judged torque changes within it: where the
 data cannot tell them apart the verdict says so (:func:`other_shapes`, :func:`shapes_sentence`), and no designed run is
@@ -20,10 +21,7 @@ import numpy as np
 from sim2real.identification import fitting
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Signals
-
-# The share of what names a candidate that a lag must be able to remove to be tried.
-LAG_SCREEN_SHARE = 0.5
-
+from sim2real.identification.diagnosis.screens import worth_a_trial
 
 def same_lag(a: str, b: str) -> bool:
     """Whether two effects are two shapes of one lag (a delay and a first-order lag of the same place): they part
@@ -41,24 +39,13 @@ def leads(name: str, forward: bool) -> bool:
     return (effect.prediction_lag(1.0, forward) < 0) if effect.lowpass else (effect.prediction_shift(1.0, forward) > 0)
 
 
-def worth_a_lag(gain: np.ndarray, excess: np.ndarray, x_now: np.ndarray, limits: Mapping[str, float]) -> bool:
-    """Whether removing ``gain`` (per joint, of the squared residual in floor units) is worth fitting a lag: half of
-    what names a candidate, arm-wide or on a joint above its floor (:data:`LAG_SCREEN_SHARE`)."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        per_joint = np.where(excess > 0, gain / excess, 0.0)
-    arm = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
-    above = x_now > limits["noise_floor_factor"]
-    return bool(arm >= LAG_SCREEN_SHARE * limits["min_explained"] or np.any(
-        above & (per_joint >= LAG_SCREEN_SHARE * min(limits["joint_decisive"], limits["joint_min_explained"]))))
-
-
 def _screen_reason(current: fitting.FitResult, nominal: Any, data: Any, signals: Signals, residual: np.ndarray,
                    unit: np.ndarray, excess: np.ndarray, x_now: np.ndarray, limits: Mapping[str, float],
                    lead: bool = False) -> str | None:
     """Why a lag of the judged torque (with ``lead``: a lead) is not fitted on these runs (None: it is;
     :func:`fitting.lag_score`)."""
     delay, gain = fitting.lag_score(current, nominal, data, residual, unit, signals, lead=lead)
-    if worth_a_lag(gain, excess, x_now, limits):
+    if worth_a_trial(gain, excess, x_now, limits):
         return None
     arm = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
     return (f"a {'lead of the judged torque ahead of' if lead else 'lag of the measured torque behind'} the model "
@@ -100,7 +87,7 @@ def after_other_shape(waiting: Mapping[str, str], trials: Mapping[str, tuple[Any
     second = []
     for name, other in waiting.items():
         gain = sse_now - np.sum((trials[other][1] / unit) ** 2, axis=0)
-        if worth_a_lag(gain, excess, x_now, limits):
+        if worth_a_trial(gain, excess, x_now, limits):
             second.append(name)
         else:
             share = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0

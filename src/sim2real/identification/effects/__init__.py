@@ -25,6 +25,7 @@ from sim2real.identification.effects.coulomb_friction import CoulombFriction
 from sim2real.identification.effects.hysteretic_friction import HystereticFriction
 from sim2real.identification.effects.link_inertia import LinkInertia
 from sim2real.identification.effects.payload import Payload
+from sim2real.identification.effects.position_ripple import PositionRipple
 from sim2real.identification.effects.rotor_inertia import RotorInertia
 from sim2real.identification.effects.sensor_delay import SensorDelay
 from sim2real.identification.effects.sensor_lag import SensorLag
@@ -42,6 +43,7 @@ EFFECTS: dict[str, Effect] = {
         AsymmetricFriction(),
         StribeckFriction(),
         HystereticFriction(),
+        PositionRipple(),
         RotorInertia(),
         ActuationDelay(),
         ActuationLag(),

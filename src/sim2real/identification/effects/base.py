@@ -174,6 +174,9 @@ class Effect:
     # it gives the replicate alone (tests/test_sysid.py holds every such effect to it)
     values_stacked: ClassVar[bool] = False
     in_urdf: ClassVar[bool] = False  # the calibrated URDF holds it (so the MJCF built from it does too)
+    # the excitation design makes its columns identifiable (sim2real.excitation.config.identification_effects); a
+    # position ripple's are harmonics of a period no design knows beforehand: any motion over a few of them will do
+    in_design: ClassVar[bool] = True
 
     # --- inverse dynamics -------------------------------------------------------------------
     def prediction_shift(self, delay: float, forward: bool) -> float:
@@ -196,6 +199,14 @@ class Effect:
 
     def nonlinear_bounds(self, signals: Signals) -> tuple[np.ndarray, np.ndarray]:
         return np.array([]), np.array([])
+
+    # A start searched from what the model without the effect leaves (its nonlinear parameters have a local minimum
+    # at many places: a period at every other one): :meth:`search_start`, called by the refinement.
+    searched: ClassVar[bool] = False
+
+    def search_start(self, signals: Signals, residual: np.ndarray) -> np.ndarray:
+        """Where the refinement starts, given the residual (N, n) of the model without this effect."""
+        return self.nonlinear_init(signals)
 
     def nonlinear_log_scale(self, signals: Signals) -> np.ndarray:
         """Which nonlinear values the refinement optimises in log scale (bool, same length as

@@ -266,8 +266,13 @@ def _applied(effects: list[Effect], theta: Mapping[str, np.ndarray], signals: Si
     scaling = next((e for e in effects if e.scales_judged and np.shape(theta.get(e.name, ()))[-1]), None)
     if scaling is not None and not signals.forward:  # forward, every term is already applied torque
         gain = 1.0 + theta[scaling.name]
+        divisor = np.where(np.abs(gain) > 1e-6, gain, 1.0)
+        joints = np.shape(gain)[-1]
         for effect in effects:
             if (effect.joint_local and not effect.scales_judged and effect.name != "torque_bias"
                     and np.shape(theta[effect.name])[-1]):
-                theta[effect.name] = theta[effect.name] / np.where(np.abs(gain) > 1e-6, gain, 1.0)
+                # an effect with several coefficients per joint (a ripple's sine and cosine) holds them joint by joint
+                shape = np.shape(theta[effect.name])
+                per_joint = np.reshape(theta[effect.name], (*shape[:-1], shape[-1] // joints, joints))
+                theta[effect.name] = np.reshape(per_joint / divisor[..., None, :], shape)
     return theta

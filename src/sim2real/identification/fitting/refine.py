@@ -110,6 +110,18 @@ def _refine_nonlinear(
                 costs.append(float(np.sum(residual_full(x) ** 2)))
             x0[offset] = grid[int(np.argmin(costs))]
         offset += size
+    # A period has a local minimum at every other one: start where the residual of the model without the effect
+    # repeats most (Effect.search_start), that model's linear coefficients fitted at the start's other values.
+    offset = 0
+    for effect, size in zip(problem.effects, problem.nl_sizes, strict=True):
+        if effect.searched and effect.name not in begin:
+            others = [e for e in problem.effects if e is not effect]
+            start_values = sub.split_nonlinear(x0)
+            without = _Problem(others, sub_signals, problem.states, problem.weights)
+            _, rest, _ = _linear_fit(without, sub_tau, {e.name: start_values[e.name] for e in others}, iterations=1)
+            x0[offset:offset + size] = np.clip(effect.search_start(sub_signals, rest), lower[offset:offset + size],
+                                               upper[offset:offset + size])
+        offset += size
     # Smoothing velocities span decades: optimise their logarithm.
     log_mask = np.concatenate(
         [np.asarray(e.nonlinear_log_scale(signals), dtype=bool) for e in problem.effects]
