@@ -39,7 +39,8 @@ DEFAULT_FRICTION = ("viscous_friction", "coulomb_friction")
 def identification_effects(model_effects: Sequence[str]) -> list[str]:
     """The effects whose columns the design must make identifiable (model order, friction added if absent): the
     DAG passes these to a design as its param, so a line of model.yaml that adds no column (a payload, a delay)
-    reruns no design."""
+    or none a design can aim at (a position ripple, whose period no design knows: :attr:`Effect.in_design`) reruns no
+    design."""
     from sim2real.identification.effects import EFFECTS
 
     names = [e for e in model_effects if e in EFFECTS and e not in INERTIAL_EFFECTS and not EFFECTS[e].time_shift

@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from sim2real.identification.effects.position_ripple import best_periods
+
 # The learner's holdout RMSE at or above this fraction of the rung's: what is left is not a function of the
 # motion ("within about 15 %"); below it, the library lacks an effect the motion explains.
 CLOSE_TO_RUNG = 0.85
@@ -34,12 +36,16 @@ MIN_SHARE = 0.3
 # offset per run does (else the runs merely sit at different offsets).
 DRIFT_BEYOND_OFFSET = 0.1
 TIME_DEGREE = 3  # a cubic in time within each run: a warm-up, a slow drift; not the motion's faster periods
-LEARNER = ("per joint, the better on the holdout runs of two learners fitted on the fit runs' residual of the last "
-           "rung: HistGradientBoostingRegressor on q, qd, qdd of every joint, and a ridge regression on harmonics of "
-           "the joint's own position (a ripple the trees cannot carry from one run's positions to another's)")
+LEARNER = ("per joint, the best on the holdout runs of three learners fitted on the fit runs' residual of the last "
+           "rung: HistGradientBoostingRegressor on q, qd, qdd of every joint, and two ridge regressions on harmonics "
+           "of the joint's own position (a ripple the trees cannot carry from one run's positions to another's): of "
+           "whole turns, and of the period one sinusoid of the position fits best (a ripple of any period)")
 # Harmonics of a joint's own position: sin and cos of k * q for k = 1..POSITION_HARMONICS (periods down to 2 pi / 40
 # = 0.16 rad of the joint), what a cogging or a gear's ripple follows, periodic wherever the runs go.
 POSITION_HARMONICS = 40
+# A ripple whose period is no whole fraction of a turn parts from those harmonics beyond the positions the fit runs
+# visit: its own period (position_ripple.best_periods, on the fit runs) and this many of its harmonics.
+PERIOD_HARMONICS = 3
 KIND_TEXT = {
     "time": "drifts with time within each run (a warm-up, a sensor offset that wanders, or an error of the slow pose "
     "the run moves through)",
@@ -71,6 +77,13 @@ def position_harmonics(q: np.ndarray) -> np.ndarray:
     """(N, 2K) sin and cos of k * q, k = 1..:data:`POSITION_HARMONICS`, of one joint's position."""
     k = np.arange(1, POSITION_HARMONICS + 1)
     return np.hstack([np.sin(np.outer(q, k)), np.cos(np.outer(q, k))])
+
+
+def period_harmonics(q: np.ndarray, period: float) -> np.ndarray:
+    """(N, 2K) sin and cos of 2 pi k q / ``period``, k = 1..:data:`PERIOD_HARMONICS`, of one joint's position."""
+    k = np.arange(1, PERIOD_HARMONICS + 1)
+    angle = np.outer(q, 2 * np.pi * k / period)
+    return np.hstack([np.sin(angle), np.cos(angle)])
 
 
 def _harmonic_learner() -> Any:
@@ -220,8 +233,14 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
         trees = holdout_residual[:, j] - learner.predict(x_holdout)
         ripple = _harmonic_learner().fit(position_harmonics(fit_data.q[train, j]), fit_residual[train, j])
         harmonics = holdout_residual[:, j] - ripple.predict(position_harmonics(holdout_data.q[:, j]))
-        periodic = float(np.mean(harmonics**2)) < float(np.mean(trees**2))
-        after = harmonics if periodic else trees
+        period = float(best_periods(fit_data.q[train, j:j + 1], fit_residual[train, j:j + 1])[0][0])
+        searched = _harmonic_learner().fit(period_harmonics(fit_data.q[train, j], period), fit_residual[train, j])
+        of_period = holdout_residual[:, j] - searched.predict(period_harmonics(holdout_data.q[:, j], period))
+        # the best of the three; a tie goes to the earlier (the trees, then whole turns)
+        learners = [("trees on the motion", trees), ("position harmonics", harmonics),
+                    ("a ripple of the searched period", of_period)]
+        chosen, after = min(learners, key=lambda item: float(np.mean(item[1] ** 2)))
+        periodic = chosen != "trees on the motion"
         ceiling = float(np.sqrt(np.mean(after**2)))
         row: dict[str, Any] = {
             "rung_rmse": round(rung, 6), "ceiling_rmse": round(ceiling, 6),
@@ -231,10 +250,11 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
             "explained_beyond_noise": round(_excess_share(holdout_residual[:, j], after, floor), 4),
         }
         row["fitted"] = True
-        row["learner"] = "position harmonics" if periodic else "trees on the motion"
+        row["learner"] = chosen
         if ceiling < CLOSE_TO_RUNG * rung:
             row["kind"] = "motion"
-            row["gains_most_with"] = ([f"position of {holdout_data.joint_names[j]} (periodic)"] if periodic
+            every = f", every {period:.3g} rad" if chosen == "a ripple of the searched period" else ""
+            row["gains_most_with"] = ([f"position of {holdout_data.joint_names[j]} (periodic{every})"] if periodic
                                       else _gains_most(learner, x_holdout, holdout_residual[:, j], names))
             row["gains_most_in"] = _gain_regime(holdout_residual[:, j], after, holdout_data.qd[:, j],
                                                 holdout_data.qdd[:, j])
@@ -298,7 +318,8 @@ def ceiling_text(per_joint: dict[str, Any]) -> str:
         sentences.append(
             "A flexible learner on the motion explains much of what is left, so the library lacks an effect that is "
             f"a function of the motion: {'; '.join(parts)}. Model that dependence (an effect of the library's "
-            "shape, or a cogging or position-dependent term) before trusting the rest.")
+            "shape; a periodic one of a joint's position is position_ripple's, one period per joint) before trusting "
+            "the rest.")
     still = [j for j, r in per_joint.items() if r["kind"] == "not_motion"]
     if still:
         parts = []
