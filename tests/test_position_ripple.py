@@ -98,3 +98,23 @@ def test_the_assets_and_the_design_leave_a_ripple_out():
     assert calibration_from_params(params) == {}
     assert identification_effects(["link_inertia", "viscous_friction", "position_ripple"]) == ["viscous_friction"]
     assert not EFFECTS["position_ripple"].in_design and EFFECTS["viscous_friction"].in_design
+
+
+def test_the_screen_credits_a_ripple_on_positions_the_fit_never_visited_and_not_a_smooth_error():
+    """The diagnosis's screen (diagnosis.screens.ripple_gain): period and coefficients from the fit run, judged on a
+    holdout run that partly moves elsewhere. A ripple (a period no whole fraction of a turn) is credited with most of
+    its energy there; a smooth error of the pose (a bent gravity term), which a sinusoid fitted on the fit run can
+    mimic only where the fit run went, with under half of its own (a screen is generous: the trial, every
+    coefficient refitted beside the ripple's, decides)."""
+    from sim2real.identification.diagnosis.screens import ripple_gain
+
+    fit_q, holdout_q = motion(1), motion(2) + 0.3
+    rng = np.random.default_rng(5)
+    noise = [0.02 * rng.normal(size=fit_q.shape) for _ in range(2)]
+    ripple = [0.3 * np.sin(2 * np.pi * q / 0.23) for q in (fit_q, holdout_q)]
+    gain = ripple_gain(fit_q, ripple[0] + noise[0], holdout_q, ripple[1] + noise[1])
+    assert np.all(gain > 0.9 * np.sum(ripple[1] ** 2, axis=0)), gain / np.sum(ripple[1] ** 2, axis=0)
+    bend = [0.4 * np.cos(q) for q in (fit_q, holdout_q)]
+    gain = ripple_gain(fit_q, bend[0] + noise[0], holdout_q, bend[1] + noise[1])
+    energy = np.sum((bend[1] - bend[1].mean(axis=0)) ** 2, axis=0)
+    assert np.all(gain < 0.5 * energy), gain / energy

@@ -70,15 +70,18 @@ def screen_ripples(tried: list[str], skipped: list[dict[str, str]], current: Any
                                   np.asarray(holdout_data.q)[:, above], (holdout_residual / unit)[:, above])
     if worth_a_trial(gain, excess, x_now, limits):
         return
-    with np.errstate(invalid="ignore", divide="ignore"):
-        per_joint = np.where(excess > 0, gain / excess, 0.0)
-    arm = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
-    best = int(np.argmax(np.where(above, per_joint, -1.0)))
-    joint_text = (f" ({min(per_joint[best], 1.0):.0%} on {holdout_data.joint_names[best]})" if above.any() else
-                  " (every joint is within its floor)")
+    if not above.any():
+        reason = ("every joint's residual is within its noise floor times the diagnosis's factor: no joint's ripple "
+                  "to search for")
+    else:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            per_joint = np.where(excess > 0, gain / excess, 0.0)
+        arm = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
+        best = int(np.argmax(np.where(above, per_joint, -1.0)))
+        reason = ("no joint's residual repeats with its own position: one sinusoid of each joint's position, its period "
+                  f"and coefficients fitted on the fit runs, would remove at most {max(arm, 0.0):.0%} of what lies "
+                  f"above the noise floor of the holdout runs ({min(per_joint[best], 1.0):.0%} on "
+                  f"{holdout_data.joint_names[best]}), under half of what names a candidate")
     for name in ripples:
         tried.remove(name)
-        skipped.append({"effect": name, "reason": (
-            "no joint's residual repeats with its own position: one sinusoid of each joint's position, its period "
-            f"and coefficients fitted on the fit runs, would remove at most {max(arm, 0.0):.0%} of what lies above "
-            f"the noise floor of the holdout runs{joint_text}, under half of what names a candidate")})
+        skipped.append({"effect": name, "reason": reason})
