@@ -121,12 +121,13 @@ class Lab:
             if report is not None:
                 report(documents[-1], k, time.perf_counter() - started)
             sections = [documents[-1], documents[-1].get("actuator") or {}]
-            wanted = [s["diagnosis"]["candidates"][0]["effect"] for s in sections
-                      if s and s["diagnosis"]["status"] == "add_effect"]
-            wanted = [w for w in dict.fromkeys(wanted) if w not in effects]
+            tops = [s["diagnosis"]["candidates"][0] for s in sections if s and s["diagnosis"]["status"] == "add_effect"]
+            wanted = [w for w in dict.fromkeys(top["effect"] for top in tops) if w not in effects]
             if not wanted:
                 break
-            effects = effects + wanted
+            # the lines a named effect holds go, as its verdict says (diagnosis.candidates.replaced_by)
+            removed = {line for top in tops for line in top.get("replaces", [])}
+            effects = [e for e in effects if e not in removed] + wanted
         return documents
 
     def data(self, scenario: str) -> tuple[sysid.TorqueData, sysid.TorqueData]:

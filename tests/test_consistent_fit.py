@@ -29,8 +29,11 @@ def follow_the_diagnosis(lab: Lab, scenario: str, rounds: int = 6) -> list[dict]
     """The user's loop: ladder documents after 0, 1, 2, ... added lines."""
     effects: list[str] = []
     documents = [lab.ladder(scenario, effects)]
-    while documents[-1]["diagnosis"]["status"] == "add_effect" and len(effects) < rounds:
-        effects.append(documents[-1]["diagnosis"]["candidates"][0]["effect"])
+    for _ in range(rounds):
+        if documents[-1]["diagnosis"]["status"] != "add_effect":
+            break
+        top = documents[-1]["diagnosis"]["candidates"][0]
+        effects = [e for e in effects if e not in top.get("replaces", [])] + [top["effect"]]
         documents.append(lab.ladder(scenario, effects))
     return documents
 

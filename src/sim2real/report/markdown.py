@@ -119,7 +119,8 @@ def _diagnosis_markdown(diagnosis: Mapping[str, Any]) -> list[str]:
         lines.append(f"- `{cand['effect']}` on {', '.join(cand['joints']) or 'no joint in particular'}: explains "
                      f"{100 * cand['explained']:.0f}% of the residual{beyond_text}, holdout RMSE after "
                      f"{_fmt(cand['evidence'].get('rmse_after'))} N m"
-                     + (f" ({after:.2f}x the floor)" if after is not None else "") + f"; add `{cand['add']}`")
+                     + (f" ({after:.2f}x the floor)" if after is not None else "") + f"; add `{cand['add']}`"
+                     + "".join(f", remove `- {r}`" for r in cand.get("replaces", [])))
     for skip in diagnosis.get("skipped", []):
         lines.append(f"- `{skip['effect']}` not tried: {skip['reason']}")
     per_joint = diagnosis.get("per_joint")

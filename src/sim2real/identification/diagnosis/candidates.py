@@ -140,6 +140,31 @@ def add_line(effect: str) -> str:
     return f"- {effect}"
 
 
+def replaced_by(name: str, model_effects: Sequence[str]) -> list[str]:
+    """The effects of the model that the candidate ``name`` holds (:data:`NESTED_IN`: each a special case of it). Its
+    trial drops them and the verdict says to remove their lines: both in one model put the same torque in two sets of
+    columns (a payload and the last link's inertia), a fit that only the inertial prior keeps from singular, and one
+    that goes wrong where the prior is weak."""
+    return [held for held in model_effects if held in NESTED_IN.get(name, ())]
+
+
+def removal_text(candidate: Mapping[str, Any]) -> str:
+    """The verdict's words after its line to add, for a candidate that replaces lines of the model (empty otherwise)."""
+    replaced = candidate.get("replaces") or []
+    if not replaced:
+        return ""
+    lines = " and ".join(f"'{add_line(r)}'" for r in replaced)
+    return (f" and remove {lines}: {candidate['effect']} holds {', '.join(replaced)} (a special case of it), and both in "
+            "one model fit the same torque twice")
+
+
+def trial_effects(model_effects: Sequence[str], name: str) -> list[str]:
+    """The model a trial of ``name`` fits, as the user's model.yaml will list it: the candidate's line added at the end,
+    the lines it holds removed (:func:`replaced_by`)."""
+    replaced = replaced_by(name, model_effects)
+    return [e for e in model_effects if e not in replaced] + [name]
+
+
 def _sse(residual: np.ndarray) -> np.ndarray:
     return np.sum(residual**2, axis=0)
 
@@ -227,7 +252,11 @@ def _trial_way(item: tuple[str, Mapping[str, Any]], model_effects: Sequence[str]
     """One way (:func:`sim2real.identification.fitting.previous_ways`) of fitting the candidate ``item[0]`` on the current model,
     and its holdout residual (:func:`sim2real.identification.fitting.rung._fit_way`)."""
     name, way = item
-    return fitting._fit_way(way, effect_names=[*model_effects, name], **inputs)
+    replaced = replaced_by(name, model_effects)
+    # the held or starting nonlinear parameters of the lines the candidate replaces have no place in its model
+    way = {key: ({e: v for e, v in value.items() if e not in replaced} if isinstance(value, Mapping) else value)
+           for key, value in way.items()}
+    return fitting._fit_way(way, effect_names=trial_effects(model_effects, name), **inputs)
 
 
 def trial_fits(names: Sequence[str], workers: int, *, model_effects: Sequence[str], nominal: Any, fit_data: Any,
@@ -254,7 +283,8 @@ def trial_fits(names: Sequence[str], workers: int, *, model_effects: Sequence[st
     for name in names:
         candidate = [fit for (item_name, _), fit in zip(items, fits, strict=True) if item_name == name]
         result, residual, _ = fitting.better_way(
-            candidate, [*model_effects, name], nominal, fit_data, holdout_data, previous, settings,
+            candidate, trial_effects(model_effects, name), nominal, fit_data, holdout_data,
+            {e: v for e, v in previous.items() if e not in replaced_by(name, model_effects)}, settings,
             fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=False)
         out[name] = (result, residual)
     return out
@@ -389,6 +419,7 @@ def diagnose(
             "decisive": decisive,
             "evidence": evidence,
             "add": add_line(name),
+            **({"replaces": replaced_by(name, model_effects)} if replaced_by(name, model_effects) else {}),
         })
     solved = [c for c in ranked_candidates if c["effect"] not in failed]
     candidates = _rank(solved, float(limits["parsimony_noise_fraction"]))
@@ -442,7 +473,7 @@ def diagnose(
         joint_text = f" on {', '.join(best['joints'])}" if best["joints"] else ""
         verdict = (
             f"On {where}, the model is missing {best['effect']}{joint_text}: {reach}. "
-            f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml.{twin_text}"
+            f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml{removal_text(best)}.{twin_text}"
             + caveats(best, group, robot)
         )
     elif not above:
