@@ -76,7 +76,10 @@ def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name
         return []
     moves = {}
     for effect in current.effects:
-        after, before = _term(trial, effect, nominal, data, signals), _term(current, effect, nominal, data, signals)
+        before = _term(current, effect, nominal, data, signals)
+        # a line the candidate replaces (diagnosis.candidates.replaced_by) leaves the prediction whole
+        after = _term(trial, effect, nominal, data, signals) if effect in trial.effects else (
+            None if before is None else np.zeros_like(before))
         if after is not None and before is not None:
             moves[effect] = (after - before) / unit
     net = own + sum(moves.values(), np.zeros_like(own))
