@@ -54,7 +54,7 @@ from sim2real.identification import fitting
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Signals, per_joint_dict
 from sim2real.identification.diagnosis.caveats import (
-    NESTED_IN, caveats, implausible_bodies, not_told_apart_verdict, recommend, separating_runs, ties,
+    NESTED_IN, SPANNED_BY, caveats, implausible_bodies, not_told_apart_verdict, recommend, separating_runs, ties,
     trades_with_model,
 )
 from sim2real.forked import map_forked
@@ -141,11 +141,11 @@ def add_line(effect: str) -> str:
 
 
 def replaced_by(name: str, model_effects: Sequence[str]) -> list[str]:
-    """The effects of the model that the candidate ``name`` holds (:data:`NESTED_IN`: each a special case of it). Its
-    trial drops them and the verdict says to remove their lines: both in one model put the same torque in two sets of
-    columns (a payload and the last link's inertia), a fit that only the inertial prior keeps from singular, and one
-    that goes wrong where the prior is weak."""
-    return [held for held in model_effects if held in NESTED_IN.get(name, ())]
+    """The effects of the model whose columns lie in the span of the candidate ``name``'s (:data:`SPANNED_BY`: a
+    payload in the link inertias'). Its trial drops them and the verdict says to remove their lines: both in one model
+    put the same torque in two sets of columns, a fit that only the inertial prior keeps from singular, and one that
+    goes wrong where the prior is weak."""
+    return [held for held in model_effects if held in SPANNED_BY.get(name, ())]
 
 
 def removal_text(candidate: Mapping[str, Any]) -> str:
