@@ -192,3 +192,17 @@ def test_a_report_kept_replays_and_figures_are_read_back_and_a_changed_rung_repl
     with_cache = build(changed, tmp_path / "changed", kept)
     assert replays == ["demo_holdout"] and drawn == ["ladder"]
     assert with_cache == build(changed, tmp_path / "fresh", None)  # a kept replay is the replay, to the bit
+
+
+def test_a_candidate_that_replaces_a_line_says_so_in_gap_md():
+    """A named effect that spans a line of the model (link_inertia a payload) is listed with the line to add and the
+    line to remove; the schema takes the list of lines it replaces, and nothing else there."""
+    from sim2real.report.markdown import _diagnosis_markdown
+
+    candidate = {"effect": "link_inertia", "joints": ["panda_joint7"], "explained": 0.9, "evidence": {},
+                 "add": "- link_inertia", "replaces": ["payload"]}
+    lines = _diagnosis_markdown({"verdict": "v", "candidates": [candidate]})
+    assert lines[2].endswith("add `- link_inertia`, remove `- payload`"), lines
+    schema_part = json.loads((Path(__file__).resolve().parents[1] / "schemas/gap.schema.json").read_text())
+    items = schema_part["properties"]["diagnosis"]["properties"]["candidates"]["items"]["properties"]
+    assert items["replaces"]["items"] == {"type": "string"}
