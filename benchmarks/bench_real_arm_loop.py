@@ -29,7 +29,8 @@ from sysid_lab import Lab  # noqa: E402  (the tests' lab helper: a dev Panda and
 FACTOR = 1.5
 SCENARIOS = ("real_arm_like", "link_side_sensor", "link_side_tau_only", "wrist_friction", "sensor_gains", "hysteresis",
              "drift", "ripple", "real_arm_like_dropouts", "real_arm_like_glitches", "real_arm_like_30hz",
-             "real_arm_like_sensor_lag", "real_arm_like_drive_lag", "real_arm_like_cogging")
+             "real_arm_like_sensor_lag", "real_arm_like_drive_lag", "real_arm_like_cogging",
+             "link_side_cogging")
 UR5_SCENARIOS = ("real_arm_like", "real_arm_like_current_lag")
 
 
