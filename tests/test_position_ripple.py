@@ -118,3 +118,15 @@ def test_the_screen_credits_a_ripple_on_positions_the_fit_never_visited_and_not_
     gain = ripple_gain(fit_q, bend[0] + noise[0], holdout_q, bend[1] + noise[1])
     energy = np.sum((bend[1] - bend[1].mean(axis=0)) ** 2, axis=0)
     assert np.all(gain < 0.5 * energy), gain / energy
+
+
+def test_a_long_log_is_searched_on_fewer_samples_for_the_periods_every_sample_resolves():
+    """A 100 s log at 200 Hz (20 000 samples) is searched on 4 000 of them, evenly spaced: every fifth sample alone
+    would resolve no period shorter than four of its own steps, but in the position domain the samples fall anywhere
+    in a period, so the search keeps the periods the whole log resolves and finds a short ripple there."""
+    q = motion(7, joints=1, duration=100.0)
+    period = 1.5 / search_frequencies(q[:, 0]).max()  # short: resolved by the log, not by every fifth sample
+    assert 1.0 / period > search_frequencies(q[::5, 0]).max()
+    residual = 0.2 * np.sin(2 * np.pi * q / period) + 0.02 * np.random.default_rng(1).normal(size=q.shape)
+    periods, _ = best_periods(q, residual)
+    assert periods[0] == pytest.approx(period, rel=0.01)

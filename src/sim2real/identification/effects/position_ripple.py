@@ -30,16 +30,17 @@ SAMPLES_PER_PERIOD = 4  # a searched period spans at least this many of the moti
 MIN_PERIODS_SEEN = 2  # ... and at least this many periods fit in the joint's excursion
 OVERSAMPLING = 5  # frequencies per peak width (1 / excursion) of the search's grid
 SEARCH_ROWS = 4000  # the search runs on at most this many samples, evenly spaced (a statement about shape)
+GRID_CHUNK = 512  # frequencies turned at once (a full turn's grid is thousands: its rotations are not held whole)
 
 
 def search_frequencies(q: np.ndarray) -> np.ndarray:
-    """The grid of spatial frequencies (cycles per rad) one joint's positions ``q`` resolve (module docstring);
-    empty when the joint hardly moves."""
+    """The grid of spatial frequencies (cycles per rad) one joint's positions ``q`` resolve, consecutive samples of a
+    log (module docstring); empty when the joint hardly moves."""
     q = np.asarray(q, dtype=float)
     if q.size < 8:
         return np.zeros(0)
     excursion = float(np.ptp(q))
-    step = float(np.percentile(np.abs(np.diff(q)), 90))
+    step = float(np.percentile(np.abs(np.diff(q)), 90))  # what the log resolves, whatever the search then uses
     lowest = max(MIN_PERIODS_SEEN / excursion if excursion > 0 else np.inf, 1.0 / MAX_PERIOD)
     highest = min(1.0 / (SAMPLES_PER_PERIOD * step) if step > 0 else np.inf, 1.0 / MIN_PERIOD)
     if not lowest < highest:
@@ -52,14 +53,18 @@ def position_periodogram(q: np.ndarray, y: np.ndarray, frequencies: np.ndarray) 
     (cycles per rad) removes,
     by least squares with the sinusoid's mean removed too (the generalised Lomb-Scargle periodogram, on positions
     instead of times: the samples fall anywhere in the period)."""
+    frequencies = np.asarray(frequencies, dtype=float)
+    if frequencies.size > GRID_CHUNK:
+        return np.concatenate([position_periodogram(q, y, frequencies[k:k + GRID_CHUNK])
+                               for k in range(0, frequencies.size, GRID_CHUNK)])
     q = np.asarray(q, dtype=float)
     y = np.asarray(y, dtype=float) - float(np.mean(y))
     count = q.size
-    # cos + i sin, (N, F): the grid is even, so each frequency's is the last one's turned by one step (a product, not
-    # an exponential: a quarter of the time, within 1e-13 over a search's grid)
-    rotation = np.empty((count, frequencies.size), dtype=complex)
     if frequencies.size == 0:
         return np.zeros(0)
+    # cos + i sin, (N, F): the grid is even, so each frequency's is the last one's turned by one step (a product, not
+    # an exponential: a quarter of the time, within 1e-13 over a chunk of the grid)
+    rotation = np.empty((count, frequencies.size), dtype=complex)
     rotation[:, 0] = np.exp(2j * np.pi * q * frequencies[0])
     if frequencies.size > 1:
         rotation[:, 1:] = np.exp(2j * np.pi * q * (frequencies[1] - frequencies[0]))[:, None]
@@ -83,12 +88,14 @@ def best_periods(q: np.ndarray, residual: np.ndarray, max_rows: int = SEARCH_ROW
     """Per joint (columns of ``q`` and ``residual``, (N, n)): the period (rad) at which one sinusoid of the joint's
     position removes most of its residual, and the energy it removes (the residual's units squared, summed over
     the samples used, scaled to all ``N``). A joint whose motion resolves no period keeps :data:`DEFAULT_PERIOD`
-    and removes nothing."""
+    and removes nothing. The periods searched are those the log resolves (:func:`search_frequencies` on every
+    sample); a long log is searched on ``max_rows`` of its samples, evenly spaced: in the position domain they fall
+    anywhere in a period, so fewer of them resolve the same periods."""
     q, residual = np.asarray(q, dtype=float), np.asarray(residual, dtype=float)
     rows = np.arange(0, q.shape[0], max(1, -(-q.shape[0] // max_rows)))
     periods, gains = np.full(q.shape[1], DEFAULT_PERIOD), np.zeros(q.shape[1])
     for j in range(q.shape[1]):
-        frequencies = search_frequencies(q[rows, j])
+        frequencies = search_frequencies(q[:, j])
         if frequencies.size == 0:
             continue
         removed = position_periodogram(q[rows, j], residual[rows, j], frequencies)
