@@ -110,6 +110,8 @@ def test_an_effect_that_holds_a_line_of_the_model_replaces_it_and_the_loop_reach
     tops = [d["diagnosis"]["candidates"][0] for d in documents if d["diagnosis"]["status"] == "add_effect"]
     replacing = [top for top in tops if top.get("replaces")]
     assert [(top["effect"], top["replaces"]) for top in replacing] == [("link_inertia", ["payload"])], tops
+    # the payload's term is the link inertias' now by design, no trade: what they add beyond it is their own
+    assert not replacing[0]["evidence"].get("trades_with"), replacing[0]["evidence"]["trades_with"]
     named = next(k for k, d in enumerate(documents)
                  if d["diagnosis"]["status"] == "add_effect" and d["diagnosis"]["candidates"][0].get("replaces"))
     verdict = documents[named]["diagnosis"]["verdict"]

@@ -75,16 +75,21 @@ def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name
     own = _term(trial, name, nominal, data, signals)
     if own is None:
         return []
+    for effect in current.effects:
+        # a line the candidate replaces (diagnosis.candidates.replaced_by) hands it its term by design: what the
+        # candidate adds of its own is its term less that one
+        replaced = _term(current, effect, nominal, data, signals) if effect not in trial.effects else None
+        if replaced is not None:
+            own = own - replaced
     own = own / unit
     size = float(np.sqrt(np.mean(own**2)))
     if size <= 0:
         return []
     moves = {}
     for effect in current.effects:
-        before = _term(current, effect, nominal, data, signals)
-        # a line the candidate replaces (diagnosis.candidates.replaced_by) leaves the prediction whole
-        after = _term(trial, effect, nominal, data, signals) if effect in trial.effects else (
-            None if before is None else np.zeros_like(before))
+        if effect not in trial.effects:
+            continue
+        after, before = _term(trial, effect, nominal, data, signals), _term(current, effect, nominal, data, signals)
         if after is not None and before is not None:
             moves[effect] = (after - before) / unit
     net = own + sum(moves.values(), np.zeros_like(own))
