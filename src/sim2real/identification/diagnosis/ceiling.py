@@ -54,6 +54,16 @@ KIND_TEXT = {
     "(hysteresis, presliding friction)",
 }
 
+# What sits at an offset of its own in each run or drifts within one is the sensor's, not the robot's; yet every fit
+# takes part of it for the robot (a link inertia fitted to one run's offset misses the next run's, and a candidate
+# the library has can then fail its trial): said where the ceiling finds it, with what a user does about it.
+OFFSET_KINDS = ("time", "run")
+OFFSET_ADVICE = ("On {joints} the torque sits at an offset of its own in each run or drifts within it (a torque sensor "
+                 "warming up, or zeroed at another moment): no property of the robot, but every fit takes part of it "
+                 "for one (a link inertia fitted to one run's offset misses the next run's), so it can hide an effect "
+                 "the library has. Log once the arm has warmed up, its torque sensors zeroed at rest, and run the loop "
+                 "again.")
+
 
 def _learner(seed: int = 0) -> Any:
     from sklearn.ensemble import HistGradientBoostingRegressor
@@ -331,4 +341,7 @@ def ceiling_text(per_joint: dict[str, Any]) -> str:
         sentences.append(
             f"No function of the motion explains the rest: a flexible learner on the motion comes within "
             f"{1 - CLOSE_TO_RUNG:.0%} of the last rung on {', '.join(still)}. " + "; ".join(parts) + ".")
+        offsets = [j for j in still if per_joint[j].get("follows") in OFFSET_KINDS]
+        if offsets:
+            sentences.append(OFFSET_ADVICE.format(joints=", ".join(offsets)))
     return " ".join(sentences)
