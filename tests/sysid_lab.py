@@ -123,6 +123,9 @@ class Lab:
             sections = [documents[-1], documents[-1].get("actuator") or {}]
             tops = [s["diagnosis"]["candidates"][0] for s in sections if s and s["diagnosis"]["status"] == "add_effect"]
             wanted = [w for w in dict.fromkeys(top["effect"] for top in tops) if w not in effects]
+            if not wanted:  # nothing named: the verdict's advice for offsets of each run's own, if it gives one
+                declared = [(s["diagnosis"].get("model_free") or {}).get("declare") for s in sections if s]
+                wanted = [d["effect"] for d in declared if d and d["effect"] not in effects][:1]
             if not wanted:
                 break
             # the lines a named effect holds go, as its verdict says (diagnosis.candidates.replaced_by)

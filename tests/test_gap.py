@@ -206,3 +206,13 @@ def test_a_candidate_that_replaces_a_line_says_so_in_gap_md():
     schema_part = json.loads((Path(__file__).resolve().parents[1] / "schemas/gap.schema.json").read_text())
     items = schema_part["properties"]["diagnosis"]["properties"]["candidates"]["items"]["properties"]
     assert items["replaces"]["items"] == {"type": "string"}
+
+
+def test_gap_md_says_the_torque_figures_are_of_what_each_runs_drift_leaves():
+    """A model that estimates each run's sensor drift on the run itself (sensor_drift) is judged without it: gap.md
+    says so beside the torque figures; a model without it gets no such sentence."""
+    from sim2real.report.markdown import _per_run_lines
+
+    lines = _per_run_lines(["link_inertia", "sensor_drift"])
+    assert lines[0].startswith("Each run's sensor drift (`sensor_drift`") and "holdout runs included" in lines[0]
+    assert _per_run_lines(["link_inertia", "torque_bias"]) == []

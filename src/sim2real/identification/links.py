@@ -87,7 +87,8 @@ def effects_of_link(effect_names: Sequence[str], link: str, torque_sensor: Torqu
     shows (Gaz et al. 2019 identify the Panda's friction from tau_J). Behind a link-side sensor it is
     fitted on the actuator link too: the part before the sensor."""
     return [name for name in effect_names
-            if effect_link(name, torque_sensor) == link or (get_effect(name).drive and link == "body")]
+            if effect_link(name, torque_sensor) == link or (get_effect(name).drive and link == "body")
+            or get_effect(name).every_link]
 
 
 def candidates_of_link(link: str, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR) -> list[str]:
@@ -186,7 +187,7 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
              "scaled by 1/g (masses, inertias, armature and friction together): in the torque domain and in "
              "the replay alike. Only per-joint differences of the gain show. A joint torque sensor (tau) "
              "separates them"},
-            {"effects": ["torque_gain", "torque_bias", "sensor_delay", "sensor_lag"],
+            {"effects": ["torque_gain", "torque_bias", "sensor_delay", "sensor_lag", "sensor_drift"],
              "why": "errors of a torque sensor, and these runs have none: not tried"},
         ]
     else:

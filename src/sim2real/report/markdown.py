@@ -169,6 +169,19 @@ def _model_name(model: Mapping[str, Any]) -> str:
     return f"rung {model['rung']}: the URDF + {', '.join(model['effects'])}"
 
 
+def _per_run_lines(effects: Sequence[str]) -> list[str]:
+    """What gap.md says of a model's effects estimated on every run itself (a sensor's drift): its figures are of
+    what is left once each run's own is removed."""
+    from sim2real.identification.effects import get_effect
+
+    per_run = [name for name in effects if get_effect(name).per_run]
+    if not per_run:
+        return []
+    return [f"Each run's sensor drift (`{per_run[0]}`: a quadratic in the run's time, per joint) is estimated on that "
+            "run itself, the holdout runs included, and removed before judging: these figures are of what is left. "
+            "The replay below never uses it.", ""]
+
+
 def _where_nominal_text(where: Mapping[str, Any]) -> str:
     """One line on where the nominal URDF failed, for reference beside the current model."""
     if not where["findings"]:
@@ -244,6 +257,7 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
                   f"R^2 {m['torque_r2']['overall']:.4g}.", "",
                   f"For reference, the nominal URDF: {nominal_rung['overall']:.3g} N m on the same runs "
                   f"({gap['nominal']['metrics']['torque_rmse']['overall']:.3g} N m over every run at the log's rate).", ""]
+        lines += _per_run_lines(model["effects"])
     else:
         lines += [f"Overall RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
                   f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "

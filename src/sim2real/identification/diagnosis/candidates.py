@@ -225,6 +225,11 @@ def candidates_to_try(model_effects: Sequence[str], torque_source: str, forward:
         effect = EFFECTS[name]
         if name in model_effects:
             continue
+        if effect.per_run:
+            skipped.append({"effect": name, "reason": "estimated on every run itself, the holdout runs included, so no "
+                            "held-out run can judge it: the model-free ceiling says when each run's offsets call for "
+                            "it, and the user declares it"})
+            continue
         holder = next((held for held in model_effects if name in NESTED_IN.get(held, ())), None)
         if holder is not None:
             skipped.append({"effect": name, "reason": f"{holder} in the model already holds it (a special case of it)"})

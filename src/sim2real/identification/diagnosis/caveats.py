@@ -24,7 +24,8 @@ from sim2real.identification.effects.base import Signals
 # Effects that are special cases of another: never tried once the larger one is in the model, and never a tie
 # (parsimony decides). Gaz's sigmoid with no velocity offset is a Coulomb tanh: asymmetric_friction holds
 # coulomb_friction.
-NESTED_IN: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",), "asymmetric_friction": ("coulomb_friction",)}
+NESTED_IN: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",), "asymmetric_friction": ("coulomb_friction",),
+                                        "sensor_drift": ("torque_bias",)}
 # Of those, the special cases whose columns lie in the span of the larger effect's (a payload's are the last link's
 # inertial columns): both in one model fit the same torque twice, a fit only the inertial prior keeps from singular,
 # so the larger effect replaces the line (diagnosis.candidates.replaced_by). A Coulomb friction beside an asymmetric

@@ -62,7 +62,13 @@ OFFSET_ADVICE = ("On {joints} the torque sits at an offset of its own in each ru
                  "warming up, or zeroed at another moment): no property of the robot, but every fit takes part of it "
                  "for one (a link inertia fitted to one run's offset misses the next run's), so it can hide an effect "
                  "the library has. Log once the arm has warmed up, its torque sensors zeroed at rest, and run the loop "
-                 "again.")
+                 "again")
+# ... and for runs already logged, the effect that estimates each run's drift on the run itself (never a candidate:
+# no held-out run can judge it).
+DRIFT_EFFECT = "sensor_drift"
+DECLARE_ADVICE = ("; or, for these runs, add the line '- {effect}' under 'effects:' in configs/{robot}/model.yaml: "
+                  "each run's drift (a quadratic in the run's time, per joint) is then estimated on that run itself, "
+                  "the holdout runs included, and never written into the assets.")
 
 
 def _learner(seed: int = 0) -> Any:
@@ -277,14 +283,17 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
 
 
 def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
-                       noise_floor_factor: float = 1.5, workers: int = 1) -> dict[str, Any]:
+                       noise_floor_factor: float = 1.5, workers: int = 1, model_effects: Sequence[str] = (),
+                       robot: str = "{robot}") -> dict[str, Any]:
     """The ceiling of ``diagnosis.model_free`` in gap.json (see the module docstring).
 
     ``fit_data``/``holdout_data``: :class:`sim2real.identification.fitting.TorqueData`; the residuals are the last rung's
     (judged minus predicted torque) on them. Joints within ``noise_floor_factor`` of their floor are
     ``at_floor``: nothing to explain, no learner fitted (``fitted`` false; the ceiling is the rung's).
     ``workers``: processes the joints' learners are fitted on side by side (:func:`sim2real.forked.map_forked`:
-    each joint's numbers are those it has alone).
+    each joint's numbers are those it has alone). Where joints sit at an offset of each run's own or drift within
+    it and ``model_effects`` lack :data:`DRIFT_EFFECT`, ``declare`` names it (the line of configs/``robot``/model.yaml
+    the text advises for runs already logged).
     """
     from sim2real.forked import map_forked
     from sim2real.identification.fitting.scoring import judged_floors
@@ -302,19 +311,29 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
     per_joint = {joint: row for joint, (row, _) in zip(joints, rows, strict=True)}
     after = np.column_stack([column for _, column in rows])
     overall = float(np.sqrt(np.mean(after**2)))
+    offsets = offset_joints(per_joint)
+    declare = ({"effect": DRIFT_EFFECT, "joints": offsets, "line": f"- {DRIFT_EFFECT}"}
+               if offsets and DRIFT_EFFECT not in model_effects else None)
     return {
         "learner": LEARNER,
         "torque_rmse": {"overall": round(overall, 6),
                         "per_joint": {j: per_joint[j]["ceiling_rmse"] for j in joints}},
         "close_to_rung": CLOSE_TO_RUNG,
         "per_joint": per_joint,
-        "text": ceiling_text(per_joint),
+        **({"declare": declare} if declare else {}),
+        "text": ceiling_text(per_joint, robot if declare else None),
     }
 
 
-def ceiling_text(per_joint: dict[str, Any]) -> str:
+def offset_joints(per_joint: dict[str, Any]) -> list[str]:
+    """The joints where what is left, no function of the motion, sits at an offset of each run's own or drifts."""
+    return [j for j, r in per_joint.items() if r["kind"] == "not_motion" and r.get("follows") in OFFSET_KINDS]
+
+
+def ceiling_text(per_joint: dict[str, Any], declare_for: str | None = None) -> str:
     """What the ceiling says, in sentences: joints where the library lacks a function of the motion, and
-    joints where nothing of the motion explains the rest, with what it follows."""
+    joints where nothing of the motion explains the rest, with what it follows; ``declare_for``: the robot whose
+    model.yaml the advice on offsets names :data:`DRIFT_EFFECT` for (None: the model has it)."""
     sentences = []
     motion = [j for j, r in per_joint.items() if r["kind"] == "motion"]
     if motion:
@@ -341,7 +360,8 @@ def ceiling_text(per_joint: dict[str, Any]) -> str:
         sentences.append(
             f"No function of the motion explains the rest: a flexible learner on the motion comes within "
             f"{1 - CLOSE_TO_RUNG:.0%} of the last rung on {', '.join(still)}. " + "; ".join(parts) + ".")
-        offsets = [j for j in still if per_joint[j].get("follows") in OFFSET_KINDS]
+        offsets = offset_joints(per_joint)
         if offsets:
-            sentences.append(OFFSET_ADVICE.format(joints=", ".join(offsets)))
+            sentences.append(OFFSET_ADVICE.format(joints=", ".join(offsets)) + (
+                "." if declare_for is None else DECLARE_ADVICE.format(effect=DRIFT_EFFECT, robot=declare_for)))
     return " ".join(sentences)

@@ -28,6 +28,7 @@ from sim2real.identification.effects.payload import Payload
 from sim2real.identification.effects.position_ripple import PositionRipple
 from sim2real.identification.effects.rotor_inertia import RotorInertia
 from sim2real.identification.effects.sensor_delay import SensorDelay
+from sim2real.identification.effects.sensor_drift import SensorDrift
 from sim2real.identification.effects.sensor_lag import SensorLag
 from sim2real.identification.effects.stribeck_friction import StribeckFriction
 from sim2real.identification.effects.torque_bias import TorqueBias
@@ -55,6 +56,7 @@ EFFECTS: dict[str, Effect] = {
         CommandBias(),
         SensorDelay(),
         SensorLag(),
+        SensorDrift(),
     )
 }
 

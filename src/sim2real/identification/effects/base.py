@@ -177,6 +177,12 @@ class Effect:
     # the excitation design makes its columns identifiable (sim2real.excitation.config.identification_effects); a
     # position ripple's are harmonics of a period no design knows beforehand: any motion over a few of them will do
     in_design: ClassVar[bool] = True
+    # Estimated on every run itself, holdout runs included, instead of fitted on the fit runs and carried over (a
+    # sensor's drift within each run): projected out of the judged torque and of every column
+    # (sim2real.identification.fitting.problem._Problem); never a candidate, since no held-out run can judge it.
+    per_run: ClassVar[bool] = False
+    # In the model of every link, whatever its place (the judged torque of each link is the sensor's reading).
+    every_link: ClassVar[bool] = False
 
     # --- inverse dynamics -------------------------------------------------------------------
     def prediction_shift(self, delay: float, forward: bool) -> float:

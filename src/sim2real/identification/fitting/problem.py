@@ -13,6 +13,7 @@ import numpy as np
 from sim2real import blas
 from sim2real.identification import inertial
 from sim2real.identification.effects import Effect, Signals
+from sim2real.identification.effects.sensor_drift import remove_runs, run_bases
 from sim2real.identification.effects.timing import retime
 from sim2real.identification.fitting.data import kept_segments
 
@@ -51,10 +52,16 @@ class _Problem:
         self.states = states
         # Per-joint weights of the data term (joint_weights): the fit solves in units of each joint's floor.
         self.weights = np.ones(signals.n) if weights is None else np.asarray(weights, dtype=float)
+        # An effect estimated on every run itself (a sensor's drift, Effect.per_run): each run's polynomials in its
+        # time, projected out of every column and of the judged torque (base), so that a fit solves for the rest
+        # with them profiled out and a prediction on any runs holds their own.
+        self.run_bases = (run_bases(signals.time, signals.segments)
+                          if any(effect.per_run for effect in effects) and signals.tau is not None else None)
         self.static_columns: dict[str, np.ndarray] = {}
         for effect in effects:
             if not effect.time_shift and not effect.nonlinear:
-                self.static_columns[effect.name] = effect.columns(signals, states[effect.name], np.array([]))[0]
+                self.static_columns[effect.name] = self.per_run_removed(
+                    effect.columns(signals, states[effect.name], np.array([]))[0])
         self.nl_sizes = [len(e.nonlinear_init(signals)) for e in effects]
         # reuse_design: each design() writes the moving columns into the last one's array, the static ones stay
         # (the refinement asks for hundreds; a caller must be done with one design before it asks for the next)
@@ -102,7 +109,8 @@ class _Problem:
             if kept is not None and kept[0] == key:
                 cols = kept[1]
             else:
-                cols = effect.columns(self.signals, self.states[effect.name], nonlinear[effect.name])[0]
+                cols = self.per_run_removed(
+                    effect.columns(self.signals, self.states[effect.name], nonlinear[effect.name])[0])
                 if cols.nbytes <= KEPT_BLOCK_BYTES and not self.reuse_design:  # the refinement's move every step
                     self._kept[effect.name] = (key, cols)
         if self.signals.forward and effect.drive:
@@ -127,7 +135,15 @@ class _Problem:
     def base(self, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray]) -> np.ndarray:
         """The prediction without the linear columns: nominal and offsets, moved by the lags; plus the unshifted term."""
         out = self.retime(self.signals.tau_nominal + self.offsets(theta), nonlinear)
-        return out if self.signals.unshifted is None else out + self.signals.unshifted
+        out = out if self.signals.unshifted is None else out + self.signals.unshifted
+        if self.run_bases is not None:  # plus each run's drift, estimated on the run: what the rest leaves of it
+            assert self.signals.tau is not None
+            out = self.signals.tau - remove_runs(self.signals.tau - out, self.run_bases)
+        return out
+
+    def per_run_removed(self, columns: np.ndarray) -> np.ndarray:
+        """``columns`` less what each run's own drift takes of them (:attr:`run_bases`; as they are without one)."""
+        return columns if self.run_bases is None or not columns.size else remove_runs(columns, self.run_bases)
 
     def design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:
         """Columns (N, n, p) at the given nonlinear parameters (before the time shift) and sizes."""
@@ -175,7 +191,7 @@ class _Problem:
         """Each effect's columns (before the time shift; a time shift has none) and their sizes."""
         blocks, sizes = [], []
         for effect in self.effects:
-            if effect.time_shift:
+            if effect.time_shift or effect.per_run:  # a lag of the prediction, or a drift projected out: no columns
                 sizes.append(0)
                 continue
             cols = self.block(effect, nonlinear)

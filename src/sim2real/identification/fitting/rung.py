@@ -338,10 +338,10 @@ def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -
     blocks, lower, inertial = [], [], None
     start = 0
     for effect in problem.effects:
-        if effect.time_shift:
+        if effect.time_shift or effect.per_run:
             continue
         if effect.name == "link_inertia":
-            cols = signals.regressor
+            cols = problem.per_run_removed(signals.regressor)
             anchors = correction_anchors(signals.nominal)
             # A body's mass must lie inside its meshes' ellipsoid where the CAD link itself does.
             bounds = signals.nominal.get("mesh_bounds")

@@ -1,0 +1,82 @@
+"""A torque sensor whose offset drifts within each run: a warm-up, an offset that wanders, a sensor zeroed anew
+whenever the arm starts. Per joint and run, a polynomial of :data:`DEGREE` in the time within the run
+
+    tau_judged = tau + c0 + c1 P1(s) + c2 P2(s),   s the run's time scaled to [-1, 1]  (Legendre polynomials)
+
+with coefficients of each run's own. They are no property of the robot and cannot carry over from one run to
+another, so they are not fitted on the fit runs and applied to the holdout: **every run's are estimated on that
+run itself**, the holdout runs included, by projecting them out of the judged torque and of every column of the
+model (:meth:`SensorDrift.remove`; the fit then solves for the robot's parameters with each run's drift profiled
+out). No held-out run can therefore judge this effect, and the diagnosis never proposes it as a candidate: the
+model-free ceiling says when each run's offsets call for it, and the user declares it. Nothing is written into
+MJCF or URDF (a measurement effect), and the excitation design leaves it out.
+
+A quadratic in the time of a run also takes the slowest part of what the motion explains when a run is short
+(one period of a slow excitation): declared without a drift, it flatters the model a little; the gap report's
+replay, in the state domain, never uses it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from sim2real.identification.effects.base import Effect, Signals, per_joint_dict
+
+DEGREE = 2  # an offset, a slope and a bend per joint and run: a warm-up settling within the run
+
+
+def run_bases(time: np.ndarray, segments: Sequence[slice], degree: int = DEGREE) -> list[tuple[slice, np.ndarray]]:
+    """Per run (segment), an orthonormal basis (rows of the run x degree + 1) of the polynomials of ``degree`` in
+    its time: Legendre polynomials of the run's time scaled to [-1, 1], orthonormalised (QR)."""
+    bases = []
+    for segment in segments:
+        t = np.asarray(time[segment], dtype=float)
+        if t.size == 0:
+            continue
+        span = max(float(t[-1] - t[0]), 1e-12)
+        vander = np.polynomial.legendre.legvander(2.0 * (t - t[0]) / span - 1.0, min(degree, t.size - 1))
+        basis, _ = np.linalg.qr(vander)
+        bases.append((segment, basis))
+    return bases
+
+
+def remove_runs(values: np.ndarray, bases: Sequence[tuple[slice, np.ndarray]]) -> np.ndarray:
+    """``values`` (samples first: (N, n) or (N, n, k)) less their least-squares polynomial in each run's time, for
+    every joint and column apart (:func:`run_bases`)."""
+    out = np.array(values, dtype=float)
+    for segment, basis in bases:
+        block = out[segment]
+        flat = block.reshape(block.shape[0], -1)
+        flat -= basis @ (basis.T @ flat)
+        out[segment] = flat.reshape(block.shape)
+    return out
+
+
+class SensorDrift(Effect):
+    name = "sensor_drift"
+    summary = "the torque sensor's offset drifting within each run (a warm-up), estimated on every run itself"
+    signature = "a residual that settles or wanders with time within each run, to a level of each run's own"
+    sensor_side = True
+    in_design = False
+    # Estimated on every run itself (holdout runs too) instead of fitted and carried over: no held-out judgement.
+    per_run = True
+    # Whichever link is judged, its judged torque is the drifting sensor's reading.
+    every_link = True
+
+    def values(self, theta, nonlinear, signals, state):
+        return {"degree": DEGREE, "estimated_on": "every run itself"}
+
+    def evidence(self, residual: np.ndarray, signals: Signals) -> dict[str, Any]:
+        residual = np.asarray(residual, dtype=float)
+        after = remove_runs(residual, run_bases(signals.time, signals.segments))
+        energy = np.sum(residual**2, axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = np.where(energy > 0, 1.0 - np.sum(after**2, axis=0) / energy, 0.0)
+        return {
+            "signature": self.signature,
+            "statistic": f"share of the residual's energy a polynomial of degree {DEGREE} in each run's time removes",
+            "per_joint": per_joint_dict(signals.joint_names, share, 3),
+        }
