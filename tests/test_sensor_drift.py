@@ -121,7 +121,7 @@ def test_the_assets_and_the_design_leave_the_drift_out():
     spec = mujoco.MjSpec.from_string("<mujoco><worldbody><body><joint name='j' damping='0.1'/>"
                                      "<geom size='0.1'/></body></worldbody></mujoco>")
     before = spec.to_xml()
-    params = {"effects": {"sensor_drift": {"degree": DEGREE, "estimated_on": "every run itself"}}}
+    params = {"effects": {"sensor_drift": EFFECTS["sensor_drift"].values(np.zeros(0), np.zeros(0), None, {})}}
     assert apply_to_spec(spec, params, include_urdf_effects=True).to_xml() == before
     assert calibration_from_params(params) == {}
     assert identification_effects(["viscous_friction", "sensor_drift"]) == ["viscous_friction"]

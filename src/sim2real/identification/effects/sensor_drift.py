@@ -67,7 +67,10 @@ class SensorDrift(Effect):
     every_link = True
 
     def values(self, theta, nonlinear, signals, state):
-        return {"degree": DEGREE, "estimated_on": "every run itself"}
+        # Words, not numbers: each run's coefficients are that run's alone, nothing an asset or another run can use
+        # (and nothing the bootstrap gives an interval).
+        return {"shape": f"a polynomial of degree {DEGREE} in each run's time, per joint",
+                "estimated_on": "every run itself, the holdout runs included"}
 
     def evidence(self, residual: np.ndarray, signals: Signals) -> dict[str, Any]:
         residual = np.asarray(residual, dtype=float)
