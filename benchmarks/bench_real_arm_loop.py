@@ -5,7 +5,9 @@ than its shoulder's. The lab's ``real_arm_like`` (motor-side sensor), ``link_sid
 gearbox, like the Panda's tau_J, with part of the friction after the sensor), ``link_side_tau_only``
 (the same without commands, like a real tau_J log), ``wrist_friction`` (friction on joint 7 alone), the
 messy logs (``real_arm_like_dropouts``, ``_glitches``, ``_30hz``), a torque sensor with dynamics of its own
-(``real_arm_like_sensor_lag``), drives whose current loop lags the command (``real_arm_like_drive_lag``) and, with ``--robot ur5``, the UR5's
+(``real_arm_like_sensor_lag``), drives whose current loop lags the command (``real_arm_like_drive_lag``), torque sensors
+still warming up (``real_arm_like_warm_up``, where the verdict's advice, ``sensor_drift``, is followed too) and, with
+``--robot ur5``, the UR5's
 ``real_arm_like`` (torques from motor currents at 500 Hz) and ``real_arm_like_current_lag`` (those currents filtered)
 hide all of it. This script plays the user: it
 starts from an empty ``effects:``, adds what each
@@ -30,7 +32,7 @@ FACTOR = 1.5
 SCENARIOS = ("real_arm_like", "link_side_sensor", "link_side_tau_only", "wrist_friction", "sensor_gains", "hysteresis",
              "drift", "ripple", "real_arm_like_dropouts", "real_arm_like_glitches", "real_arm_like_30hz",
              "real_arm_like_sensor_lag", "real_arm_like_drive_lag", "real_arm_like_cogging",
-             "link_side_cogging")
+             "link_side_cogging", "real_arm_like_warm_up")
 UR5_SCENARIOS = ("real_arm_like", "real_arm_like_current_lag")
 
 
