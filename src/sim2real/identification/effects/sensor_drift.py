@@ -6,8 +6,8 @@ whenever the arm starts. Per joint and run, a polynomial of :data:`DEGREE` in th
 with coefficients of each run's own. They are no property of the robot and cannot carry over from one run to
 another, so they are not fitted on the fit runs and applied to the holdout: **every run's are estimated on that
 run itself**, the holdout runs included, by projecting them out of the judged torque and of every column of the
-model (:meth:`SensorDrift.remove`; the fit then solves for the robot's parameters with each run's drift profiled
-out). No held-out run can therefore judge this effect, and the diagnosis never proposes it as a candidate: the
+model (:func:`remove_runs`, which :class:`sim2real.identification.fitting.problem._Problem` applies: the fit then
+solves for the robot's parameters with each run's drift profiled out). No held-out run can therefore judge this effect, and the diagnosis never proposes it as a candidate: the
 model-free ceiling says when each run's offsets call for it, and the user declares it. Nothing is written into
 MJCF or URDF (a measurement effect), and the excitation design leaves it out.
 
