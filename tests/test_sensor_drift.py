@@ -111,6 +111,8 @@ def test_it_is_declared_never_proposed_and_holds_a_torque_bias():
     model = ["link_inertia", "sensor_drift", "actuation_delay"]
     assert links.effects_of_link(model, "body") == ["link_inertia", "sensor_drift"]
     assert links.effects_of_link(model, "actuator") == ["sensor_drift", "actuation_delay"]
+    told = [name for fact in links.separability("separate", model, [])["can_tell"] for name in fact["effects"]]
+    assert "link_inertia" in told and "sensor_drift" not in told, "told apart from nothing: it is never judged"
 
 
 def test_the_assets_and_the_design_leave_the_drift_out():

@@ -159,15 +159,18 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
     """
     out: dict[str, Any] = {"mode": mode, "text": LINK_MODES[mode], "torque_sensor": sensor,
                            "can_tell": [], "cannot_tell": []}
+    def told_apart(link: str) -> list[str]:  # an effect estimated on every run itself is told apart from nothing
+        return [name for name in candidates_of_link(link, sensor) if not get_effect(name).per_run]
+
     if mode == "separate":
         out["can_tell"] = [
-            {"effects": candidates_of_link("actuator", sensor),
+            {"effects": told_apart("actuator"),
              "why": "judged on the measured torque against the command: no body effect enters that link"
              + (" (the sensor is link-side: the drive's rotor inertia and friction lie before it)"
                 if sensor == "link" else "")
              + "; the sensor's own lag does (its reading lags the command too): the calibrated actuation lag is "
              "what this link finds beyond the body link's (sensor_delay, sensor_lag)"},
-            {"effects": candidates_of_link("body", sensor),
+            {"effects": told_apart("body"),
              "why": "judged on the measured torque against the motion: no actuator effect enters that link"
              + (" (the sensor is motor-side: the drive's rotor inertia and friction lie after it)"
                 if sensor == "motor" else "")},
