@@ -159,6 +159,7 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
     """
     out: dict[str, Any] = {"mode": mode, "text": LINK_MODES[mode], "torque_sensor": sensor,
                            "can_tell": [], "cannot_tell": []}
+
     def told_apart(link: str) -> list[str]:  # an effect estimated on every run itself is told apart from nothing
         return [name for name in candidates_of_link(link, sensor) if not get_effect(name).per_run]
 
