@@ -143,9 +143,9 @@ def test_each_bad_input_ends_in_its_one_line_message(tmp_path: Path) -> None:
     (tree / "results/panda/mjcf/panda.xml").write_text(STUB_MJCF)
     edit_yaml(tree / "configs/panda/dr.yaml",
               lambda d: d["physics_randomization"]["body_mass"].update(range=[1.1, 0.9]))
-    # panda: measurement CSVs with a NaN, an unknown joint, degrees, backwards time (one prepare_runs job each)
-    nan = good_table()
-    nan[f"q.{PANDA_JOINTS[2]}"][57] = np.nan
+    # panda: measurement CSVs with an infinite value, an unknown joint, degrees, backwards time (one prepare_runs job each)
+    overflow = good_table()
+    overflow[f"q.{PANDA_JOINTS[2]}"][57] = np.inf
     unknown = good_table()
     unknown["q.elbow"] = unknown.pop(f"q.{PANDA_JOINTS[6]}")
     unknown["tau.elbow"] = unknown.pop(f"tau.{PANDA_JOINTS[6]}")
@@ -153,7 +153,7 @@ def test_each_bad_input_ends_in_its_one_line_message(tmp_path: Path) -> None:
     degrees[f"q.{PANDA_JOINTS[3]}"] = np.degrees(degrees[f"q.{PANDA_JOINTS[3]}"]) - 90.0
     backwards = good_table()
     backwards["time"][200:] -= 1.0
-    (tree / "configs/panda/measurements.yaml").write_text(campaign(write_run(tree, "nan", nan)))
+    (tree / "configs/panda/measurements.yaml").write_text(campaign(write_run(tree, "overflow", overflow)))
     campaigns = tree / "configs/panda/campaigns"
     for shipped in campaigns.glob("*.yaml"):  # the shipped fleet demo's campaign
         shipped.unlink()
@@ -167,7 +167,7 @@ def test_each_bad_input_ends_in_its_one_line_message(tmp_path: Path) -> None:
     assert_last_lines(lines, [
         ("robots/ur5/ur5.urdf.xacro", "limit"),
         ("configs/panda/dr.yaml", "physics_randomization/body_mass/range", "reversed", "Fix: write it as [0.9, 1.1]"),
-        ("data/panda/nan.csv", "q.panda_joint3", "NaN"),
+        ("data/panda/overflow.csv", "q.panda_joint3", "infinite"),
         ("data/panda/unknown.csv", "column q.elbow", "is not in", "Fix: name the columns after the URDF"),
         ("data/panda/degrees.csv", "q.panda_joint4", "degrees", "Fix:"),
         ("data/panda/backwards.csv", "column 'time', row 200", "1.99 s then 1 s", "Fix:"),

@@ -89,7 +89,11 @@ def test_messy_real_log_irregular_stamps_repeats_no_commands_no_qd(tmp_path):
 @pytest.mark.parametrize(
     ("mutate", "expected"),
     [
-        (lambda h, r: r[37].__setitem__(1, float("nan")), ["q.panda_joint1", "row 37", "line 39", "NaN"]),
+        (lambda h, r: r[37].__setitem__(1, float("inf")), ["q.panda_joint1", "row 37", "line 39", "infinite"]),
+        (lambda h, r: [row.__setitem__(3, float("nan")) for row in r[::3]], ["tau.panda_joint1", "empty in 1000 of 3000",
+                                                                            "row 0 (line 2)", "merge_asof"]),
+        (lambda h, r: [r[k].__setitem__(1 + (k // 4) % 4, float("nan")) for k in range(5, 3000, 4)],
+         ["row 5 (line 7) and 748 more", "749 of 3000 rows", "merge_asof"]),
         (lambda h, r: r[100].__setitem__(0, r[99][0]), ["column 'time'", "row 100", "does not increase", " s then "]),
         (lambda h, r: [h.__setitem__(k, h[k].replace("panda_joint1", "elbow")) for k in (1, 3)], ["q.elbow", "unknown joint"]),
         (lambda h, r: h.__setitem__(1, "q.elbow"), ["tau.<joint>", "missing for elbow; without q for panda_joint1"]),
@@ -99,7 +103,7 @@ def test_messy_real_log_irregular_stamps_repeats_no_commands_no_qd(tmp_path):
         (lambda h, r: [row.__setitem__(4, 0.0) for row in r], ["tau.panda_joint2", "same value (0) in every row",
                                                               "measured nothing", "leave out every tau.<joint>"]),
     ],
-    ids=["nan", "time_not_increasing", "unknown_joint", "renamed_in_one_column", "degrees", "too_short", "bad_column",
+    ids=["infinite", "column_mostly_empty", "rows_mostly_incomplete", "time_not_increasing", "unknown_joint", "renamed_in_one_column", "degrees", "too_short", "bad_column",
          "dead_torque_channel"],
 )
 def test_bad_input_names_file_column_row(tmp_path, mutate, expected):
@@ -279,6 +283,45 @@ def test_a_log_with_lost_stretches_is_prepared_piece_by_piece_never_across_them(
     _, _, qdd = motion(whole.time)
     assert whole.name == "one" and "gaps" not in whole.filter
     assert np.max(np.abs(whole.qdd - qdd)) > 0.3
+
+
+def test_rows_with_an_empty_cell_are_samples_the_logger_lost(tmp_path):
+    """Blank cells in a user's export (a torque that missed a few samples, a stretch of one channel lost): each such
+    row is dropped, and the run is prepared exactly as if the logger had not written those rows at all, split where
+    they make a stretch longer than the filter can bridge; the prepared runs and gap.md say how many. Errors after
+    the drop still name the file's own rows."""
+    header, rows = good_rows(n=9000)
+    rng = np.random.default_rng(3)
+    blank = {int(k): int(c) for k, c in zip(rng.choice(9000, 40, replace=False), rng.integers(1, 5, 40))}
+    blank.update({k: 4 for k in range(2000, 2300)})  # tau.panda_joint2 lost for 0.3 s
+    path = tmp_path / "a.csv"
+    path.write_text("\n".join([",".join(header)] + [
+        ",".join("" if blank.get(k) == c else repr(float(v)) for c, v in enumerate(row)) for k, row in enumerate(rows)])
+        + "\n")
+    path.with_suffix(".yaml").write_text(yaml.safe_dump(META))
+    listing = tmp_path / "m.yaml"
+    listing.write_text(yaml.safe_dump({"runs": [{"name": "one", "path": "a.csv", "role": "fit"}]}))
+    _, prepared, _ = load_prepared_runs(listing, JOINTS, root=tmp_path)
+    (tmp_path / "lost").mkdir()
+    _, expected, _ = load_prepared_runs(_listing(tmp_path / "lost", header, [r for k, r in enumerate(rows) if k not in blank]),
+                                        JOINTS, root=tmp_path / "lost")
+    assert [p.name for p in prepared] == [p.name for p in expected] == ["one#1", "one#2"]
+    for got, want in zip(prepared, expected, strict=True):
+        for signal in ("time", "q", "qd", "qdd", "tau"):
+            assert np.array_equal(getattr(got, signal), getattr(want, signal)), signal
+        first = min(blank)
+        assert got.filter["incomplete_rows"] == {"run": "a", "dropped": len(blank), "of": 9000,
+                                                 "first_row": f"row {first} (line {first + 2})"}
+        assert {k: v for k, v in got.filter.items() if k != "incomplete_rows"} == want.filter
+    from sim2real.report.markdown import _incomplete_lines
+    assert f"- a: {len(blank)} of 9000 rows (3.8%), the first row {first}" in "\n".join(
+        _incomplete_lines([{"filter": p.filter} for p in prepared]))
+    # a position in degrees after the dropped rows: named at its row of the file
+    header, rows = good_rows()
+    rows[10][1] = float("nan")
+    rows[2500][1] = 400.0
+    with pytest.raises(InputError, match=r"q.panda_joint1', row 2500 \(line 2502\).*degrees"):
+        load_run(write_csv(tmp_path / "deg.csv", header, rows), known_joints=JOINTS)
 
 
 def test_a_piece_too_short_is_left_out_and_said_and_a_log_of_only_such_pieces_is_refused(tmp_path):

@@ -34,7 +34,7 @@ from sim2real.errors import InputError
 from sim2real.measurements.noise import command_white_noise, white_noise_sigma
 from sim2real.measurements.runs import (
     DEFAULT_CUTOFF_HZ, DEFAULT_FILTER_ORDER, DEFAULT_TORQUE_SENSOR, MAX_GRID_PER_SAMPLE, MIN_SAMPLES, MeasurementEntry,
-    PreparedRun, Run, _row_label, check_run, read_runs,
+    PreparedRun, Run, check_run, file_row, read_runs,
 )
 
 # A step between two stamps is a logging gap above the longer of these: GAP_MEDIAN_STEPS median steps (a
@@ -102,7 +102,8 @@ def split_at_gaps(run: Run, max_step_s: float) -> list[Run]:
         pieces.append(dataclasses.replace(
             run, name=f"{run.name}#{k}", time=run.time[rows], q=run.q[rows],
             **{name: None if getattr(run, name) is None else getattr(run, name)[rows]
-               for name in ("qd", "tau", "tau_cmd", "q_cmd", "contact")}))
+               for name in ("qd", "tau", "tau_cmd", "q_cmd", "contact")},
+            rows=(np.arange(run.time.size) if run.rows is None else run.rows)[rows]))
     return pieces
 
 
@@ -137,7 +138,7 @@ def prepare_run(
     if not n_float <= MAX_GRID_PER_SAMPLE * run.time.size:  # NaN too: a rate or span no grid can hold
         gap = int(np.argmax(raw_steps)) + 1
         raise InputError(
-            run.path, f"column 'time', {_row_label(run.path, gap)}",
+            run.path, f"column 'time', {file_row(run, gap)}",
             f"{run.time.size} samples span {float(run.time[-1] - run.time[0]):.6g} s, {n_float:.3g} grid points at "
             f"{float(rate):.6g} Hz (largest gap {float(raw_steps[gap - 1]):.6g} s here)",
             "log time in seconds, without gaps, and give sample_rate_hz in Hz (or leave it out)",
@@ -201,6 +202,8 @@ def prepare_run(
     }
     if spikes:
         filter_info["spikes"] = {"scales": SPIKE_SCALES, "replaced": spikes}
+    if run.incomplete is not None:
+        filter_info["incomplete_rows"] = dict(run.incomplete)
     keep_raw = np.concatenate([[True], np.any(raw_torque[1:] != raw_torque[:-1], axis=1)])
     return PreparedRun(
         name=run.name, joint_names=list(run.joint_names), time=grid[sl], dt=dt, q=q_f[sl], qd=qd_f[sl],

@@ -43,6 +43,10 @@ MIN_SAMPLES = 100
 MAX_GRID_PER_SAMPLE = 20
 # More than a turn plus a margin: no revolute joint angle in rad, but common in degrees.
 DEGREES_THRESHOLD_RAD = 2 * np.pi + 0.5
+# A row with an empty cell (blank, NaN) is a sample the logger lost: dropped, and a stretch of them splits the run
+# like any gap (sim2real.measurements.prepare). Beyond this share of a column's or of the table's rows it is no
+# loss but a table put together from signals on different clocks, or a column that was not logged: refused.
+MAX_INCOMPLETE_FRACTION = 0.2
 DEFAULT_CUTOFF_HZ = 10.0
 DEFAULT_FILTER_ORDER = 4
 
@@ -62,6 +66,15 @@ class Run:
     q_cmd: np.ndarray | None
     meta: dict
     contact: np.ndarray | None = None  # (N,) bool contact flag when the log has a `contact` column
+    # where rows with an empty cell were dropped (:data:`MAX_INCOMPLETE_FRACTION`): the file's data row of each
+    # sample, and what was dropped ({"run", "dropped", "of", "first_row"}); None when every row was whole
+    rows: np.ndarray | None = None
+    incomplete: dict | None = None
+
+
+def file_row(run: Run, index: int) -> str:
+    """Sample ``index`` of ``run`` as a location in its file (:func:`_row_label`), across rows that were dropped."""
+    return _row_label(run.path, int(run.rows[index]) if run.rows is not None else index)
 
 
 @dataclass(frozen=True)
@@ -208,6 +221,8 @@ def read_run(path: str | Path) -> Run:
 
     numeric_cols = [c for c in columns if c != "contact"]
     values = table[numeric_cols]
+    numbers = {}
+    incomplete = np.zeros(len(table), dtype=bool)
     for col in numeric_cols:
         try:
             column = pd.to_numeric(values[col], errors="raise").to_numpy(dtype=float)
@@ -216,13 +231,36 @@ def read_run(path: str | Path) -> Run:
             row = int(np.flatnonzero(bad.to_numpy())[0]) if bad.any() else 0
             raise InputError(path, f"column '{col}', {_row_label(path, row)}", f"not a number ({exc})",
                              "write plain decimal numbers") from exc
-        bad_rows = np.flatnonzero(~np.isfinite(column))
-        if bad_rows.size:
+        infinite = np.flatnonzero(np.isinf(column))
+        if infinite.size:
             raise InputError(
-                path, f"column '{col}', {_row_label(path, int(bad_rows[0]))}",
-                f"NaN or infinite value ({bad_rows.size} such row(s))",
-                "remove or fill these rows (e.g. drop incomplete samples) before loading",
+                path, f"column '{col}', {_row_label(path, int(infinite[0]))}",
+                f"infinite value ({infinite.size} such row(s)): an overflow, not a measurement",
+                "log finite numbers; leave the cell empty where a sample was lost",
             )
+        empty = np.isnan(column)
+        if empty.sum() > MAX_INCOMPLETE_FRACTION * column.size:
+            raise InputError(
+                path, f"column '{col}'", f"empty in {int(empty.sum())} of {column.size} rows (first: "
+                f"{_row_label(path, int(np.flatnonzero(empty)[0]))}): more than a logger loses",
+                f"leave the column out if it was not logged; signals logged on different clocks are put on one before "
+                f"loading (e.g. pandas.merge_asof on time)",
+            )
+        numbers[col] = column
+        incomplete |= empty
+    kept = np.flatnonzero(~incomplete)
+    if incomplete.any():
+        first = int(np.flatnonzero(incomplete)[0])
+        if incomplete.sum() > MAX_INCOMPLETE_FRACTION * incomplete.size:
+            raise InputError(
+                path, f"{_row_label(path, first)} and {int(incomplete.sum()) - 1} more",
+                f"{int(incomplete.sum())} of {incomplete.size} rows have an empty cell in some column: more than a "
+                "logger loses",
+                "signals logged on different clocks are put on one before loading (e.g. pandas.merge_asof on time)",
+            )
+        table = table.iloc[kept]
+        numbers = {col: column[kept] for col, column in numbers.items()}
+    for col, column in numbers.items():
         if col.split(".", 1)[0] in ("tau", "tau_cmd") and column.size > 1 and np.all(column == column[0]):
             # A torque that never moves while the arm does measured nothing: judged, it would be a residual
             # no effect explains, and it has no noise to be judged in units of.
@@ -232,13 +270,13 @@ def read_run(path: str | Path) -> Run:
                 "log the joint's torque; to judge the commanded torque instead, leave out every tau.<joint> column",
             )
 
-    time = table["time"].to_numpy(dtype=float, copy=True)  # not a view that keeps the whole table alive
+    time = numbers["time"].copy()  # not a view that keeps the whole table alive
     steps = np.diff(time)
     bad = np.flatnonzero(steps <= 0)
     if bad.size:
         k = int(bad[0]) + 1
         raise InputError(
-            path, f"column 'time', {_row_label(path, k)}",
+            path, f"column 'time', {_row_label(path, int(kept[k]))}",
             f"time does not increase ({float(time[k - 1]):.9g} s then {float(time[k]):.9g} s; {bad.size} such step(s))",
             "sort the samples by time and drop duplicated stamps",
         )
@@ -253,14 +291,14 @@ def read_run(path: str | Path) -> Run:
     def block(kind: str) -> np.ndarray | None:
         if not by_kind[kind]:
             return None
-        return table[[f"{kind}.{j}" for j in joints]].to_numpy(dtype=float)
+        return np.column_stack([numbers[f"{kind}.{j}"] for j in joints])
 
     q = block("q")
     assert q is not None
     for i, joint in enumerate(joints):
         worst = int(np.argmax(np.abs(q[:, i])))
         if abs(q[worst, i]) > DEGREES_THRESHOLD_RAD:
-            _raise_degrees(path, joint, q[:, i], worst)
+            _raise_degrees(path, joint, q[:, i], worst, int(kept[worst]))
 
     contact = None
     if has_contact:
@@ -268,12 +306,16 @@ def read_run(path: str | Path) -> Run:
     return Run(
         name=path.stem, path=path, joint_names=list(joints), time=time, q=q, qd=block("qd"),
         tau=block("tau"), tau_cmd=block("tau_cmd"), q_cmd=block("q_cmd"), meta=dict(meta), contact=contact,
+        **({"rows": kept, "incomplete": {"run": path.stem, "dropped": int(incomplete.sum()), "of": int(incomplete.size),
+                                         "first_row": _row_label(path, int(np.flatnonzero(incomplete)[0]))}}
+           if incomplete.any() else {}),
     )
 
 
-def _raise_degrees(path: Path, joint: str, col: np.ndarray, row: int) -> None:
+def _raise_degrees(path: Path, joint: str, col: np.ndarray, row: int, file_row_index: int | None = None) -> None:
+    """``row``: the sample; ``file_row_index``: its data row in the file, where rows were dropped."""
     raise InputError(
-        path, f"column 'q.{joint}', {_row_label(path, row)}",
+        path, f"column 'q.{joint}', {_row_label(path, row if file_row_index is None else file_row_index)}",
         f"value {col[row]:.4g} looks like degrees (outside the joint's range in radians)",
         "log angles in radians (multiply degrees by pi/180)",
     )
@@ -305,7 +347,8 @@ def check_run(
         outside = (col < lo - margin) | (col > hi + margin)
         in_limits_as_deg = np.all((np.deg2rad(col) >= lo - margin) & (np.deg2rad(col) <= hi + margin))
         if outside.any() and in_limits_as_deg:
-            _raise_degrees(run.path, joint, col, int(np.flatnonzero(outside)[0]))
+            first = int(np.flatnonzero(outside)[0])
+            _raise_degrees(run.path, joint, col, first, None if run.rows is None else int(run.rows[first]))
 
 
 def load_run(

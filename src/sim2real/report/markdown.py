@@ -210,6 +210,20 @@ def _gaps_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
     return [*lines, ""]
 
 
+def _incomplete_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The rows each run's file had with an empty cell (sim2real.measurements.runs.read_run: dropped as samples the
+    logger lost); nothing when every row was whole."""
+    records = {r["filter"]["incomplete_rows"]["run"]: r["filter"]["incomplete_rows"]
+               for r in runs if "incomplete_rows" in r["filter"]}
+    if not records:
+        return []
+    lines = ["Rows with an empty cell (blank or NaN), dropped as samples the logger lost (where they make a stretch "
+             "longer than the filter can bridge, the run is split there):", ""]
+    lines += [f"- {run}: {record['dropped']} of {record['of']} rows ({record['dropped'] / record['of']:.1%}), the first "
+              f"{record['first_row']}." for run, record in records.items()]
+    return [*lines, ""]
+
+
 def _spike_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
     """The lone samples each run had replaced (sim2real.measurements.prepare.lone_spikes); nothing when none."""
     rows = []
@@ -246,7 +260,7 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
               f"acceleration: {f['acceleration']}; {f['applied_to']}; "
               f"{f['trimmed_s_each_end']:g} s trimmed at each end"
               f"{' of each piece' if any('gaps' in r['filter'] for r in gap['runs']) else ''}.", ""]
-    lines += _gaps_lines(gap["runs"]) + _spike_lines(gap["runs"])
+    lines += _incomplete_lines(gap["runs"]) + _gaps_lines(gap["runs"]) + _spike_lines(gap["runs"])
     model = m.get("model")
     nominal_rung = gap["ladder"][0]["metrics"]["torque_rmse"] if model and gap.get("ladder") else None
     lines += ["## Torque domain (inverse dynamics on measured motion)", ""]
