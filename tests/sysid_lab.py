@@ -10,7 +10,7 @@ import copy
 import os
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +48,7 @@ class Lab:
         # The dev MJCF comes straight from the URDF: no extra armature, the flange is the last link.
         self.nominal = sysid.load_nominal(self.urdf, self.joints)
         self._data: dict[str, tuple[sysid.TorqueData, sysid.TorqueData]] = {}
-        self._followed: dict[tuple[str, int], list[dict[str, Any]]] = {}
+        self._followed: dict[tuple[str, int, tuple[str, ...]], list[dict[str, Any]]] = {}
         # Documents already fitted, by what was asked: the fits are deterministic, so a test asking again (another
         # parameter of the same test, the first round of a scenario another test followed) gets a copy of the same.
         self._documents: dict[tuple[Any, ...], dict[str, Any]] = {}
@@ -101,19 +101,21 @@ class Lab:
         return copy.deepcopy(self._documents[key])
 
     def follow(self, scenario: str, rounds: int = 7,
-               report: Callable[[dict[str, Any], int, float], None] | None = None) -> list[dict[str, Any]]:
-        """The user's loop from an empty ``effects:``: each round adds what each link's verdict asks (the top
-        candidate where the status is add_effect), until no verdict asks for more; every round's document.
+               report: Callable[[dict[str, Any], int, float], None] | None = None,
+               start: Sequence[str] = ()) -> list[dict[str, Any]]:
+        """The user's loop from an empty ``effects:`` (or from ``start``, a model declared up front): each round adds
+        what each link's verdict asks (the top candidate where the status is add_effect), until no verdict asks for
+        more; every round's document.
         Rounds read earlier rungs back from a fit cache, as the sysid rule does; ``report(document, round,
         seconds)`` is called after each round. Without ``report``, a scenario is followed once per lab (the
         documents are the same bytes whoever asks: a copy for each)."""
         if report is None:
-            key = (scenario, rounds)
+            key = (scenario, rounds, tuple(start))
             if key not in self._followed:
-                self._followed[key] = self.follow(scenario, rounds, report=lambda *_: None)
+                self._followed[key] = self.follow(scenario, rounds, report=lambda *_: None, start=start)
             return copy.deepcopy(self._followed[key])
         cache = FitCache(self.dir / f"{scenario}_fits")
-        effects: list[str] = []
+        effects: list[str] = list(start)
         documents: list[dict[str, Any]] = []
         for k in range(rounds + 1):
             started = time.perf_counter()

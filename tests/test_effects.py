@@ -7,6 +7,8 @@ import xml.etree.ElementTree as ET
 import mujoco
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import yaml
 
 from gap_fixtures import build_dev_panda
@@ -321,3 +323,26 @@ def test_a_sensor_lag_and_a_sensor_delay_add_up_on_the_torque_sensors(dev_mjcf):
     sensor = model.sensor("panda_joint2_torque").id
     assert model.sensor_delay[sensor] == pytest.approx(0.005)
     assert model.sensor_history[sensor, 0] >= int(round(0.005 / model.opt.timestep)) + 1
+
+
+
+@given(columns=st.integers(1, 6), seed=st.integers(0, 2**16), bounded=st.lists(st.booleans(), min_size=6, max_size=6))
+@settings(max_examples=60, deadline=None)
+def test_coefficients_held_at_their_bounds_and_the_rest_solved_again(columns, seed, bounded):
+    """Whatever the design: every coefficient at or above its bound; one the free solve leaves above its bound is
+    untouched; the free ones solve the normal equations with the held ones at their bounds."""
+    from sim2real.identification.fitting.linear import _held_at_bounds
+
+    rng = np.random.default_rng(seed)
+    design = rng.normal(size=(40, columns))
+    target = rng.normal(size=40)
+    gram, rhs = design.T @ design, design.T @ target
+    free_solution = np.linalg.lstsq(gram, rhs, rcond=None)[0]
+    lower = np.where(bounded[:columns], rng.normal(scale=0.5, size=columns), -np.inf)
+    coef = _held_at_bounds(gram, rhs, free_solution, lower)
+    assert np.all(coef >= lower)
+    held = coef == lower
+    if not np.any(free_solution < lower):
+        assert np.array_equal(coef, free_solution)
+    free = ~held
+    assert np.allclose(gram[free] @ coef, rhs[free], atol=1e-8)

@@ -66,6 +66,23 @@ def test_the_loop_ends_at_the_floor_with_plausible_inertias(request, scenario):
                 assert prior["inside_searched_range"], (rung["effects"], prior["grid"], prior["scores"])
 
 
+def test_a_textbook_friction_declared_up_front_is_completed_not_papered_over(lab):
+    """A user who starts from the textbook model (link inertias, Coulomb and viscous friction) on the demo's arm, whose
+    friction is Gaz's slow sigmoid with Stribeck humps. The diagnosis tries asymmetric_friction on top of it; its
+    refinement, with amplitudes free to go negative, settled where the sigmoid fitted only as a negative correction,
+    which the consistent fit clipped to nothing: the loop then added a torque bias and a sensor drift, neither of which
+    this arm has, to reach the floor. Refined as the consistent fit delivers it (amplitudes at or above zero), the
+    sigmoid takes the slow transition, and the loop ends at the floor with effects the arm has."""
+    documents = lab.follow("real_arm_like", start=["link_inertia", "coulomb_friction", "viscous_friction"])
+    last = documents[-1]
+    effects = last["ladder"][-1]["effects"]
+    assert "asymmetric_friction" in effects, [d["diagnosis"]["verdict"] for d in documents]
+    assert not {"torque_bias", "sensor_drift"} & set(effects), effects
+    assert last["diagnosis"]["status"] == "at_noise_floor", last["diagnosis"]["verdict"]
+    assert all(x <= FACTOR for x in last["ladder"][-1]["metrics"]["torque_x_floor"]["per_joint"].values())
+    assert not last["ladder"][-1]["params"]["link_inertia"]["implausible_bodies"]
+
+
 def test_a_hysteretic_friction_is_named_and_its_rung_reaches_the_floor(lab):
     """Dahl friction in the drives (the lab's ``hysteresis``): no static law follows it around reversals; the
     diagnosis names hysteretic_friction, and the loop that adds it ends with every joint within 1.5x its floor."""

@@ -151,7 +151,7 @@ class _GramCache:
 
 
 def _solve_blocks(blocks: Sequence[np.ndarray], target: np.ndarray, weights: np.ndarray | None,
-                  cache: _GramCache | None) -> np.ndarray:
+                  cache: _GramCache | None, lower: np.ndarray | None = None) -> np.ndarray:
     """Minimum-norm least squares on unit-norm columns (collinear columns share, never blow up), each
     joint's rows multiplied by its weight (:func:`joint_weights`); ``blocks``: each effect's columns.
 
@@ -159,7 +159,9 @@ def _solve_blocks(blocks: Sequence[np.ndarray], target: np.ndarray, weights: np.
     rows, tens of columns), so this is many times faster than a QR of the design. The Gram matrix is summed
     block by block and joint by joint, over the columns that act on each joint, so a block's products come
     out the same to the last bit whichever blocks sit beside it. ``cache``: the scaled blocks and products
-    of the blocks that stay put (the refinement's, :class:`_GramCache`); None computes every block.
+    of the blocks that stay put (the refinement's, :class:`_GramCache`); None computes every block. ``lower``:
+    each coefficient's lower bound (-inf where none): a coefficient the solve puts below its bound is held at it and
+    the others solved again (:func:`_held_at_bounds`).
     """
     if not blocks:
         return np.zeros(0)
@@ -183,13 +185,44 @@ def _solve_blocks(blocks: Sequence[np.ndarray], target: np.ndarray, weights: np.
             gram[rows, cols] = products[i][k]
             gram[cols, rows] = products[i][k].T
     coef = np.linalg.lstsq(gram, rhs, rcond=1e-12)[0]
-    return coef / np.concatenate(scales)
+    scale = np.concatenate(scales)
+    if lower is not None:
+        coef = _held_at_bounds(gram, rhs, coef, lower * scale)
+    return coef / scale
+
+
+def _held_at_bounds(gram: np.ndarray, rhs: np.ndarray, coef: np.ndarray, lower: np.ndarray) -> np.ndarray:
+    """The normal equations' solution with every coefficient that falls below its bound held there and the rest
+    solved again, until none falls below (an active set that only grows: at most one pass per coefficient). The
+    refinement searches the nonlinear parameters of the model the consistent fit delivers, where a friction's
+    amplitude is never negative: unbounded, it may settle where a sigmoid fits only with a negative amplitude,
+    which the consistent fit then clips to nothing."""
+    held = np.zeros(coef.size, dtype=bool)
+    for _ in range(coef.size):
+        below = ~held & (coef < lower)
+        if not below.any():
+            break
+        held |= below
+        coef = coef.copy()
+        coef[held] = lower[held]
+        free = ~held
+        if free.any():
+            coef[free] = np.linalg.lstsq(gram[np.ix_(free, free)], rhs[free] - gram[np.ix_(free, held)] @ lower[held],
+                                         rcond=1e-12)[0]
+    return coef
+
+
+def lower_bounds(problem: _Problem, sizes: Sequence[int]) -> np.ndarray:
+    """The lower bounds of the linear fit's coefficients, effect by effect in the fit's order (-inf where none)."""
+    return np.concatenate([np.asarray(e.theta_lower(problem.signals, size), dtype=float)
+                           for e, size in zip(problem.effects, sizes, strict=True) if size] or [np.zeros(0)])
 
 
 def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndarray], iterations: int = 3,
-                cache: _GramCache | None = None):
+                cache: _GramCache | None = None, bounded: bool = False):
     """Linear parameters at fixed nonlinear ones; offsets (payload inertia) by fixed-point iteration.
-    ``cache``: the blocks that stay put between calls (:func:`_refine_nonlinear`)."""
+    ``cache``: the blocks that stay put between calls (:func:`_refine_nonlinear`); ``bounded``: each effect's
+    coefficients held at or above their lower bounds (:meth:`Effect.theta_lower`, :func:`_held_at_bounds`)."""
     # Without a time shift the effects' columns are solved as they are, never put together into one design (on a
     # long log the largest array of a fit); the same values, so the same bits. The refinement's small problem
     # keeps its one design, whose moving columns are rewritten in place at each step (reuse_design): faster.
@@ -206,7 +239,7 @@ def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndar
         if cache is not None:
             cache.static = [e.name in problem.static_columns for e, size in zip(problem.effects, sizes, strict=True) if size]
         base = problem.base(theta, nonlinear)
-        flat = _solve_blocks(blocks, tau - base, problem.weights, cache)
+        flat = _solve_blocks(blocks, tau - base, problem.weights, cache, lower_bounds(problem, sizes) if bounded else None)
         theta = _split_theta(problem.effects, flat, sizes)
     # Without offsets the base does not depend on the linear parameters: the prediction's is the one just used.
     known = None if has_offset else base

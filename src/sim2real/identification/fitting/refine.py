@@ -14,7 +14,7 @@ from scipy import optimize
 
 from sim2real.identification.effects import Signals
 from sim2real.identification.effects.timing import MAX_DELAY
-from sim2real.identification.fitting.linear import _GramCache, _linear_fit
+from sim2real.identification.fitting.linear import _GramCache, _linear_fit, lower_bounds
 from sim2real.identification.fitting.problem import _Problem, subset_signals
 
 
@@ -88,7 +88,7 @@ def _refine_nonlinear(
     cache = None if delay_moves else _GramCache()
 
     def residual_full(x: np.ndarray) -> np.ndarray:
-        fitted = _linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1, cache=cache)
+        fitted = _linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1, cache=cache, bounded=True)
         return (fitted[1] * sub.weights).reshape(-1)
 
     def with_free(values: np.ndarray) -> np.ndarray:
@@ -175,7 +175,8 @@ class _ProjectedJacobian:
         key = np.asarray(z, dtype=float).tobytes()
         if self._point is None or self._point[0] != key:
             nonlinear = self.problem.split_nonlinear(self.to_x(z))
-            theta, residual, _ = _linear_fit(self.problem, self.tau, nonlinear, iterations=1, cache=self.cache)
+            theta, residual, _ = _linear_fit(self.problem, self.tau, nonlinear, iterations=1, cache=self.cache,
+                                             bounded=True)
             self._point = (key, nonlinear, theta, (residual * self.problem.weights).reshape(-1))
         return self._point[1], self._point[2], self._point[3]
 
@@ -232,19 +233,29 @@ class _ProjectedJacobian:
                 where.append(i)
         if moved:
             changes = np.column_stack(moved)
-            scale = np.linalg.norm(weighted, axis=0)
-            scale[scale == 0] = 1.0
-            unit = weighted
-            unit /= scale  # in place: the weighted copy is not needed again
-            # The columns' share of each change: its projection on their span, dropping directions below 1e-6 of
-            # the largest singular value (the Gram matrix's 1e-12, as the linear fit drops them). From the p x p
-            # Gram matrix's eigenpairs rather than an SVD of the tall design: a third of the work, and a
-            # Jacobian's precision is all it needs (the refinement's minimum is the residual's).
-            eigval, eigvec = np.linalg.eigh(unit.T @ unit)
-            keep = eigval > 1e-12 * eigval[-1]
-            inverse = (eigvec[:, keep] / eigval[keep]) @ eigvec[:, keep].T
-            taken = unit @ (inverse @ (unit.T @ changes))
-            changes -= taken
+            # a coefficient held at its bound (fitting.linear._held_at_bounds) takes up no change: only the free
+            # columns' span is projected out, as the bounded solve does
+            flat = np.concatenate([theta[e.name] for e, size in zip(problem.effects, sizes, strict=True) if size]
+                                  or [np.zeros(0)])
+            lower = lower_bounds(problem, sizes)
+            at_bound = np.isfinite(lower) & (flat <= lower + 1e-12 * np.maximum(1.0, np.abs(np.where(np.isfinite(lower),
+                                                                                                       lower, 0.0))))
+            if at_bound.any():
+                weighted = weighted[:, ~at_bound]
+            if weighted.shape[1]:
+                scale = np.linalg.norm(weighted, axis=0)
+                scale[scale == 0] = 1.0
+                unit = weighted
+                unit /= scale  # in place: the weighted copy is not needed again
+                # The columns' share of each change: its projection on their span, dropping directions below 1e-6 of
+                # the largest singular value (the Gram matrix's 1e-12, as the linear fit drops them). From the p x p
+                # Gram matrix's eigenpairs rather than an SVD of the tall design: a third of the work, and a
+                # Jacobian's precision is all it needs (the refinement's minimum is the residual's).
+                eigval, eigvec = np.linalg.eigh(unit.T @ unit)
+                keep = eigval > 1e-12 * eigval[-1]
+                inverse = (eigvec[:, keep] / eigval[keep]) @ eigvec[:, keep].T
+                taken = unit @ (inverse @ (unit.T @ changes))
+                changes -= taken
             np.negative(changes, out=changes)
             out[:, where] = changes
         return out
