@@ -10,12 +10,13 @@ still warming up (``real_arm_like_warm_up``, where the verdict's advice, ``senso
 ``--robot ur5``, the UR5's
 ``real_arm_like`` (torques from motor currents at 500 Hz) and ``real_arm_like_current_lag`` (those currents filtered)
 hide all of it. This script plays the user: it
-starts from an empty ``effects:``, adds what each
+starts from an empty ``effects:`` (or, with ``--start``, from a model declared up front, such as the textbook
+``link_inertia,coulomb_friction,viscous_friction``), adds what each
 verdict asks, and prints every round's verdicts and each joint's holdout residual in units of its own
 noise floor. Issue 18 is done when every joint of every link ends within 1.5x; until then this prints
 where it does not, so the next change can be judged joint by joint. The diagnosis sees only runs.
 
-    python benchmarks/bench_real_arm_loop.py [--robot panda|ur5] [--scenario NAME ...] [--duration 8]
+    python benchmarks/bench_real_arm_loop.py [--robot panda|ur5] [--scenario NAME ...] [--duration 8] [--start E1,E2]
 """
 
 from __future__ import annotations
@@ -67,6 +68,8 @@ def main() -> None:
                         "real_arm_like_current_lag)")
     parser.add_argument("--scenario", action="append", choices=sorted({*SCENARIOS, *UR5_SCENARIOS}))
     parser.add_argument("--duration", type=float, default=8.0, help="lab run length [s]")
+    parser.add_argument("--start", default="", help="the effects the user declares before the first round, "
+                        "comma-separated (default: none, the nominal model)")
     args = parser.parse_args()
     import sysid_lab
 
@@ -75,7 +78,7 @@ def main() -> None:
         lab = Lab(Path(tmp), args.robot)
         for scenario in args.scenario or (SCENARIOS if args.robot == "panda" else UR5_SCENARIOS):
             print(f"== {scenario}")
-            lab.follow(scenario, report=report)
+            lab.follow(scenario, report=report, start=[e for e in args.start.split(",") if e])
 
 
 if __name__ == "__main__":
