@@ -310,11 +310,11 @@ def test_rows_with_an_empty_cell_are_samples_the_logger_lost(tmp_path):
         for signal in ("time", "q", "qd", "qdd", "tau"):
             assert np.array_equal(getattr(got, signal), getattr(want, signal)), signal
         first = min(blank)
-        assert got.filter["incomplete_rows"] == {"run": "a", "dropped": len(blank), "of": 9000,
+        assert got.filter["incomplete_rows"] == {"run": "one", "dropped": len(blank), "of": 9000,
                                                  "first_row": f"row {first} (line {first + 2})"}
         assert {k: v for k, v in got.filter.items() if k != "incomplete_rows"} == want.filter
     from sim2real.report.markdown import _incomplete_lines
-    assert f"- a: {len(blank)} of 9000 rows (3.8%), the first row {first}" in "\n".join(
+    assert f"- one: {len(blank)} of 9000 rows (3.8%), the first row {first}" in "\n".join(
         _incomplete_lines([{"filter": p.filter} for p in prepared]))
     # a position in degrees after the dropped rows: named at its row of the file
     header, rows = good_rows()

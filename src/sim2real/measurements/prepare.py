@@ -249,7 +249,7 @@ def prepare_pieces(run: Run, settings: Mapping[str, Any]) -> list[PreparedRun]:
     threshold = gap_threshold_s(run.time, cutoff, settings.get("max_step_s"))
     pieces = split_at_gaps(run, threshold)
     if len(pieces) == 1:
-        return [prepare_run(run, cutoff_hz=cutoff, order=settings["order"])]
+        return [_named_incomplete(prepare_run(run, cutoff_hz=cutoff, order=settings["order"]), run.name)]
     rate = float(run.meta.get("sample_rate_hz") or 1.0 / float(np.median(np.diff(run.time))))
     trim = _trim_samples(cutoff, 1.0 / rate)
     # A piece's grid holds floor(span * rate) + 1 points; MIN_SAMPLES must remain once both edges are trimmed.
@@ -276,8 +276,18 @@ def prepare_pieces(run: Run, settings: Mapping[str, Any]) -> list[PreparedRun]:
     for piece, keep in zip(pieces, long_enough, strict=True):
         if keep:
             done = prepare_run(piece, cutoff_hz=cutoff, order=settings["order"], sample_rate_hz=rate)
-            prepared.append(dataclasses.replace(done, filter={**done.filter, "gaps": {**record, "run": run.name}}))
+            prepared.append(_named_incomplete(
+                dataclasses.replace(done, filter={**done.filter, "gaps": {**record, "run": run.name}}), run.name))
     return prepared
+
+
+def _named_incomplete(prepared: PreparedRun, name: str) -> PreparedRun:
+    """The record of the rows dropped for an empty cell (sim2real.measurements.runs.read_run) named after the run of
+    the measurement list, as its gaps are, whichever piece of it this is."""
+    if "incomplete_rows" not in prepared.filter:
+        return prepared
+    return dataclasses.replace(prepared, filter={**prepared.filter,
+                                                 "incomplete_rows": {"run": name, **prepared.filter["incomplete_rows"]}})
 
 
 def load_prepared_runs(

@@ -67,7 +67,7 @@ class Run:
     meta: dict
     contact: np.ndarray | None = None  # (N,) bool contact flag when the log has a `contact` column
     # where rows with an empty cell were dropped (:data:`MAX_INCOMPLETE_FRACTION`): the file's data row of each
-    # sample, and what was dropped ({"run", "dropped", "of", "first_row"}); None when every row was whole
+    # sample, and what was dropped ({"dropped", "of", "first_row"}); None when every row was whole
     rows: np.ndarray | None = None
     incomplete: dict | None = None
 
@@ -306,7 +306,7 @@ def read_run(path: str | Path) -> Run:
     return Run(
         name=path.stem, path=path, joint_names=list(joints), time=time, q=q, qd=block("qd"),
         tau=block("tau"), tau_cmd=block("tau_cmd"), q_cmd=block("q_cmd"), meta=dict(meta), contact=contact,
-        **({"rows": kept, "incomplete": {"run": path.stem, "dropped": int(incomplete.sum()), "of": int(incomplete.size),
+        **({"rows": kept, "incomplete": {"dropped": int(incomplete.sum()), "of": int(incomplete.size),
                                          "first_row": _row_label(path, int(np.flatnonzero(incomplete)[0]))}}
            if incomplete.any() else {}),
     )
