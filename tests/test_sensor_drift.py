@@ -1,7 +1,8 @@
 """A torque sensor's drift within each run (effects/sensor_drift.py): estimated on every run itself, the holdout runs
-included, by projecting each run's polynomials in its time out of the judged torque and of every column.
+included, by projecting each run's drift shapes (polynomials and settling exponentials in its time) out of the judged
+torque and of every column.
 
-What it promises, each on real inputs: the projection removes exactly each run's polynomials of its time; a model
+What it promises, each on real inputs: the projection removes exactly each run's drift shapes; a model
 with it predicts the same residual whatever drift each run adds (fit and holdout alike), and fits the same robot;
 it is never a candidate, holds a torque bias, sits in the model of every link, and writes nothing into the assets.
 The loop on the lab's ``drift`` arm is tests/test_trustworthy_loop.py's.
@@ -21,7 +22,7 @@ from sim2real.excitation.config import identification_effects
 from sim2real.identification import fitting, links
 from sim2real.identification.diagnosis import candidates_to_try
 from sim2real.identification.effects import EFFECTS, apply_to_spec, calibration_from_params
-from sim2real.identification.effects.sensor_drift import DEGREE, remove_runs, run_bases
+from sim2real.identification.effects.sensor_drift import DEGREE, SETTLING, remove_runs, run_bases
 
 
 def run_segments(lengths: list[int]) -> list[slice]:
@@ -30,22 +31,27 @@ def run_segments(lengths: list[int]) -> list[slice]:
 
 
 def drift_of_each_run(time: np.ndarray, segments: list[slice], joints: int, seed: int) -> np.ndarray:
-    """A polynomial of DEGREE in each run's own time, other coefficients in every run and joint (N, joints)."""
+    """A polynomial of DEGREE in each run's own time and its settling exponentials (a warm-up), other coefficients in
+    every run and joint (N, joints)."""
     rng = np.random.default_rng(seed)
     out = np.zeros((time.size, joints))
     for segment in segments:
         t = time[segment] - time[segment][0]
-        powers = np.vander(t / max(float(t[-1]), 1e-9), DEGREE + 1, increasing=True)
-        out[segment] = powers @ rng.normal(scale=0.3, size=(DEGREE + 1, joints))
+        span = max(float(t[-1]), 1e-9)
+        shapes = np.vander(t / span, DEGREE + 1, increasing=True)
+        if t.size > DEGREE + 1 + len(SETTLING):  # a run long enough for them: the basis holds them too
+            shapes = np.column_stack([shapes, *(np.exp(-t / (fraction * span)) for fraction in SETTLING)])
+        out[segment] = shapes @ rng.normal(scale=0.3, size=(shapes.shape[1], joints))
     return out
 
 
 @settings(max_examples=30, deadline=None, derandomize=True)
 @given(lengths=st.lists(st.integers(5, 300), min_size=1, max_size=4), joints=st.integers(1, 3),
        columns=st.integers(0, 3), seed=st.integers(0, 2**16))
-def test_the_projection_removes_each_runs_polynomials_and_nothing_else(lengths, joints, columns, seed):
-    """Any polynomial of DEGREE in each run's time (its own coefficients per run and joint) vanishes; what remains is
-    orthogonal to every run's polynomials, and projecting it again changes nothing (a projection)."""
+def test_the_projection_removes_each_runs_drift_and_nothing_else(lengths, joints, columns, seed):
+    """Any polynomial of DEGREE in each run's time and any settling of its exponentials (its own coefficients per run
+    and joint) vanishes; what remains is orthogonal to every run's drift shapes, and projecting it again changes
+    nothing (a projection)."""
     segments = run_segments(lengths)
     rng = np.random.default_rng(seed)
     time = np.sort(rng.uniform(0.0, 50.0, size=sum(lengths)))

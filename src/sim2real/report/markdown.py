@@ -173,11 +173,12 @@ def _per_run_lines(effects: Sequence[str]) -> list[str]:
     """What gap.md says of a model's effects estimated on every run itself (a sensor's drift): its figures are of
     what is left once each run's own is removed."""
     from sim2real.identification.effects import get_effect
+    from sim2real.identification.effects.sensor_drift import SHAPE
 
     per_run = [name for name in effects if get_effect(name).per_run]
     if not per_run:
         return []
-    return [f"Each run's sensor drift (`{per_run[0]}`: a quadratic in the run's time, per joint) is estimated on that "
+    return [f"Each run's sensor drift (`{per_run[0]}`: {SHAPE}) is estimated on that "
             "run itself, the holdout runs included, and removed before judging: these figures are of what is left. "
             "The replay below never uses it.", ""]
 

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.position_ripple import best_periods
+from sim2real.identification.effects.sensor_drift import SHAPE as DRIFT_SHAPE
 
 # The learner's holdout RMSE at or above this fraction of the rung's: what is left is not a function of the
 # motion ("within about 15 %"); below it, the library lacks an effect the motion explains.
@@ -67,7 +68,7 @@ OFFSET_ADVICE = ("On {joints} the torque sits at an offset of its own in each ru
 # no held-out run can judge it).
 DRIFT_EFFECT = "sensor_drift"
 DECLARE_ADVICE = ("; or, for these runs, add the line '- {effect}' under 'effects:' in configs/{robot}/model.yaml: "
-                  "each run's drift (a quadratic in the run's time, per joint) is then estimated on that run itself, "
+                  f"each run's drift ({DRIFT_SHAPE}) is then estimated on that run itself, "
                   "the holdout runs included, and never written into the assets.")
 
 
