@@ -118,7 +118,9 @@ class _GramCache:
     refinement moves the nonlinear parameters (``static``: per non-empty block). Computed once, they are
     the same bits :func:`_solve_blocks` computes each time."""
 
-    def __init__(self) -> None:
+    def __init__(self, time_moves: bool = False) -> None:
+        # time_moves: the refinement moves a lag, so only the columns the lags leave where they are stay put
+        self.time_moves = time_moves
         self.static: list[bool] = []
         self._scaled: dict[int, _ScaledBlock] = {}
         self._products: dict[tuple[int, int], np.ndarray] = {}
@@ -237,7 +239,8 @@ def _linear_fit(problem: _Problem, tau: np.ndarray, nonlinear: dict[str, np.ndar
     theta: dict[str, np.ndarray] = {}
     for _ in range(iterations if has_offset else 1):
         if cache is not None:
-            cache.static = [e.name in problem.static_columns for e, size in zip(problem.effects, sizes, strict=True) if size]
+            cache.static = [e.name in problem.static_columns and (not cache.time_moves or problem.held_in_time(e))
+                            for e, size in zip(problem.effects, sizes, strict=True) if size]
         base = problem.base(theta, nonlinear)
         flat = _solve_blocks(blocks, tau - base, problem.weights, cache, lower_bounds(problem, sizes) if bounded else None)
         theta = _split_theta(problem.effects, flat, sizes)

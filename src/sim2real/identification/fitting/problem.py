@@ -117,15 +117,26 @@ class _Problem:
             cols = -cols  # forward, the drive's terms are taken from the command before the link-side sensor
         return cols
 
+    def held_in_time(self, effect: Effect) -> bool:
+        """Whether the lags leave ``effect``'s columns where they are: a drive's on the actuator link (:meth:`shift`)."""
+        return bool(self.signals.forward and effect.drive)
+
     def shift(self, columns: np.ndarray, effects: Sequence[Effect], sizes: Sequence[int],
               nonlinear: dict[str, np.ndarray]) -> np.ndarray:
         """Columns as they enter the prediction: moved by the lags (:meth:`retime`), except a drive's on the
-        actuator link (the command is delayed; the rotor inertia and friction act on the motion as it is)."""
-        shifted = self.retime(columns, nonlinear)
-        if self.retimed(nonlinear) and self.signals.forward:
-            held = np.concatenate([np.full(size, effect.drive) for effect, size in zip(effects, sizes, strict=True)]
-                                  or [np.zeros(0, dtype=bool)])
-            shifted[:, :, held] = columns[:, :, held]
+        actuator link (the command is delayed; the rotor inertia and friction act on the motion as it is). Only the
+        columns that move are retimed: on the actuator link most are a drive's (each column is retimed on its own,
+        so the bits are those of retiming them all)."""
+        if not self.retimed(nonlinear) or not self.signals.forward:
+            return self.retime(columns, nonlinear)
+        held = np.concatenate([np.full(size, self.held_in_time(effect)) for effect, size in zip(effects, sizes, strict=True)]
+                              or [np.zeros(0, dtype=bool)])
+        if not held.any():
+            return self.retime(columns, nonlinear)
+        shifted = columns.copy()
+        if not held.all():
+            moving = ~held
+            shifted[:, :, moving] = self.retime(columns[:, :, moving], nonlinear)
         return shifted
 
     def shifted_design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:

@@ -83,9 +83,10 @@ def _refine_nonlinear(
 
     free = ~held
     # While the delay stays put, so do the columns of the effects without nonlinear parameters (the link
-    # inertias, a rotor inertia): their part of the Gram matrix is computed once.
+    # inertias, a rotor inertia): their part of the Gram matrix is computed once. While it moves, only those the
+    # lags leave where they are (a drive's on the actuator link) stay put.
     delay_moves = any(e.time_shift and e.name not in fixed for e in problem.effects)
-    cache = None if delay_moves else _GramCache()
+    cache = _GramCache(time_moves=delay_moves)
 
     def residual_full(x: np.ndarray) -> np.ndarray:
         fitted = _linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1, cache=cache, bounded=True)
