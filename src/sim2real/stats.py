@@ -15,3 +15,9 @@ def rmse(error: np.ndarray, joint_names: Sequence[str]) -> dict[str, object]:
         "overall": float(np.sqrt(np.mean(error**2))),
         "per_joint": {name: float(v) for name, v in zip(joint_names, per_joint, strict=True)},
     }
+
+
+def floor_multiple(x: float) -> str:
+    """A residual in units of its noise floor as verdicts write it: "1.04x", "0.98x" (two decimals below 10x, where
+    two significant digits would write both "1x"), "29x" from 10x up."""
+    return f"{x:.0f}x" if abs(x) >= 10 else f"{x:.2f}x"

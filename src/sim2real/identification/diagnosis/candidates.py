@@ -53,6 +53,7 @@ import numpy as np
 from sim2real.identification import fitting
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Signals, per_joint_dict
+from sim2real.stats import floor_multiple
 from sim2real.identification.diagnosis.caveats import (
     NESTED_IN, SPANNED_BY, caveats, implausible_bodies, not_told_apart_verdict, recommend, separating_runs, ties,
     trades_with_model,
@@ -211,7 +212,7 @@ def _confounded(
 
 
 def _joint_text(joints: Sequence[str], before: Mapping[str, float], after: Mapping[str, float]) -> str:
-    return ", ".join(f"{j} {before[j]:.2g}x -> {after[j]:.2g}x" for j in joints)
+    return ", ".join(f"{j} {floor_multiple(before[j])} -> {floor_multiple(after[j])}" for j in joints)
 
 
 def candidates_to_try(model_effects: Sequence[str], torque_source: str, forward: bool,
@@ -469,7 +470,7 @@ def diagnose(
         if best["decided_on"] == "arm":
             reach = (f"it explains {best['explained']:.0%} of the holdout residual ({best['explained_beyond_noise']:.0%} "
                      f"of what lies above the noise floor, each joint in units of its own floor), bringing it from "
-                     f"{ratio:.2g}x to {best['evidence']['x_floor_after']:.2g}x the floor ({rmse_now:.3g} to "
+                     f"{floor_multiple(ratio)} to {floor_multiple(best['evidence']['x_floor_after'])} the floor ({rmse_now:.3g} to "
                      f"{best['evidence']['rmse_after']:.3g} N*m)")
         else:
             reach = (f"on {', '.join(best['joints'])} it removes most of what lies above the noise floor "
@@ -486,13 +487,13 @@ def diagnose(
         verdict = (
             f"Nothing to add on {where}: every joint's holdout residual is within {limits['noise_floor_factor']}x its "
             f"own noise floor (worst {max(x_now_map, key=x_now_map.get) if x_now_map else '-'} "
-            f"{max(x_now_map.values()) if x_now_map else 0:.2g}x; {rmse_now:.3g} N*m against {noise:.3g} N*m arm-wide) "
+            f"{floor_multiple(max(x_now_map.values()) if x_now_map else 0)}; {rmse_now:.3g} N*m against {noise:.3g} N*m arm-wide) "
             f"and no effect removes more than {limits['min_explained']:.0%} of what lies above it."
         )
     else:
         status = "unexplained"
         details = "; ".join(
-            f"{j} {per_joint_status[j]['x_floor']:.2g}x its floor"
+            f"{j} {floor_multiple(per_joint_status[j]['x_floor'])} its floor"
             + (f" (closest: {per_joint_status[j]['closest']}, removing "
                f"{per_joint_status[j]['closest_explained_beyond_noise']:.0%} of its excess)"
                if per_joint_status[j]["closest"] else "")
@@ -523,7 +524,7 @@ def diagnose(
 def failed_text(failed: Mapping[str, Mapping[str, Any]]) -> str:
     """The verdict's sentence on trials that did not solve (:func:`failed_trial`)."""
     def x(value: float | None) -> str:
-        return f"{value:.3g}x" if value is not None else "not finite"
+        return floor_multiple(value) if value is not None else "not finite"
 
     parts = [f"{name} ({x(figures['fit_x_floor'])} the floors on the fit runs against the model's "
              f"{x(figures['model_fit_x_floor'])})" for name, figures in sorted(failed.items())]

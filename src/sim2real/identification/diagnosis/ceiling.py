@@ -27,6 +27,7 @@ import numpy as np
 
 from sim2real.identification.effects.position_ripple import best_periods
 from sim2real.identification.effects.sensor_drift import SHAPE as DRIFT_SHAPE
+from sim2real.stats import floor_multiple
 
 # The learner's holdout RMSE at or above this fraction of the rung's: what is left is not a function of the
 # motion ("within about 15 %"); below it, the library lacks an effect the motion explains.
@@ -344,7 +345,7 @@ def ceiling_text(per_joint: dict[str, Any], declare_for: str | None = None) -> s
             follows = f", mostly as a function of {' and '.join(r['gains_most_with'])}" if r["gains_most_with"] else ""
             if r.get("gains_most_in"):
                 follows += f", most in {GAIN_REGIMES[r['gains_most_in']][0]}"
-            parts.append(f"{j} {r['rung_x_floor']:.2g}x -> {r['ceiling_x_floor']:.2g}x its floor{follows}")
+            parts.append(f"{j} {floor_multiple(r['rung_x_floor'])} -> {floor_multiple(r['ceiling_x_floor'])} its floor{follows}")
         sentences.append(
             "A flexible learner on the motion explains much of what is left, so the library lacks an effect that is "
             f"a function of the motion: {'; '.join(parts)}. Model that dependence (an effect of the library's "
@@ -357,7 +358,7 @@ def ceiling_text(per_joint: dict[str, Any], declare_for: str | None = None) -> s
             r = per_joint[j]
             what = KIND_TEXT[r["follows"]] if r["follows"] else "follows none of time within a run, the run or the " \
                 "history since a reversal (a sensor's own dynamics, noise the floor misses)"
-            parts.append(f"{j} ({r['rung_x_floor']:.2g}x its floor; the learner {r['ceiling_x_floor']:.2g}x): it {what}")
+            parts.append(f"{j} ({floor_multiple(r['rung_x_floor'])} its floor; the learner {floor_multiple(r['ceiling_x_floor'])}): it {what}")
         sentences.append(
             f"No function of the motion explains the rest: a flexible learner on the motion comes within "
             f"{1 - CLOSE_TO_RUNG:.0%} of the last rung on {', '.join(still)}. " + "; ".join(parts) + ".")
