@@ -133,10 +133,10 @@ class _Problem:
                               or [np.zeros(0, dtype=bool)])
         if not held.any():
             return self.retime(columns, nonlinear)
+        if held.all():  # as without a lag: the columns themselves
+            return columns
         shifted = columns.copy()
-        if not held.all():
-            moving = ~held
-            shifted[:, :, moving] = self.retime(columns[:, :, moving], nonlinear)
+        shifted[:, :, ~held] = self.retime(columns[:, :, ~held], nonlinear)
         return shifted
 
     def shifted_design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:
