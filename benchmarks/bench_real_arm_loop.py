@@ -6,7 +6,9 @@ gearbox, like the Panda's tau_J, with part of the friction after the sensor), ``
 (the same without commands, like a real tau_J log), ``wrist_friction`` (friction on joint 7 alone), the
 messy logs (``real_arm_like_dropouts``, ``_glitches``, ``_30hz``), a torque sensor with dynamics of its own
 (``real_arm_like_sensor_lag``), drives whose current loop lags the command (``real_arm_like_drive_lag``), torque sensors
-still warming up (``real_arm_like_warm_up``, where the verdict's advice, ``sensor_drift``, is followed too) and, with
+still warming up (``real_arm_like_warm_up``, where the verdict's advice, ``sensor_drift``, is followed too), a link-side
+sensor's log with all of that at once (``real_panda_log``: Dahl friction beside Gaz's, a warm-up, the sensor's own
+2 ms filter, a cogging, lost stretches and glitches) and, with
 ``--robot ur5``, the UR5's
 ``real_arm_like`` (torques from motor currents at 500 Hz) and ``real_arm_like_current_lag`` (those currents filtered)
 hide all of it. This script plays the user: it
@@ -33,7 +35,8 @@ FACTOR = 1.5
 SCENARIOS = ("real_arm_like", "link_side_sensor", "link_side_tau_only", "wrist_friction", "sensor_gains", "hysteresis",
              "drift", "ripple", "real_arm_like_dropouts", "real_arm_like_glitches", "real_arm_like_30hz",
              "real_arm_like_sensor_lag", "real_arm_like_drive_lag", "real_arm_like_cogging",
-             "link_side_cogging", "real_arm_like_warm_up")
+             "link_side_cogging", "real_arm_like_warm_up", "real_panda_log")
+ROUNDS = 10  # real_panda_log's two links name lines in turn: ten rounds follow it to its end
 UR5_SCENARIOS = ("real_arm_like", "real_arm_like_current_lag")
 
 
@@ -78,7 +81,7 @@ def main() -> None:
         lab = Lab(Path(tmp), args.robot)
         for scenario in args.scenario or (SCENARIOS if args.robot == "panda" else UR5_SCENARIOS):
             print(f"== {scenario}")
-            lab.follow(scenario, report=report, start=[e for e in args.start.split(",") if e])
+            lab.follow(scenario, rounds=ROUNDS, report=report, start=[e for e in args.start.split(",") if e])
 
 
 if __name__ == "__main__":

@@ -268,3 +268,42 @@ def test_an_actuation_delay_is_called_the_sensors_lag_only_where_the_body_link_f
     diagnosis = {"status": "unexplained", "verdict": "No effect explains it.", "candidates": []}
     _note_sensor_lag(diagnosis, actuator, with_it, None)
     assert "4.6 ms behind the motion (sensor_delay)" in diagnosis["lag_note"] and "filter" in diagnosis["lag_note"]
+
+
+def test_a_line_one_link_names_says_what_its_trial_does_on_the_other_link():
+    """Behind a link-side sensor a drive's friction sits on both links: a line the actuator link names is fitted on
+    the body link too. Where the body link's own trial of it leaves a joint worse than now (above the floor factor,
+    or by more than the harm tolerance), the actuator link's verdict says so. The diagnoses are the loop's own, on
+    the lab's real_panda_log (20 s runs, round 8 of benchmarks/bench_real_arm_loop.py): the actuator link names
+    asymmetric_friction, which the body link's trial finds explains nothing there and takes panda_joint2 from 1.46x
+    to 1.51x its floor, where the next round indeed put it."""
+    import copy
+    import json
+    from pathlib import Path
+
+    from sim2real.identification.sysid import _note_other_link
+
+    data = json.loads((Path(__file__).parent / "data" / "real_panda_log_round8_diagnoses.json").read_text())
+    actuator = copy.deepcopy(data["actuator"])
+    _note_other_link(actuator, data["body"], "body", "link")
+    assert actuator["other_link_note"] == ("The line sits on the body link too, where its trial explains nothing and "
+                                           "leaves panda_joint2 at 1.51x its floor (1.46x now).")
+    assert actuator["verdict"] == data["actuator"]["verdict"] + " " + actuator["other_link_note"]
+
+    body = copy.deepcopy(data["body"])  # at its floor: it names nothing, so it has nothing to say of the other link
+    _note_other_link(body, data["actuator"], "actuator", "link")
+    assert body == data["body"]
+
+    calm = copy.deepcopy(data["body"])  # a trial that leaves every joint where it is: nothing to say
+    for candidate in calm["candidates"]:
+        candidate["evidence"]["per_joint_x_floor_after"] = {j: row["x_floor"] for j, row in calm["per_joint"].items()}
+    untouched = copy.deepcopy(data["actuator"])
+    _note_other_link(untouched, calm, "body", "link")
+    assert untouched == data["actuator"]
+
+    lag = copy.deepcopy(data["actuator"])  # a line the other link does not fit (an actuation lag): whatever its numbers
+    lag["candidates"][0]["effect"] = "actuation_lag"
+    harmed = copy.deepcopy(data["body"])
+    harmed["candidates"][0]["effect"] = "actuation_lag"
+    _note_other_link(lag, harmed, "body", "link")
+    assert "other_link_note" not in lag

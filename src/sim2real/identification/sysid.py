@@ -23,6 +23,7 @@ import numpy as np
 from sim2real.identification import links
 from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, model_free_ceiling
 from sim2real.identification.diagnosis import diagnose as run_diagnosis
+from sim2real.identification.diagnosis.candidates import HARM_TOLERANCE
 from sim2real.identification.documents import (  # noqa: F401  (re-exported: the rule's documents)
     load_model_config, merge_link_values, params_document, round_floats, write_model_residuals,
 )
@@ -37,7 +38,7 @@ from sim2real.identification.fitting import (  # noqa: F401  (re-exported: the p
 from sim2real.blas import one_blas_thread
 from sim2real.cache import FitCache
 from sim2real.measurements import PreparedRun, noise_floor_of, torque_sensor_of
-from sim2real.stats import rmse
+from sim2real.stats import floor_multiple, rmse
 
 
 def state_domain_status(data: TorqueData) -> dict[str, str]:
@@ -274,6 +275,10 @@ def fit_model(
         }
         _note_drive(document["actuator"].get("diagnosis"), "actuator", sensor)
         _note_sensor_lag(document["actuator"].get("diagnosis"), link_result, result, document.get("diagnosis"))
+        for named, named_link, other, other_link in (
+                (document.get("diagnosis"), body_link, document["actuator"].get("diagnosis"), "actuator"),
+                (document["actuator"].get("diagnosis"), "actuator", document.get("diagnosis"), body_link)):
+            _note_other_link(named, other, other_link, sensor)
         confounded += section.get("diagnosis", {}).get("confounded", [])
         results.append(link_result)
     document["links"] = round_floats(links.separability(mode, effect_names, confounded, sensor))
@@ -374,6 +379,33 @@ def _note_sensor_lag(diagnosis: dict[str, Any] | None, actuator: FitResult, body
         return
     diagnosis["verdict"] += note
     diagnosis["lag_note"] = note.strip()
+
+
+def _note_other_link(diagnosis: dict[str, Any] | None, other: Mapping[str, Any] | None, other_link: str,
+                     sensor: str) -> None:
+    """A line one link names sits on the other link too (a drive's friction behind a link-side sensor): where the
+    other link's own trial of it leaves a joint worse than now, above the floor factor or by more than the harm
+    tolerance, the verdict says so; the user weighs the two links (``other_link_note``)."""
+    if not diagnosis or not other or diagnosis.get("status") != "add_effect":
+        return
+    effect = diagnosis["candidates"][0]["effect"]
+    trial = next((c for c in other.get("candidates", []) if c["effect"] == effect), None)
+    if trial is None or not links.effects_of_link([effect], other_link, sensor):
+        return
+    factor = float(DEFAULT_DIAGNOSIS["noise_floor_factor"])
+    now = {j: row["x_floor"] for j, row in (other.get("per_joint") or {}).items()}
+    after = trial["evidence"].get("per_joint_x_floor_after") or {}
+    worse = [j for j, a in now.items() if j in after and after[j] > a
+             and (after[j] > factor or after[j] > a + HARM_TOLERANCE)]
+    if not worse:
+        return
+    explains = (f"explains {trial['explained']:.0%} of its residual" if trial["explained"] > 0
+                else "explains nothing")
+    note = (f" The line sits on the {other_link} link too, where its trial {explains} and leaves "
+            + ", ".join(f"{j} at {floor_multiple(after[j])} its floor ({floor_multiple(now[j])} now)" for j in worse)
+            + ".")
+    diagnosis["verdict"] += note
+    diagnosis["other_link_note"] = note.strip()
 
 
 def _note_drive(diagnosis: dict[str, Any] | None, link: str, sensor: str) -> None:
