@@ -86,7 +86,8 @@ def _refine_nonlinear(
     # inertias, a rotor inertia): their part of the Gram matrix is computed once. While it moves, only those the
     # lags leave where they are (a drive's on the actuator link) stay put.
     delay_moves = any(e.time_shift and e.name not in fixed for e in problem.effects)
-    cache = _GramCache(time_moves=delay_moves)
+    stays_put = any(e.name in problem.static_columns and problem.held_in_time(e) for e in problem.effects)
+    cache = (_GramCache(time_moves=True) if stays_put else None) if delay_moves else _GramCache()
 
     def residual_full(x: np.ndarray) -> np.ndarray:
         fitted = _linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1, cache=cache, bounded=True)
