@@ -273,8 +273,9 @@ def test_an_actuation_delay_is_called_the_sensors_lag_only_where_the_body_link_f
 def test_a_line_one_link_names_says_what_its_trial_does_on_the_other_link():
     """Behind a link-side sensor a drive's friction sits on both links: a line the actuator link names is fitted on
     the body link too. Where the body link's own trial of it leaves a joint worse than now (above the floor factor,
-    or by more than the harm tolerance), the actuator link's verdict says so. The diagnoses are the loop's own, on
-    the lab's real_panda_log (20 s runs, round 8 of benchmarks/bench_real_arm_loop.py): the actuator link names
+    or by more than the harm tolerance) and it asks for nothing itself, the actuator link's verdict says so. The
+    diagnoses are the loop's own, on the lab's real_panda_log (20 s runs, round 8 of
+    benchmarks/bench_real_arm_loop.py): the actuator link names
     asymmetric_friction, which the body link's trial finds explains nothing there and takes panda_joint2 from 1.46x
     to 1.51x its floor, where the next round indeed put it."""
     import copy
@@ -299,6 +300,12 @@ def test_a_line_one_link_names_says_what_its_trial_does_on_the_other_link():
         candidate["evidence"]["per_joint_x_floor_after"] = {j: row["x_floor"] for j, row in calm["per_joint"].items()}
     untouched = copy.deepcopy(data["actuator"])
     _note_other_link(untouched, calm, "body", "link")
+    assert untouched == data["actuator"]
+
+    asking = copy.deepcopy(data["body"])  # the other link names a line of its own: its next rung is not this trial
+    asking["status"] = "add_effect"
+    untouched = copy.deepcopy(data["actuator"])
+    _note_other_link(untouched, asking, "body", "link")
     assert untouched == data["actuator"]
 
     lag = copy.deepcopy(data["actuator"])  # a line the other link does not fit (an actuation lag): whatever its numbers

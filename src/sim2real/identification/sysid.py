@@ -385,8 +385,10 @@ def _note_other_link(diagnosis: dict[str, Any] | None, other: Mapping[str, Any] 
                      sensor: str) -> None:
     """A line one link names sits on the other link too (a drive's friction behind a link-side sensor): where the
     other link's own trial of it leaves a joint worse than now, above the floor factor or by more than the harm
-    tolerance, the verdict says so; the user weighs the two links (``other_link_note``)."""
-    if not diagnosis or not other or diagnosis.get("status") != "add_effect":
+    tolerance, the verdict says so; the user weighs the two links (``other_link_note``). Only where the other link asks
+    for nothing itself: then its next rung is its model with this line, which its trial fitted."""
+    if not diagnosis or not other or diagnosis.get("status") != "add_effect" \
+            or other.get("status") in ("add_effect", "not_told_apart"):
         return
     effect = diagnosis["candidates"][0]["effect"]
     trial = next((c for c in other.get("candidates", []) if c["effect"] == effect), None)
