@@ -275,9 +275,8 @@ def fit_model(
         }
         _note_drive(document["actuator"].get("diagnosis"), "actuator", sensor)
         _note_sensor_lag(document["actuator"].get("diagnosis"), link_result, result, document.get("diagnosis"))
-        for named, named_link, other, other_link in (
-                (document.get("diagnosis"), body_link, document["actuator"].get("diagnosis"), "actuator"),
-                (document["actuator"].get("diagnosis"), "actuator", document.get("diagnosis"), body_link)):
+        for named, other, other_link in ((document.get("diagnosis"), document["actuator"].get("diagnosis"), "actuator"),
+                                         (document["actuator"].get("diagnosis"), document.get("diagnosis"), body_link)):
             _note_other_link(named, other, other_link, sensor)
         confounded += section.get("diagnosis", {}).get("confounded", [])
         results.append(link_result)
