@@ -21,8 +21,9 @@ FLOOR = 0.05
 RATE = 100.0
 
 
-def motion(seed: int, duration: float = 20.0) -> tuple[np.ndarray, ...]:
-    """A few incommensurate sinusoids per joint: positions, velocities, accelerations."""
+def motion(seed: int, duration: float = 20.0, trend: float = 0.0) -> tuple[np.ndarray, ...]:
+    """A few incommensurate sinusoids per joint: positions, velocities, accelerations; ``trend`` (rad/s): the first
+    joint also moves steadily through the run, so that its position follows the run's time."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration, 1.0 / RATE)
     q, qd, qdd = (np.zeros((t.size, len(JOINTS))) for _ in range(3))
@@ -32,11 +33,13 @@ def motion(seed: int, duration: float = 20.0) -> tuple[np.ndarray, ...]:
             q[:, j] += a * np.sin(w * t + phase)
             qd[:, j] += a * w * np.cos(w * t + phase)
             qdd[:, j] -= a * w**2 * np.sin(w * t + phase)
+    q[:, 0] += trend * t
+    qd[:, 0] += trend
     return t, q, qd, qdd
 
 
-def data(name: str, seed: int, residual_of) -> tuple[TorqueData, np.ndarray]:
-    t, q, qd, qdd = motion(seed)
+def data(name: str, seed: int, residual_of, trend: float = 0.0) -> tuple[TorqueData, np.ndarray]:
+    t, q, qd, qdd = motion(seed, trend=trend)
     noise = FLOOR * np.random.default_rng(seed + 100).normal(size=q.shape)
     residual = noise + residual_of(t, q, qd, seed)
     torque = TorqueData(JOINTS, t, q, qd, qdd, residual, [slice(0, t.size)], [name], "tau", False,
@@ -44,9 +47,9 @@ def data(name: str, seed: int, residual_of) -> tuple[TorqueData, np.ndarray]:
     return torque, residual
 
 
-def ceiling(residual_of, noise_floor_factor: float = 1.5) -> dict:
-    fit, fit_residual = data("fit", 1, residual_of)
-    holdout, holdout_residual = data("holdout", 2, residual_of)
+def ceiling(residual_of, noise_floor_factor: float = 1.5, trend: float = 0.0) -> dict:
+    fit, fit_residual = data("fit", 1, residual_of, trend)
+    holdout, holdout_residual = data("holdout", 2, residual_of, trend)
     return model_free_ceiling(fit, fit_residual, holdout, holdout_residual, noise_floor_factor)
 
 
@@ -86,6 +89,29 @@ def test_a_warm_up_drift_is_not_the_motion_but_time_within_each_run():
     # no property of the robot, but the fits take it for one: the user is told what to do about it
     assert "On j1 the torque sits at an offset of its own in each run or drifts within it" in result["text"]
     assert "torque sensors zeroed at rest" in result["text"]
+
+
+def test_a_drift_the_motion_imitates_is_named_a_drift_not_an_effect_to_model():
+    """One excitation run after run: a joint's position follows each run's time, so a learner on the motion takes
+    a warm-up for a function of that position; a drift within each run removes more of it, and is named."""
+    def warm_up(t, q, qd, seed):
+        return on_joint(0, 0.3 * (1 - np.exp(-t / 6.0)), q.shape)
+
+    result = ceiling(warm_up, trend=0.05)
+    row = result["per_joint"]["j1"]
+    assert row["kind"] == "motion" and row["ceiling_rmse"] < 0.6 * row["rung_rmse"], row
+    assert row["follows"] == "time", row
+    assert row["beyond_motion"]["time"] >= row["explained_beyond_noise"], row
+    assert "Model that dependence" not in result["text"] and "only imitates a drift: j1" in result["text"]
+    assert "On j1 the torque sits at an offset of its own in each run or drifts within it" in result["text"]
+    assert result["declare"]["joints"] == ["j1"]
+
+    # a ripple of the position stays the motion's where the position follows the time as much
+    ripple = ceiling(lambda t, q, qd, seed: on_joint(0, 0.4 * np.sin(2 * np.pi * q[:, 0] / 0.5), q.shape),
+                     trend=0.05)
+    row = ripple["per_joint"]["j1"]
+    assert row["kind"] == "motion" and "follows" not in row, row
+    assert "Model that dependence" in ripple["text"] and "declare" not in ripple
 
 
 def test_an_offset_per_run_is_named_as_such():

@@ -152,17 +152,24 @@ def _stacked(first: Any, second: Any, name: str) -> np.ndarray:
     return np.concatenate([getattr(first, name), getattr(second, name)])
 
 
-def _beyond_motion(j: int, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
-                   floor: float) -> dict[str, float]:
-    """Shares of joint ``j``'s excess that time within a run, the run and the history since a reversal explain."""
+def _drift_shares(j: int, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
+                  floor: float) -> dict[str, float]:
+    """Shares of joint ``j``'s excess (every run, fit and holdout) that a smooth function of time within each run
+    and one offset per run remove."""
     residual = np.concatenate([fit_residual[:, j], holdout_residual[:, j]])
     time = _stacked(fit_data, holdout_data, "time")
     offset = fit_data.n_samples
     segments = [*fit_data.segments, *(slice(s.start + offset, s.stop + offset) for s in holdout_data.segments)]
-    shares = {
+    return {
         "time": _excess_share(residual, _per_run_fit(residual, time, segments, TIME_DEGREE), floor),
         "run": _excess_share(residual, _per_run_fit(residual, time, segments, 0), floor),
     }
+
+
+def _beyond_motion(j: int, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
+                   floor: float) -> dict[str, float]:
+    """Shares of joint ``j``'s excess that time within a run, the run and the history since a reversal explain."""
+    shares = _drift_shares(j, fit_data, fit_residual, holdout_data, holdout_residual, floor)
 
     def history(data: Any) -> np.ndarray:
         return np.column_stack([since_reversal(data.q, data.qd, data.segments)[:, j], data.qd[:, j]])
@@ -276,6 +283,13 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
                                       else _gains_most(learner, x_holdout, holdout_residual[:, j], names))
             row["gains_most_in"] = _gain_regime(holdout_residual[:, j], after, holdout_data.qd[:, j],
                                                 holdout_data.qdd[:, j])
+            # Where each run's motion follows its time (one excitation, run after run), a function of the motion
+            # imitates a warm-up or an offset per run: what removes at least as much of the excess is named.
+            shares = _drift_shares(j, fit_data, fit_residual, holdout_data, holdout_residual, floor)
+            drift = _named({**shares, "history": 0.0})
+            if drift is not None and shares[drift] >= row["explained_beyond_noise"]:
+                row["beyond_motion"] = {k: round(v, 4) for k, v in shares.items()}
+                row["follows"] = drift
         else:
             row["kind"] = "not_motion"
             shares = _beyond_motion(j, fit_data, fit_residual, holdout_data, holdout_residual, floor)
@@ -328,8 +342,15 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
 
 
 def offset_joints(per_joint: dict[str, Any]) -> list[str]:
-    """The joints where what is left, no function of the motion, sits at an offset of each run's own or drifts."""
-    return [j for j, r in per_joint.items() if r["kind"] == "not_motion" and r.get("follows") in OFFSET_KINDS]
+    """The joints where what is left sits at an offset of each run's own or drifts: no function of the motion, or
+    one a drift removes as much of (:func:`imitated_joints`)."""
+    return [j for j, r in per_joint.items() if r["kind"] != "at_floor" and r.get("follows") in OFFSET_KINDS]
+
+
+def imitated_joints(per_joint: dict[str, Any]) -> list[str]:
+    """The joints where a learner on the motion explains much of what is left, yet an offset or drift of each run's
+    own removes at least as much: the motion merely follows the run's time."""
+    return [j for j, r in per_joint.items() if r["kind"] == "motion" and r.get("follows") in OFFSET_KINDS]
 
 
 def ceiling_text(per_joint: dict[str, Any], declare_for: str | None = None) -> str:
@@ -337,20 +358,30 @@ def ceiling_text(per_joint: dict[str, Any], declare_for: str | None = None) -> s
     joints where nothing of the motion explains the rest, with what it follows; ``declare_for``: the robot whose
     model.yaml the advice on offsets names :data:`DRIFT_EFFECT` for (None: the model has it)."""
     sentences = []
-    motion = [j for j, r in per_joint.items() if r["kind"] == "motion"]
+    imitated = imitated_joints(per_joint)
+    motion = [j for j, r in per_joint.items() if r["kind"] == "motion" and j not in imitated]
+
+    def learned(j: str) -> str:
+        r = per_joint[j]
+        follows = f", mostly as a function of {' and '.join(r['gains_most_with'])}" if r["gains_most_with"] else ""
+        if r.get("gains_most_in"):
+            follows += f", most in {GAIN_REGIMES[r['gains_most_in']][0]}"
+        return f"{j} {floor_multiple(r['rung_x_floor'])} -> {floor_multiple(r['ceiling_x_floor'])} its floor{follows}"
+
     if motion:
-        parts = []
-        for j in motion:
-            r = per_joint[j]
-            follows = f", mostly as a function of {' and '.join(r['gains_most_with'])}" if r["gains_most_with"] else ""
-            if r.get("gains_most_in"):
-                follows += f", most in {GAIN_REGIMES[r['gains_most_in']][0]}"
-            parts.append(f"{j} {floor_multiple(r['rung_x_floor'])} -> {floor_multiple(r['ceiling_x_floor'])} its floor{follows}")
         sentences.append(
             "A flexible learner on the motion explains much of what is left, so the library lacks an effect that is "
-            f"a function of the motion: {'; '.join(parts)}. Model that dependence (an effect of the library's "
-            "shape; a periodic one of a joint's position is position_ripple's, one period per joint) before trusting "
-            "the rest.")
+            f"a function of the motion: {'; '.join(learned(j) for j in motion)}. Model that dependence (an effect of "
+            "the library's shape; a periodic one of a joint's position is position_ripple's, one period per joint) "
+            "before trusting the rest.")
+    if imitated:
+        parts = [f"{learned(j)}, yet a drift of each run's own removes "
+                 f"{per_joint[j]['beyond_motion'][per_joint[j]['follows']]:.0%} of its excess (the learner "
+                 f"{per_joint[j]['explained_beyond_noise']:.0%}): it {KIND_TEXT[per_joint[j]['follows']]}"
+                 for j in imitated]
+        sentences.append(
+            "A learner on the motion explains part of what is left where each run's motion follows its time, and "
+            f"there it only imitates a drift: {'; '.join(parts)}.")
     still = [j for j, r in per_joint.items() if r["kind"] == "not_motion"]
     if still:
         parts = []
@@ -362,8 +393,8 @@ def ceiling_text(per_joint: dict[str, Any], declare_for: str | None = None) -> s
         sentences.append(
             f"No function of the motion explains the rest: a flexible learner on the motion comes within "
             f"{1 - CLOSE_TO_RUNG:.0%} of the last rung on {', '.join(still)}. " + "; ".join(parts) + ".")
-        offsets = offset_joints(per_joint)
-        if offsets:
-            sentences.append(OFFSET_ADVICE.format(joints=", ".join(offsets)) + (
-                "." if declare_for is None else DECLARE_ADVICE.format(effect=DRIFT_EFFECT, robot=declare_for)))
+    offsets = offset_joints(per_joint)
+    if offsets:
+        sentences.append(OFFSET_ADVICE.format(joints=", ".join(offsets)) + (
+            "." if declare_for is None else DECLARE_ADVICE.format(effect=DRIFT_EFFECT, robot=declare_for)))
     return " ".join(sentences)
