@@ -100,11 +100,20 @@ def test_a_drift_the_motion_imitates_is_named_a_drift_not_an_effect_to_model():
     result = ceiling(warm_up, trend=0.05)
     row = result["per_joint"]["j1"]
     assert row["kind"] == "motion" and row["ceiling_rmse"] < 0.6 * row["rung_rmse"], row
-    assert row["follows"] == "time", row
+    assert row["follows"] == "time" and row["imitated"], row
     assert row["beyond_motion"]["time"] >= row["explained_beyond_noise"], row
     assert "Model that dependence" not in result["text"] and "only imitates a drift: j1" in result["text"]
     assert "On j1 the torque sits at an offset of its own in each run or drifts within it" in result["text"]
     assert result["declare"]["joints"] == ["j1"]
+
+    # with a ripple beside the warm-up, the learners fitted again on each run's residual less its drift still find
+    # the ripple: both are named, the ripple to model and the drift to declare
+    both = ceiling(lambda t, q, qd, seed: on_joint(
+        0, 0.3 * (1 - np.exp(-t / 6.0)) + 0.1 * np.sin(2 * np.pi * q[:, 0] / 0.5), q.shape), trend=0.05)
+    row = both["per_joint"]["j1"]
+    assert row["kind"] == "motion" and row["follows"] == "time" and not row["imitated"], row
+    assert "Model that dependence" in both["text"] and "beside a drift of each run's own" in both["text"]
+    assert both["declare"]["joints"] == ["j1"]
 
     # a ripple of the position stays the motion's where the position follows the time as much
     ripple = ceiling(lambda t, q, qd, seed: on_joint(0, 0.4 * np.sin(2 * np.pi * q[:, 0] / 0.5), q.shape),

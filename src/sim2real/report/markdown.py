@@ -156,7 +156,7 @@ FOLLOWS_TEXT = {"time": "not the motion: drifts with time", "run": "not the moti
 
 def _left_text(row: Mapping[str, Any]) -> str:
     """What kind of thing is left on a joint (the ceiling's ``kind`` and ``follows``), in a few words."""
-    if row["kind"] == "motion" and row.get("follows"):  # the motion only imitates what the run's time explains
+    if row["kind"] == "motion" and row.get("imitated"):  # the motion only imitates what the run's time explains
         return FOLLOWS_TEXT[row["follows"]].replace("not the motion: ", "") + ", which the motion imitates"
     if row["kind"] == "motion":
         with_ = row.get("gains_most_with") or []

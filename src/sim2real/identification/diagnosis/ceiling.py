@@ -236,6 +236,41 @@ def _at_floor(rung: float, floor: float, noise_floor_factor: float) -> bool:
     return floor > 0 and rung <= noise_floor_factor * floor
 
 
+def _learners(j: int, fit_data: Any, fit_column: np.ndarray, holdout_data: Any, holdout_column: np.ndarray,
+              ) -> tuple[str, np.ndarray, Any, float]:
+    """The best on the holdout of the three learners of :data:`LEARNER`, fitted on joint ``j``'s residual
+    ``fit_column``: (its name, ``holdout_column`` less its prediction, the trees, the searched period). A tie goes to
+    the earlier (the trees, then whole turns). Called on one OpenMP thread."""
+    x_fit, _ = motion_features(fit_data)
+    x_holdout, _ = motion_features(holdout_data)
+    train = _train_rows(fit_data.n_samples)
+    learner = _learner().fit(x_fit[train], fit_column[train])
+    trees = holdout_column - learner.predict(x_holdout)
+    ripple = _harmonic_learner().fit(position_harmonics(fit_data.q[train, j]), fit_column[train])
+    harmonics = holdout_column - ripple.predict(position_harmonics(holdout_data.q[:, j]))
+    period = float(best_periods(fit_data.q[train, j:j + 1], fit_column[train, None])[0][0])
+    searched = _harmonic_learner().fit(period_harmonics(fit_data.q[train, j], period), fit_column[train])
+    of_period = holdout_column - searched.predict(period_harmonics(holdout_data.q[:, j], period))
+    chosen, after = min([("trees on the motion", trees), ("position harmonics", harmonics),
+                         ("a ripple of the searched period", of_period)], key=lambda item: float(np.mean(item[1] ** 2)))
+    return chosen, after, learner, period
+
+
+def _motion_beyond_drift(j: int, drift: str, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any,
+                         holdout_residual: np.ndarray, floor: float, noise_floor_factor: float) -> bool:
+    """Whether the learners still explain joint ``j``'s residual once each run's own ``drift`` (its offset, or its
+    smooth function of time) is taken out of every run: a function of the motion beside the drift, not its
+    imitation."""
+    degree = TIME_DEGREE if drift == "time" else 0
+    fit_column = _per_run_fit(fit_residual[:, j], fit_data.time, fit_data.segments, degree)
+    holdout_column = _per_run_fit(holdout_residual[:, j], holdout_data.time, holdout_data.segments, degree)
+    rung = float(np.sqrt(np.mean(holdout_column**2)))
+    if _at_floor(rung, floor, noise_floor_factor):
+        return False
+    _, after, _, _ = _learners(j, fit_data, fit_column, holdout_data, holdout_column)
+    return float(np.sqrt(np.mean(after**2))) < CLOSE_TO_RUNG * rung
+
+
 def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any,
                    holdout_residual: np.ndarray, noise_floor_factor: float, floors: Sequence[float],
                    ) -> tuple[dict[str, Any], np.ndarray]:
@@ -250,21 +285,9 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
         return ({"rung_rmse": round(rung, 6), "ceiling_rmse": round(rung, 6), "rung_x_floor": round(rung / floor, 3),
                  "ceiling_x_floor": round(rung / floor, 3), "ratio": 1.0, "explained_beyond_noise": 0.0,
                  "kind": "at_floor", "fitted": False}, np.array(holdout_residual[:, j], dtype=float))
-    x_fit, names = motion_features(fit_data)
-    x_holdout, _ = motion_features(holdout_data)
-    train = _train_rows(fit_data.n_samples)
     with threadpool_limits(limits=1, user_api="openmp"):
-        learner = _learner().fit(x_fit[train], fit_residual[train, j])
-        trees = holdout_residual[:, j] - learner.predict(x_holdout)
-        ripple = _harmonic_learner().fit(position_harmonics(fit_data.q[train, j]), fit_residual[train, j])
-        harmonics = holdout_residual[:, j] - ripple.predict(position_harmonics(holdout_data.q[:, j]))
-        period = float(best_periods(fit_data.q[train, j:j + 1], fit_residual[train, j:j + 1])[0][0])
-        searched = _harmonic_learner().fit(period_harmonics(fit_data.q[train, j], period), fit_residual[train, j])
-        of_period = holdout_residual[:, j] - searched.predict(period_harmonics(holdout_data.q[:, j], period))
-        # the best of the three; a tie goes to the earlier (the trees, then whole turns)
-        learners = [("trees on the motion", trees), ("position harmonics", harmonics),
-                    ("a ripple of the searched period", of_period)]
-        chosen, after = min(learners, key=lambda item: float(np.mean(item[1] ** 2)))
+        chosen, after, learner, period = _learners(j, fit_data, fit_residual[:, j], holdout_data,
+                                                   holdout_residual[:, j])
         periodic = chosen != "trees on the motion"
         ceiling = float(np.sqrt(np.mean(after**2)))
         row: dict[str, Any] = {
@@ -279,17 +302,21 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
         if ceiling < CLOSE_TO_RUNG * rung:
             row["kind"] = "motion"
             every = f", every {period:.3g} rad" if chosen == "a ripple of the searched period" else ""
+            x_holdout, names = motion_features(holdout_data)
             row["gains_most_with"] = ([f"position of {holdout_data.joint_names[j]} (periodic{every})"] if periodic
                                       else _gains_most(learner, x_holdout, holdout_residual[:, j], names))
             row["gains_most_in"] = _gain_regime(holdout_residual[:, j], after, holdout_data.qd[:, j],
                                                 holdout_data.qdd[:, j])
-            # Where each run's motion follows its time (one excitation, run after run), a function of the motion
-            # imitates a warm-up or an offset per run: what removes at least as much of the excess is named.
+            # Where each run's motion follows its time (one excitation, run after run), a function of the motion can
+            # imitate a warm-up or an offset per run. Where one of those removes as much, it is named; the learners
+            # fitted again without it say whether the motion explains anything beside it.
             shares = _drift_shares(j, fit_data, fit_residual, holdout_data, holdout_residual, floor)
             drift = _named({**shares, "history": 0.0})
             if drift is not None and shares[drift] >= row["explained_beyond_noise"]:
                 row["beyond_motion"] = {k: round(v, 4) for k, v in shares.items()}
                 row["follows"] = drift
+                row["imitated"] = not _motion_beyond_drift(j, drift, fit_data, fit_residual, holdout_data,
+                                                           holdout_residual, floor, noise_floor_factor)
         else:
             row["kind"] = "not_motion"
             shares = _beyond_motion(j, fit_data, fit_residual, holdout_data, holdout_residual, floor)
@@ -349,8 +376,9 @@ def offset_joints(per_joint: dict[str, Any]) -> list[str]:
 
 def imitated_joints(per_joint: dict[str, Any]) -> list[str]:
     """The joints where a learner on the motion explains much of what is left, yet an offset or drift of each run's
-    own removes at least as much: the motion merely follows the run's time."""
-    return [j for j, r in per_joint.items() if r["kind"] == "motion" and r.get("follows") in OFFSET_KINDS]
+    own removes at least as much, and without it the learner explains nothing more: the motion merely follows the
+    run's time."""
+    return [j for j, r in per_joint.items() if r["kind"] == "motion" and r.get("imitated")]
 
 
 def ceiling_text(per_joint: dict[str, Any], declare_for: str | None = None) -> str:
@@ -368,10 +396,17 @@ def ceiling_text(per_joint: dict[str, Any], declare_for: str | None = None) -> s
             follows += f", most in {GAIN_REGIMES[r['gains_most_in']][0]}"
         return f"{j} {floor_multiple(r['rung_x_floor'])} -> {floor_multiple(r['ceiling_x_floor'])} its floor{follows}"
 
+    def beside(j: str) -> str:
+        r = per_joint[j]
+        if r.get("follows") not in OFFSET_KINDS:
+            return ""
+        return (f", beside a drift of each run's own that removes {r['beyond_motion'][r['follows']]:.0%} of its excess "
+                "(the learner, fitted again without it, still explains much)")
+
     if motion:
         sentences.append(
             "A flexible learner on the motion explains much of what is left, so the library lacks an effect that is "
-            f"a function of the motion: {'; '.join(learned(j) for j in motion)}. Model that dependence (an effect of "
+            f"a function of the motion: {'; '.join(learned(j) + beside(j) for j in motion)}. Model that dependence (an effect of "
             "the library's shape; a periodic one of a joint's position is position_ripple's, one period per joint) "
             "before trusting the rest.")
     if imitated:
