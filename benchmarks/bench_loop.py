@@ -1,8 +1,9 @@
 """One round of the gap loop, timed (issue 20): a change of model.yaml through to a new gap.json.
 
-Part 1, the Panda demo through Snakemake: after a cold build of ``results/panda/gap.json``, three kinds of
+Part 1, the Panda demo through Snakemake: after a cold build of ``results/panda/gap.json``, four kinds of
 round (:func:`demo_rounds`): ``model.yaml`` edited without a change of its effects, one line added, as
-a user following the verdicts does, and that line removed again; the rule times of ``sysid`` and ``gap_report``
+a user following the verdicts does, that line removed again, and the line-added round once more with its new rungs
+read back (what the new model's diagnosis, replays and figures cost alone); the rule times of ``sysid`` and ``gap_report``
 come from their ``benchmark:`` files (the runs are prepared once, by ``prepare_runs``, which a round does not rerun).
 Median of ``--repeats``.
 
@@ -129,10 +130,12 @@ def profiled_round(tree: Path, measurements: Path, out: Path, src: Path | None =
 
 
 def demo_rounds(tree: Path, repeats: int) -> None:
-    """Three kinds of round, each timed ``repeats`` times: ``model.yaml`` edited without touching its effects (a
+    """Four kinds of round, each timed ``repeats`` times: ``model.yaml`` edited without touching its effects (a
     comment: every rung and diagnosis is read back from results/panda/sysid/fits/), the loop's own round: the line
     the verdict named added (the demo's last effect, after two rounds without it, so that nothing of the model with it
-    is in the cache, which keeps two rounds' work), and that line removed again (undone: read back)."""
+    is in the cache, which keeps two rounds' work), that line removed again (undone: read back), and the line added
+    once more with only its new rungs read back (the new model's diagnoses, replays and figures removed from the
+    caches): what a line-added round costs even where its rung costs nothing."""
     run_snakemake(tree, "results/panda/gap.json", timeout=3600)
     model = tree / "configs/panda/model.yaml"
     original = model.read_text()
@@ -151,15 +154,25 @@ def demo_rounds(tree: Path, repeats: int) -> None:
         return times
 
     added, removed = f"one line added ({last})", f"the line removed again ({last})"
-    rows: dict[str, list[dict]] = {"model.yaml edited, same effects": [], added: [], removed: []}
+    rung_free = f"one line added ({last}), its rungs read back"
+    rows: dict[str, list[dict]] = {"model.yaml edited, same effects": [], added: [], removed: [], rung_free: []}
+    fits, kept = tree / "results/panda/sysid/fits", tree / "results/panda/gap/kept"
     for k in range(repeats):
         rows["model.yaml edited, same effects"].append(round_(original + f"# bench_loop round {k}\n"))
         # Two rounds without the line (the cache keeps two rounds' work): the line is then new to the cache, as
         # it is to a user adding it for the first time; the last of them names it.
         round_(without_last)
         round_(without_last + f"# bench_loop round {k}\n")
+        before = {path for folder in (fits, kept) for path in folder.iterdir()}
         rows[added].append(round_(original))
+        new = {path for folder in (fits, kept) for path in folder.iterdir()} - before
         rows[removed].append(round_(without_last))  # undone: read back from the round before
+        # What a line-added round costs beyond its new rungs (issue 32's floor): that round again with its new rungs
+        # read back, and the new model's diagnoses (their trials' refinements too), replays and figures computed again.
+        for path in new:
+            if not path.name.startswith("rung-"):
+                path.unlink(missing_ok=True)
+        rows[rung_free].append(round_(original + f"# bench_loop rung read back {k}\n"))
     model.write_text(original)
     for kind, times in rows.items():
         print(f"  {kind}: jobs run: {times[-1]['jobs']}")
@@ -172,10 +185,12 @@ def demo_rounds(tree: Path, repeats: int) -> None:
     print(f"  a round that adds the line / a round that changes nothing: {medians[1] / medians[0]:.2f}x "
           "(issue 32: at most 1.5x)")
     print(f"  a round that removes it again / a round that changes nothing: {medians[2] / medians[0]:.2f}x")
+    print(f"  a round that adds the line with its rungs read back / a round that changes nothing: "
+          f"{medians[3] / medians[0]:.2f}x (what the new model's diagnosis, replays and figures cost alone)")
     # What the user waits for: Snakemake's start, DAG and checks too (the same in every kind of round).
     commands = [statistics.median(t["command"] for t in times) for times in rows.values()]
     print(f"  the command `snakemake results/panda/gap.json`, median: {commands[0]:.1f} s, {commands[1]:.1f} s, "
-          f"{commands[2]:.1f} s; line added / unchanged {commands[1] / commands[0]:.2f}x")
+          f"{commands[2]:.1f} s, {commands[3]:.1f} s; line added / unchanged {commands[1] / commands[0]:.2f}x")
 
 
 def lab_runs(tree: Path, length_s: float) -> Path:
