@@ -334,7 +334,27 @@ def lab_excitation_designs(robot):
     """{(scenario, run): design} of configs/{robot}/lab.yaml; read once per run."""
     from sim2real.lab import excitation_designs
 
-    return excitation_designs(f"configs/{robot}/lab.yaml")
+    return excitation_designs(lab_config(robot))
+
+
+@functools.cache
+def lab_scenario(robot, scenario):
+    """A scenario of configs/{robot}/lab.yaml, defaults merged and checked (an error names the file, the key and the
+    fix), with the lab's joints, as plain data; read once per run."""
+    from sim2real.lab import lab_scenario as read_scenario
+
+    return read_scenario(lab_config(robot), scenario)
+
+
+def lab_config(robot):
+    return f"configs/{robot}/lab.yaml"
+
+
+def lab_scenario_params(wildcards):
+    """What a lab run or truth reads of lab.yaml, its scenario's settings with the defaults, as a param rather than
+    the file as an input: a comment or another scenario's edit reruns none of its runs.
+    """
+    return lab_scenario(wildcards.robot, wildcards.scenario)
 
 
 def lab_run_excitation(wildcards):

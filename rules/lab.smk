@@ -9,7 +9,6 @@ localrules:
 rule lab_run:
     input:
         mjcf="results/{robot}/mjcf/{robot}.xml",
-        config="configs/{robot}/lab.yaml",
         excitation=lab_run_excitation,
     output:
         run="results/{robot}/lab/{scenario}/{run}.parquet",
@@ -23,6 +22,10 @@ rule lab_run:
     resources:
         mem_mb=1024,
         runtime=5,
+    params:
+        # the scenario's own settings: an edit of lab.yaml reruns the runs of the scenarios it changes
+        scenario=lab_scenario_params,
+        config=lambda w: lab_config(w.robot),
     script:
         "../scripts/lab_run.py"
 
@@ -30,7 +33,6 @@ rule lab_run:
 rule lab_truth:
     input:
         mjcf="results/{robot}/mjcf/{robot}.xml",
-        config="configs/{robot}/lab.yaml",
     output:
         truth="results/{robot}/lab/{scenario}/truth.yaml",
     log:
@@ -41,6 +43,9 @@ rule lab_truth:
     resources:
         mem_mb=256,
         runtime=2,
+    params:
+        scenario=lab_scenario_params,
+        config=lambda w: lab_config(w.robot),
     script:
         "../scripts/lab_truth.py"
 

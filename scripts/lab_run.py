@@ -6,10 +6,11 @@ from sim2real.lab import run_lab_scenario_run
 with rule_entry(snakemake):
     run_lab_scenario_run(
         snakemake.input.mjcf,
-        snakemake.input.config,
+        snakemake.params.config,
         snakemake.wildcards.robot,
         snakemake.wildcards.scenario,
         snakemake.wildcards.run,
         snakemake.output.run,
         excitation=snakemake.input.excitation[0] if snakemake.input.excitation else None,
+        scenario_spec=snakemake.params.scenario,
     )

@@ -5,6 +5,7 @@ tests/test_demo_loop.py.)"""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import mujoco
@@ -19,6 +20,12 @@ pytestmark = pytest.mark.slow
 ROBOT = "ur5"  # the other robot than test_build_cache's edit; nothing here is robot-specific
 TARGETS = [f"results/{ROBOT}/{ROBOT}.urdf", f"results/{ROBOT}/mjcf/{ROBOT}.xml", f"results/{ROBOT}/mjcf/scene.xml"]
 MESH_RULES = {"visual_mesh", "collision_mesh", "coacd"}  # mesh conversion and convex decomposition
+
+
+def jobs_outputs(log: str) -> list[str]:
+    """The outputs of the jobs a Snakemake log lists (each job's ``output:`` line, its files comma-separated)."""
+    return [path.strip() for line in re.findall(r"^\s+output: (.+)$", log, flags=re.MULTILINE)
+            for path in line.split(",")]
 
 
 def mesh_outputs(tree: Path) -> dict[str, float]:
@@ -131,3 +138,33 @@ def test_excitation_yaml_edits_rerun_only_the_designs_they_change(tmp_path: Path
 
     config.write_text(shipped)
     assert "Nothing to be done" in snakemake(tree, "-n", DESIGN)
+
+
+def test_lab_yaml_edits_rerun_only_the_runs_of_the_scenarios_they_change(tmp_path: Path, built_tree: Path) -> None:
+    """A lab run and its truth take their scenario's settings (defaults merged, description left out) as a param: a
+    comment or a description reruns no run; an edit of one scenario reruns that scenario's runs and truth, never
+    another scenario's; a default reruns every scenario that takes it."""
+    tree = copy_built(built_tree, tmp_path / "project")
+    lab = tree / "configs" / "panda" / "lab.yaml"
+    shipped = lab.read_text()
+    worn, demo = "results/panda/lab/real_arm_like_worn_2026_11", "results/panda/lab/real_arm_like"
+    targets = [f"{scenario}/{run}.parquet" for scenario in (worn, demo) for run in ("fit", "holdout")]
+    truths = [f"{worn}/truth.yaml", f"{demo}/truth.yaml"]
+    assert "Nothing to be done" in snakemake(tree, "-n", *targets, *truths)
+
+    edit_yaml(lab, lambda data: data["scenarios"][worn.split("/")[-1]].update(description="the demo arm, worn"))
+    lab.write_text(lab.read_text() + "# a comment changes no scenario\n")
+    assert "Nothing to be done" in snakemake(tree, "-n", *targets, *truths)
+
+    edit_yaml(lab, lambda data: data["scenarios"][worn.split("/")[-1]]["sensors"].update(torque_noise_std=0.04))
+    dry = snakemake(tree, "-n", *targets, *truths)
+    assert rules_run(dry) == {"lab_run", "lab_truth"}, dry
+    assert set(jobs_outputs(dry)) == {f"{worn}/{name}" for name in (
+        "fit.parquet", "fit.yaml", "holdout.parquet", "holdout.yaml", "truth.yaml")}, "no other scenario's runs"
+
+    lab.write_text(shipped)
+    edit_yaml(lab, lambda data: data["defaults"].update(sample_rate_hz=500))
+    assert {f"{worn}/fit.parquet", f"{demo}/fit.parquet"} <= set(jobs_outputs(snakemake(tree, "-n", *targets)))
+
+    lab.write_text(shipped)
+    assert "Nothing to be done" in snakemake(tree, "-n", *targets, *truths)

@@ -88,7 +88,8 @@ from typing import TYPE_CHECKING, Any
 # lab.yaml (config) at every start, which need not load MuJoCo (arm, simulate) with it.
 _MODULE_OF = {
     **dict.fromkeys(["arm_spec", "compile_arm", "drop_inert_meshes", "meshes_inert"], "arm"),
-    **dict.fromkeys(["EFFECTS", "excitation_designs", "load_lab_config", "read_excitation", "scenario_runs"], "config"),
+    **dict.fromkeys(["EFFECTS", "excitation_designs", "lab_scenario", "load_lab_config", "read_excitation",
+                     "scenario_runs"], "config"),
     **dict.fromkeys(["cogging_torque", "dahl_step", "gaz_friction", "passive_friction", "stribeck_friction"], "hidden"),
     **dict.fromkeys(["fourier_excitation", "run_lab_scenario_run", "simulate_run", "write_truth"], "simulate"),
 }
@@ -96,7 +97,8 @@ __all__ = sorted(_MODULE_OF)
 
 if TYPE_CHECKING:
     from sim2real.lab.arm import arm_spec, compile_arm, drop_inert_meshes, meshes_inert
-    from sim2real.lab.config import EFFECTS, excitation_designs, load_lab_config, read_excitation, scenario_runs
+    from sim2real.lab.config import (EFFECTS, excitation_designs, lab_scenario, load_lab_config, read_excitation,
+                                     scenario_runs)
     from sim2real.lab.hidden import cogging_torque, dahl_step, gaz_friction, passive_friction, stribeck_friction
     from sim2real.lab.simulate import fourier_excitation, run_lab_scenario_run, simulate_run, write_truth
 

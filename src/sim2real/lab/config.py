@@ -71,11 +71,19 @@ def load_lab_config(path: str | Path) -> dict[str, Any]:
 
 def scenario_runs(config_path: str | Path, scenario: str) -> list[dict[str, Any]]:
     """Runs ({name, seed, role}) that a scenario writes."""
+    return list(lab_scenario(config_path, scenario)["settings"]["runs"])
+
+
+def lab_scenario(config_path: str | Path, scenario: str) -> dict[str, Any]:
+    """What a run or the truth of ``scenario`` reads of lab.yaml: ``{joints, settings}``, the scenario's settings
+    with the defaults merged in, its description left out (plain data: the lab rules take it as a param, so a comment,
+    a description or an edit of another scenario reruns none of this one's runs)."""
     config = load_lab_config(config_path)
     if scenario not in config["scenarios"]:
         raise InputError(config_path, f"scenarios/{scenario}", "no such scenario",
                          f"use one of {', '.join(sorted(config['scenarios']))}")
-    return list(config["scenarios"][scenario]["runs"])
+    settings = {key: value for key, value in config["scenarios"][scenario].items() if key != "description"}
+    return {"joints": config["joints"], "settings": settings}
 
 
 def _per_joint(value: Any, joints: Sequence[str], where: str, path: Path | None) -> np.ndarray:

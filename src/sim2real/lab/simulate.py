@@ -14,7 +14,7 @@ from sim2real.errors import InputError
 from sim2real.files import write_yaml
 from sim2real.filters import first_order_lag
 from sim2real.lab.arm import _apply_spec_effects, _gains_and_biases, arm_spec, compile_arm, drop_inert_meshes
-from sim2real.lab.config import EFFECTS, _per_joint, load_lab_config, read_excitation, scenario_runs
+from sim2real.lab.config import EFFECTS, _per_joint, lab_scenario, read_excitation
 from sim2real.lab.hidden import (
     _cogging, _hysteretic_friction, _joint_friction, _torque_drift, cogging_torque, dahl_step, passive_friction,
 )
@@ -288,26 +288,26 @@ def _logged_rows(time: np.ndarray, dropouts: Mapping[str, Any], rng: np.random.G
 
 def run_lab_scenario_run(
     mjcf_path: str | Path, lab_config: str | Path, robot: str, scenario: str, run: str, output: str | Path,
-    excitation: str | Path | None = None,
+    excitation: str | Path | None = None, scenario_spec: Mapping[str, Any] | None = None,
 ) -> None:
     """Simulate one run of ``scenario`` and write it (table + metadata) to ``output``.
 
     ``excitation``: the designed trajectory's CSV when the run names one
-    (:func:`~sim2real.lab.config.excitation_designs`).
+    (:func:`~sim2real.lab.config.excitation_designs`); ``scenario_spec``: the scenario as
+    :func:`~sim2real.lab.config.lab_scenario` reads it from ``lab_config`` (read here without one).
     """
     from sim2real.measurements import write_run
 
-    config = load_lab_config(lab_config)
-    runs = {r["name"]: r for r in scenario_runs(lab_config, scenario)}
+    spec = scenario_spec if scenario_spec is not None else lab_scenario(lab_config, scenario)
+    joints, settings = list(spec["joints"]), spec["settings"]
+    runs = {r["name"]: r for r in settings["runs"]}
     if run not in runs:
         raise InputError(lab_config, f"scenarios/{scenario}/runs", f"no run '{run}'", f"use {', '.join(runs)}")
-    settings = config["scenarios"][scenario]
     trajectory = None
     if excitation is not None:
-        trajectory = read_excitation(excitation, config["joints"], float(settings["sample_rate_hz"]),
+        trajectory = read_excitation(excitation, joints, float(settings["sample_rate_hz"]),
                                      f"scenarios/{scenario}/runs/{run}/excitation", lab_config)
-    time, signals, _ = simulate_run(mjcf_path, config["joints"], settings, int(runs[run]["seed"]), lab_config,
-                                    trajectory)
+    time, signals, _ = simulate_run(mjcf_path, joints, settings, int(runs[run]["seed"]), lab_config, trajectory)
     meta = {
         "robot": robot,
         "source": "synthetic",
@@ -318,14 +318,15 @@ def run_lab_scenario_run(
                  + (f", designed excitation '{runs[run]['excitation']}'" if excitation is not None else "") + "); "
                  "hidden effects are in truth.yaml, which no comparison reads",
     }
-    write_run(output, time, config["joints"], signals, meta)
+    write_run(output, time, joints, signals, meta)
 
 
-def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, output: str | Path) -> None:
-    """truth.yaml: the hidden effects with their resolved values, and the scenario's settings."""
-    config = load_lab_config(lab_config)
-    settings = config["scenarios"][scenario]
-    joints = config["joints"]
+def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, output: str | Path,
+                scenario_spec: Mapping[str, Any] | None = None) -> None:
+    """truth.yaml: the hidden effects with their resolved values, and the scenario's settings (``scenario_spec``:
+    as :func:`run_lab_scenario_run` takes it)."""
+    spec = scenario_spec if scenario_spec is not None else lab_scenario(lab_config, scenario)
+    joints, settings = list(spec["joints"]), spec["settings"]
     spec = arm_spec(mjcf_path, joints)
     truth = _apply_spec_effects(spec, joints, settings.get("effects") or {}, Path(lab_config))
     effects = settings.get("effects") or {}
