@@ -288,7 +288,8 @@ def test_a_line_one_link_names_says_what_its_trial_does_on_the_other_link():
     actuator = copy.deepcopy(data["actuator"])
     _note_other_link(actuator, data["body"], "body", "link")
     assert actuator["other_link_note"] == ("The line sits on the body link too, where its trial explains nothing and "
-                                           "leaves panda_joint2 at 1.51x its floor (1.46x now).")
+                                           "leaves panda_joint2 at 1.51x its floor (1.46x now). To keep it off the "
+                                           "body link, write the line as '- asymmetric_friction: actuator'.")
     assert actuator["verdict"] == data["actuator"]["verdict"] + " " + actuator["other_link_note"]
 
     body = copy.deepcopy(data["body"])  # at its floor: it names nothing, so it has nothing to say of the other link
@@ -314,3 +315,35 @@ def test_a_line_one_link_names_says_what_its_trial_does_on_the_other_link():
     harmed["candidates"][0]["effect"] = "actuation_lag"
     _note_other_link(lag, harmed, "body", "link")
     assert "other_link_note" not in lag
+
+
+def test_a_drive_line_kept_on_the_actuator_link_stays_off_the_body_link(lab):
+    """Behind a link-side sensor a drive's friction is fitted on both links; '- asymmetric_friction: actuator' keeps
+    it on the actuator link: the body link neither fits nor tries it, the calibrated joint holds the actuator link's
+    value, and ladder.json says so. Runs that cannot fit it there are refused, naming model.yaml's line."""
+    from sim2real.errors import InputError
+    from sim2real.identification.documents import params_document
+    from sim2real.identification.sysid import fit_model
+
+    from sysid_lab import FAST_FIT, WORKERS
+
+    effects = ["link_inertia", "asymmetric_friction"]
+    kept = {"fit": FAST_FIT, "links": {"asymmetric_friction": "actuator"}}
+    document, results = fit_model(effects, lab.nominal, lab.prepared(lab.measurement_list("link_side_sensor")), kept,
+                                  lab.robot, workers=WORKERS)
+    assert document["ladder"][-1]["effects"] == ["link_inertia"]
+    assert document["actuator"]["ladder"][-1]["effects"] == ["asymmetric_friction"]
+    assert document["links"]["kept_on"] == {"asymmetric_friction": "actuator"}
+    tried = {c["effect"] for c in document["diagnosis"]["candidates"]}
+    skipped = {s["effect"] for s in document["diagnosis"].get("skipped", [])}
+    assert "asymmetric_friction" not in tried | skipped and "coulomb_friction" in tried | skipped
+    params = params_document(results, lab.nominal, document["torque_source"], lab.robot)
+    assert params["effects"]["asymmetric_friction"] == document["actuator"]["ladder"][-1]["params"]["asymmetric_friction"]
+    assert "asymmetric_friction" not in params.get("by_link", {})
+    both = lab.model("link_side_sensor", effects)  # without the line's link: on both
+    assert both["ladder"][-1]["effects"] == effects
+
+    with pytest.raises(InputError, match=r"model\.yaml.*asymmetric_friction: actuator.*motor-side"):
+        fit_model(effects, lab.nominal, lab.prepared(lab.measurement_list("real_arm_like")), kept, lab.robot)
+    with pytest.raises(InputError, match="fit one link only"):
+        fit_model(effects, lab.nominal, lab.prepared(lab.without_sensor("link_side_sensor")), kept, lab.robot)

@@ -282,6 +282,25 @@ def test_model_yaml_errors_name_the_key(tmp_path):
         sysid.load_model_config(bad)
 
 
+def test_a_drive_line_can_be_kept_on_one_link_and_only_a_drive_line(tmp_path):
+    """'- asymmetric_friction: actuator' keeps a drive's effect on one link (behind a link-side sensor it is fitted on
+    both); an effect fitted on one link anyway, or a link that is none, is refused with the line's fix."""
+    model = tmp_path / "model.yaml"
+    model.write_text("effects:\n- link_inertia\n- asymmetric_friction: actuator\n- rotor_inertia\n")
+    config = sysid.load_model_config(model)
+    assert config["effects"] == ["link_inertia", "asymmetric_friction", "rotor_inertia"]
+    assert config["links"] == {"asymmetric_friction": "actuator"}
+    model.write_text("effects:\n- link_inertia: actuator\n")
+    with pytest.raises(InputError, match=r"effects/0.*fitted on one link only.*write '- link_inertia'"):
+        sysid.load_model_config(model)
+    model.write_text("effects:\n- asymmetric_friction: motor\n")
+    with pytest.raises(InputError, match="effects"):
+        sysid.load_model_config(model)
+    model.write_text("effects:\n- asymmetric_friction\n- asymmetric_friction: body\n")
+    with pytest.raises(InputError, match="listed twice"):
+        sysid.load_model_config(model)
+
+
 def test_runs_mixing_torque_sources_are_refused(nominal):
     runs = [make_run("a", {}, 1, duration=3.0), make_run("b", {"actuation_delay": 0.01}, 2, duration=3.0)]
     with pytest.raises(InputError, match="torque sources"):

@@ -36,7 +36,7 @@ command explains (:func:`sim2real.measurements.command_floor_of`): a controller'
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -79,16 +79,31 @@ def effect_link(name: str, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR) 
 
 
 def effects_of_link(effect_names: Sequence[str], link: str, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR,
-                    ) -> list[str]:
-    """The effects of ``link`` among ``effect_names``, in their order.
+                    kept_on: Mapping[str, str] | None = None) -> list[str]:
+    """The effects of ``link`` among ``effect_names``, in their order; ``kept_on``: drive effects model.yaml keeps
+    on one link (``- asymmetric_friction: actuator``), left off the other.
 
     A drive effect is fitted on the body link whatever the sensor: behind a link-side sensor the body's
     share is the part after the sensor (output bearings, seals), which a real arm's link-side torque
     shows (Gaz et al. 2019 identify the Panda's friction from tau_J). Behind a link-side sensor it is
     fitted on the actuator link too: the part before the sensor."""
+    kept_on = kept_on or {}
     return [name for name in effect_names
-            if effect_link(name, torque_sensor) == link or (get_effect(name).drive and link == "body")
-            or get_effect(name).every_link]
+            if (effect_link(name, torque_sensor) == link or (get_effect(name).drive and link == "body")
+                or get_effect(name).every_link) and kept_on.get(name, link) == link]
+
+
+def kept_on_problem(name: str, link: str, mode: str, torque_sensor: TorqueSensor) -> str | None:
+    """Why model.yaml cannot keep the drive effect ``name`` on ``link`` alone with these runs (None: it can): the runs
+    fit one link only, or that link does not fit it (behind a motor-side sensor the actuator link fits no drive
+    effect)."""
+    if mode != "separate":
+        return ("these runs fit one link only (they do not log both the measured torque tau and the command tau_cmd), "
+                "so there is no other link to keep it off")
+    if name not in effects_of_link([name], link, torque_sensor):
+        return (f"behind a {torque_sensor}-side torque sensor (the runs' torque_sensor) the {link} link does not fit "
+                f"{name}: kept there, it would be fitted nowhere")
+    return None
 
 
 def candidates_of_link(link: str, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR) -> list[str]:

@@ -235,9 +235,14 @@ def fit_model(
     joints = nominal.joint_names
     mode = links.link_mode([*runs["fit"], *runs["holdout"]])
     sensor = torque_sensor_of([*runs["fit"], *runs["holdout"]])
+    kept_on = dict(settings.get("links") or {})
+    for name, link in kept_on.items():
+        problem = links.kept_on_problem(name, link, mode, sensor)
+        if problem:
+            raise InputError(f"configs/{robot}/model.yaml", f"effects: '- {name}: {link}'", problem, f"write '- {name}'")
     body_link = "combined" if mode == "commands_only" else "body"
     body_effects = (list(effect_names) if mode == "commands_only"
-                    else links.effects_of_link(effect_names, "body", sensor))
+                    else links.effects_of_link(effect_names, "body", sensor, kept_on))
     body_data = {
         role: stack_runs([RunSamples.of(run, noise_floor_of(run)) for run in runs[role]], joints,
                          fit_settings["fit_rate_hz"])
@@ -255,7 +260,8 @@ def fit_model(
     residuals: dict[str, np.ndarray] = {}
     document, result = fit_ladder(
         body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
-        candidates=links.candidates_of_link("body", sensor) if mode == "separate" or sensor == "link" else None,
+        candidates=[name for name in links.candidates_of_link("body", sensor) if kept_on.get(name, "body") == "body"]
+        if mode == "separate" or sensor == "link" else None,
         workers=workers, cache=cache, residuals_out=residuals,
     )
     if current_out is not None:
@@ -281,6 +287,9 @@ def fit_model(
         confounded += section.get("diagnosis", {}).get("confounded", [])
         results.append(link_result)
     document["links"] = round_floats(links.separability(mode, effect_names, confounded, sensor))
+    if kept_on:
+        # the user's choice, said where the links are: neither link tries the line on the other
+        document["links"]["kept_on"] = kept_on
     contradicted = [name for name in body_effects if get_effect(name).drive] if body_link == "body" else []
     if sensor == "link" and contradicted:
         # The metadata put the drive before the sensor; the model the user follows fits it after: say what that means.
@@ -313,11 +322,13 @@ def _actuator_link(
     link_data = {role: links.actuator_data(runs[role], joints) for role in ("fit", "holdout")}
     signals = {role: links.actuator_signals(*link_data[role], nominal) for role in link_data}
     link_settings = {**settings, "fit": {**fit_settings, **links.ACTUATOR_FIT_SETTINGS}}
+    kept_on = dict(settings.get("links") or {})
     return fit_ladder(
-        links.effects_of_link(effect_names, "actuator", sensor), nominal, link_data["fit"][0],
+        links.effects_of_link(effect_names, "actuator", sensor, kept_on), nominal, link_data["fit"][0],
         link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
         holdout_signals=signals["holdout"], link="actuator",
-        candidates=links.candidates_of_link("actuator", sensor), workers=workers, cache=cache,
+        candidates=[name for name in links.candidates_of_link("actuator", sensor)
+                    if kept_on.get(name, "actuator") == "actuator"], workers=workers, cache=cache,
     )
 
 
@@ -402,9 +413,10 @@ def _note_other_link(diagnosis: dict[str, Any] | None, other: Mapping[str, Any] 
         return
     explains = (f"explains {trial['explained']:.0%} of its residual" if trial["explained"] > 0
                 else "explains nothing")
+    link = "body" if other_link == "actuator" else "actuator"
     note = (f" The line sits on the {other_link} link too, where its trial {explains} and leaves "
             + ", ".join(f"{j} at {floor_multiple(after[j])} its floor ({floor_multiple(now[j])} now)" for j in worse)
-            + ".")
+            + f". To keep it off the {other_link} link, write the line as '- {effect}: {link}'.")
     diagnosis["verdict"] += note
     diagnosis["other_link_note"] = note.strip()
 

@@ -366,6 +366,9 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
             lines += [SENSOR_TEXT[links.get("torque_sensor", DEFAULT_TORQUE_SENSOR)], ""]
         if links.get("metadata_note"):
             lines += [f"**The data contradict the metadata:** {links['metadata_note']}", ""]
+        if links.get("kept_on"):
+            lines += ["Kept on one link by model.yaml (neither fitted nor tried on the other): " + ", ".join(
+                f"`{name}` on the {link} link" for name, link in links["kept_on"].items()) + ".", ""]
         for fact in links["can_tell"]:
             lines.append(f"- Told apart: {', '.join(f'`{e}`' for e in fact['effects'])}: {fact['why']}.")
         for fact in links["cannot_tell"]:
