@@ -290,15 +290,13 @@ def test_a_drive_line_can_be_kept_on_one_link_and_only_a_drive_line(tmp_path):
     config = sysid.load_model_config(model)
     assert config["effects"] == ["link_inertia", "asymmetric_friction", "rotor_inertia"]
     assert config["links"] == {"asymmetric_friction": "actuator"}
-    model.write_text("effects:\n- link_inertia: actuator\n")
-    with pytest.raises(InputError, match=r"effects/0.*fitted on one link only.*write '- link_inertia'"):
-        sysid.load_model_config(model)
-    model.write_text("effects:\n- asymmetric_friction: motor\n")
-    with pytest.raises(InputError, match="effects"):
-        sysid.load_model_config(model)
-    model.write_text("effects:\n- asymmetric_friction\n- asymmetric_friction: body\n")
-    with pytest.raises(InputError, match="listed twice"):
-        sysid.load_model_config(model)
+    refused = {"- link_inertia: actuator": r"effects/0.*fitted on one link only.*write '- link_inertia'",
+               "- asymmetric_friction: motor": "effects",
+               "- asymmetric_friction\n- asymmetric_friction: body": "listed twice"}
+    for lines, match in refused.items():
+        model.write_text(f"effects:\n{lines}\n")
+        with pytest.raises(InputError, match=match):
+            sysid.load_model_config(model)
 
 
 def test_runs_mixing_torque_sources_are_refused(nominal):
