@@ -88,16 +88,19 @@ class Lab:
                 for role in ("fit", "holdout")}
 
     def model(self, scenario: str, effects: list[str], with_sensor: bool = True,
-              cache: FitCache | None = None) -> dict[str, Any]:
+              cache: FitCache | None = None, kept_on: dict[str, str] | None = None) -> dict[str, Any]:
         """ladder.json content of both links (``sysid.fit_model``); ``with_sensor=False`` drops tau; ``cache``:
-        rungs and diagnoses of earlier rounds read back, as the sysid rule does."""
+        rungs and diagnoses of earlier rounds read back, as the sysid rule does; ``kept_on``: the drive lines
+        model.yaml keeps on one link (``- asymmetric_friction: actuator``)."""
         # the actuator link's settings too: a test may change them to see another way of fitting
-        key = ("model", scenario, tuple(effects), with_sensor, repr(sorted(links.ACTUATOR_FIT_SETTINGS.items())))
+        key = ("model", scenario, tuple(effects), with_sensor, repr(sorted(links.ACTUATOR_FIT_SETTINGS.items())),
+               tuple(sorted((kept_on or {}).items())))
         if key not in self._documents:
             listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
+            settings = {"fit": FAST_FIT, **({"links": dict(kept_on)} if kept_on else {})}
             with threadpool_limits(limits=1, user_api="blas"):  # one BLAS thread per worker, as in run_sysid
                 self._documents[key], _ = sysid.fit_model(effects, self.nominal, self.prepared(listing),
-                                                          {"fit": FAST_FIT}, self.robot, workers=WORKERS, cache=cache)
+                                                          settings, self.robot, workers=WORKERS, cache=cache)
         return copy.deepcopy(self._documents[key])
 
     def follow(self, scenario: str, rounds: int = 7,
@@ -105,7 +108,8 @@ class Lab:
                start: Sequence[str] = ()) -> list[dict[str, Any]]:
         """The user's loop from an empty ``effects:`` (or from ``start``, a model declared up front): each round adds
         what each link's verdict asks (the top candidate where the status is add_effect), until no verdict asks for
-        more; every round's document.
+        more; every round's document. A line whose verdict says it leaves the other link worse is written as that
+        note advises, kept on the link that named it (``- asymmetric_friction: actuator``).
         Rounds read earlier rungs back from a fit cache, as the sysid rule does; ``report(document, round,
         seconds)`` is called after each round. Without ``report``, a scenario is followed once per lab (the
         documents are the same bytes whoever asks: a copy for each)."""
@@ -116,10 +120,11 @@ class Lab:
             return copy.deepcopy(self._followed[key])
         cache = FitCache(self.dir / f"{scenario}_fits")
         effects: list[str] = list(start)
+        kept_on: dict[str, str] = {}
         documents: list[dict[str, Any]] = []
         for k in range(rounds + 1):
             started = time.perf_counter()
-            documents.append(self.model(scenario, effects, cache=cache))
+            documents.append(self.model(scenario, effects, cache=cache, kept_on=kept_on))
             if report is not None:
                 report(documents[-1], k, time.perf_counter() - started)
             sections = [documents[-1], documents[-1].get("actuator") or {}]
@@ -133,6 +138,12 @@ class Lab:
             # the lines a named effect holds go, as its verdict says (diagnosis.candidates.replaced_by)
             removed = {line for top in tops for line in top.get("replaces", [])}
             effects = [e for e in effects if e not in removed] + wanted
+            kept_on = {e: link for e, link in kept_on.items() if e in effects}
+            named = [(s["diagnosis"]["candidates"][0]["effect"], s["diagnosis"].get("link")) for s in sections
+                     if s and s["diagnosis"]["status"] == "add_effect" and s["diagnosis"].get("other_link_note")]
+            for effect, link in named:
+                if effect in wanted and [e for e, _ in named].count(effect) == 1:
+                    kept_on[effect] = link
         return documents
 
     def data(self, scenario: str) -> tuple[sysid.TorqueData, sysid.TorqueData]:
