@@ -108,8 +108,9 @@ class Lab:
                start: Sequence[str] = ()) -> list[dict[str, Any]]:
         """The user's loop from an empty ``effects:`` (or from ``start``, a model declared up front): each round adds
         what each link's verdict asks (the top candidate where the status is add_effect), until no verdict asks for
-        more; every round's document. A line whose verdict says it leaves the other link worse is written as that
-        note advises, kept on the link that named it (``- asymmetric_friction: actuator``).
+        more; every round's document. A line whose verdict says it leaves the other link worse, or that the other link
+        holds it already, is written as that note advises, kept on the link that named it
+        (``- asymmetric_friction: actuator``).
         Rounds read earlier rungs back from a fit cache, as the sysid rule does; ``report(document, round,
         seconds)`` is called after each round. Without ``report``, a scenario is followed once per lab (the
         documents are the same bytes whoever asks: a copy for each)."""
@@ -140,7 +141,8 @@ class Lab:
             effects = [e for e in effects if e not in removed] + wanted
             kept_on = {e: link for e, link in kept_on.items() if e in effects}
             named = [(s["diagnosis"]["candidates"][0]["effect"], s["diagnosis"].get("link")) for s in sections
-                     if s and s["diagnosis"]["status"] == "add_effect" and s["diagnosis"].get("other_link_note")]
+                     if s and s["diagnosis"]["status"] == "add_effect"
+                     and (s["diagnosis"].get("other_link_note") or s["diagnosis"].get("held_note"))]
             for effect, link in named:
                 if effect in wanted and [e for e, _ in named].count(effect) == 1:
                     kept_on[effect] = link

@@ -347,3 +347,31 @@ def test_a_drive_line_kept_on_the_actuator_link_stays_off_the_body_link(lab):
         fit_model(effects, lab.nominal, lab.prepared(lab.measurement_list("real_arm_like")), kept, lab.robot)
     with pytest.raises(InputError, match="fit one link only"):
         fit_model(effects, lab.nominal, lab.prepared(lab.without_sensor("link_side_sensor")), kept, lab.robot)
+
+
+def test_a_line_the_other_link_holds_in_a_kept_line_is_kept_on_the_link_that_names_it():
+    """With '- asymmetric_friction: actuator', the body link may name coulomb_friction (the part after the sensor).
+    Added as it is, it would also sit on the actuator link beside asymmetric_friction, its more general shape, which
+    that link's diagnosis never proposes: the verdict says to write it kept on the body link. Where the other link
+    does not hold it, or the line is no drive's, nothing is said."""
+    import copy
+    import json
+    from pathlib import Path
+
+    from sim2real.identification.sysid import _note_held_on_other_link
+
+    data = json.loads((Path(__file__).parent / "data" / "real_panda_log_round8_diagnoses.json").read_text())
+    named = copy.deepcopy(data["actuator"])  # a verdict of the loop's own, its top candidate made coulomb_friction
+    named["candidates"][0]["effect"] = "coulomb_friction"
+    body = copy.deepcopy(named)
+    _note_held_on_other_link(body, ["coulomb_friction", "asymmetric_friction"], "actuator", "link")
+    assert body["held_note"] == ("The actuator link holds it already (asymmetric_friction, kept there, a more general "
+                                 "shape of it): write the line as '- coulomb_friction: body', so that it is not fitted "
+                                 "there beside asymmetric_friction.")
+    assert body["verdict"] == named["verdict"] + " " + body["held_note"]
+
+    for other_effects, sensor in ((["coulomb_friction", "rotor_inertia"], "link"),  # not held there
+                                  (["asymmetric_friction"], "motor")):  # behind a motor-side sensor: not fitted there
+        untouched = copy.deepcopy(named)
+        _note_held_on_other_link(untouched, other_effects, "actuator", sensor)
+        assert untouched == named

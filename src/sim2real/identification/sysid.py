@@ -24,6 +24,7 @@ from sim2real.identification import links
 from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, model_free_ceiling
 from sim2real.identification.diagnosis import diagnose as run_diagnosis
 from sim2real.identification.diagnosis.candidates import HARM_TOLERANCE
+from sim2real.identification.diagnosis.caveats import NESTED_IN
 from sim2real.identification.documents import (  # noqa: F401  (re-exported: the rule's documents)
     load_model_config, merge_link_values, params_document, round_floats, write_model_residuals,
 )
@@ -284,6 +285,8 @@ def fit_model(
         for named, other, other_link in ((document.get("diagnosis"), document["actuator"].get("diagnosis"), "actuator"),
                                          (document["actuator"].get("diagnosis"), document.get("diagnosis"), body_link)):
             _note_other_link(named, other, other_link, sensor)
+        _note_held_on_other_link(document.get("diagnosis"), link_result.effects, "actuator", sensor)
+        _note_held_on_other_link(document["actuator"].get("diagnosis"), result.effects, body_link, sensor)
         confounded += section.get("diagnosis", {}).get("confounded", [])
         results.append(link_result)
     document["links"] = round_floats(links.separability(mode, effect_names, confounded, sensor))
@@ -419,6 +422,25 @@ def _note_other_link(diagnosis: dict[str, Any] | None, other: Mapping[str, Any] 
             + f". To keep it off the {other_link} link, write the line as '- {effect}: {link}'.")
     diagnosis["verdict"] += note
     diagnosis["other_link_note"] = note.strip()
+
+
+def _note_held_on_other_link(diagnosis: dict[str, Any] | None, other_effects: Sequence[str], other_link: str,
+                             sensor: str) -> None:
+    """A line one link names that a line kept on the other link alone holds (coulomb_friction, where
+    '- asymmetric_friction: actuator' is kept there): added as it is, it would sit on the other link beside its more
+    general shape, which that link's own diagnosis never proposes. The verdict says to keep the new line on the link
+    that named it (``held_note``)."""
+    if not diagnosis or diagnosis.get("status") != "add_effect":
+        return
+    effect = diagnosis["candidates"][0]["effect"]
+    holder = next((held for held in other_effects if effect in NESTED_IN.get(held, ())), None)
+    if holder is None or not get_effect(effect).drive or not links.effects_of_link([effect], other_link, sensor):
+        return
+    link = "body" if other_link == "actuator" else "actuator"
+    note = (f" The {other_link} link holds it already ({holder}, kept there, a more general shape of it): write the "
+            f"line as '- {effect}: {link}', so that it is not fitted there beside {holder}.")
+    diagnosis["verdict"] += note
+    diagnosis["held_note"] = note.strip()
 
 
 def _note_drive(diagnosis: dict[str, Any] | None, link: str, sensor: str) -> None:
