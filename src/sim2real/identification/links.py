@@ -106,14 +106,18 @@ def kept_on_problem(name: str, link: str, mode: str, torque_sensor: TorqueSensor
     return None
 
 
-def candidates_of_link(link: str, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR) -> list[str]:
-    """The library's effects the diagnosis tries on ``link`` (``combined``: all of them).
+def candidates_of_link(link: str, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR,
+                       kept_on: Mapping[str, str] | None = None) -> list[str]:
+    """The library's effects the diagnosis tries on ``link`` (``combined``: all of them); ``kept_on``: drive effects
+    model.yaml keeps on one link, not tried on the other (:func:`effects_of_link`).
 
     The sensor's position is a prior, not a veto: every effect the judged signal can show is tried. The
     drive's effects are tried on both links (the body sees what acts after the sensor; the actuator link,
     what acts between the motor and the sensor: nothing, if the sensor really is motor-side)."""
+    kept_on = kept_on or {}
     return [name for name in EFFECTS
-            if link == "combined" or effect_link(name, torque_sensor) == link or get_effect(name).drive]
+            if (link == "combined" or effect_link(name, torque_sensor) == link or get_effect(name).drive)
+            and kept_on.get(name, link) == link]
 
 
 def drive_verdict_note(link: str, effect: str, torque_sensor: str) -> str:

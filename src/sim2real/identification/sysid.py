@@ -261,8 +261,7 @@ def fit_model(
     residuals: dict[str, np.ndarray] = {}
     document, result = fit_ladder(
         body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
-        candidates=[name for name in links.candidates_of_link("body", sensor) if kept_on.get(name, "body") == "body"]
-        if mode == "separate" or sensor == "link" else None,
+        candidates=links.candidates_of_link("body", sensor, kept_on) if mode == "separate" or sensor == "link" else None,
         workers=workers, cache=cache, residuals_out=residuals,
     )
     if current_out is not None:
@@ -330,8 +329,7 @@ def _actuator_link(
         links.effects_of_link(effect_names, "actuator", sensor, kept_on), nominal, link_data["fit"][0],
         link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
         holdout_signals=signals["holdout"], link="actuator",
-        candidates=[name for name in links.candidates_of_link("actuator", sensor)
-                    if kept_on.get(name, "actuator") == "actuator"], workers=workers, cache=cache,
+        candidates=links.candidates_of_link("actuator", sensor, kept_on), workers=workers, cache=cache,
     )
 
 
