@@ -13,6 +13,7 @@ import pytest
 from gap_fixtures import PANDA_JOINTS, build_dev_panda
 from sim2real.identification import fitting
 from sim2real.identification.effects.link_inertia import correction_anchors
+from sim2real.identification.inertial.bands import InertiaBands
 from sim2real.identification.inertial import (PRIOR_BOUNDS, PRIOR_GRID, PRIOR_TOLERANCE, InertialBlock, choose_prior_weight,
                                solve_consistent)
 
@@ -143,3 +144,51 @@ def test_the_conic_form_solves_the_program_cvxpy_states(anchor):
         assert np.max(np.abs(ours.coefficients - theirs)) <= 1e-5 * np.max(np.abs(theirs))
         assert ours.objective == pytest.approx(stated.problem.value, rel=1e-7)
         assert ours.coefficients[21] == pytest.approx(0.0, abs=1e-7) and ours.coefficients[23] >= 0.5 - 1e-9
+
+
+@pytest.mark.parametrize("bands", [InertiaBands(mass_fraction=0.1, divergence=5.0),
+                                   InertiaBands(mass_fraction=0.5, hull_tolerance_m=0.0, divergence=0.02)])
+def test_the_bands_are_constraints_of_both_forms_and_bind_where_the_data_push(anchor, bands):
+    """The bands of inertial.bands (mass, hull, divergence) in the conic form and in cvxpy: the same solution where
+    the data push a link beyond them (a mass 30 % up, a centre of mass 6 cm out), and every bound holds there. The
+    last body carries tools: it gains its 30 % freely."""
+    import cvxpy as cp
+
+    from sim2real.identification.inertial import entropic_divergence
+    from sim2real.identification.inertial.bands import binding, body_bounds
+    from sim2real.identification.inertial.program import _ConsistentProgram, _CvxpyProgram
+
+    rng = np.random.default_rng(11)
+    anchors = np.stack([anchor, 1.3 * anchor])
+    com = anchor[1:4] / anchor[0]
+    box = np.array([[1, 0, 0, -0.05], [-1, 0, 0, -0.05], [0, 1, 0, -0.05], [0, -1, 0, -0.05], [0, 0, 1, -0.05],
+                    [0, 0, -1, -0.05]], dtype=float)
+    box[:, 3] -= box[:, :3] @ com  # a 10 cm box around the CAD centre of mass
+    bounds = body_bounds(anchors, [box, box], bands)
+    block = InertialBlock(slice(0, 20), anchors, [None, None], bounds)
+    lower = np.full(20, -np.inf)
+    design = rng.normal(size=(600, 1, 20)) / np.maximum(np.abs(np.tile(anchor, 2)), 0.05)
+    pushed = anchor.copy()
+    pushed[0] *= 1.3
+    pushed[1:4] = pushed[0] * (com + np.array([0.06, 0.0, 0.0]))
+    truth = np.concatenate([pushed - anchor, 0.3 * 1.3 * anchor])
+    target = design @ truth + NOISE * rng.normal(size=(600, 1))
+    program = _ConsistentProgram(20, lower, block)
+    for weight in (1e-6, 1e-2):
+        term = program.prepare(design.reshape(600, 20), target.reshape(-1))
+        ours = program.solve_prepared(term, weight)
+        stated = _CvxpyProgram(20, lower, block)
+        stated.set(term.root, term.target_root, weight, 1.0 / term.scale)
+        stated.problem.solve(solver=cp.CLARABEL, tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11)
+        # At 1e-11 a bound that binds may leave Clarabel a few digits short ("AlmostSolved"), as the fit accepts.
+        assert {ours.status, stated.problem.status} <= {"optimal", "optimal_inaccurate"}
+        theirs = np.asarray(stated.z.value) / term.scale
+        assert np.max(np.abs(ours.coefficients - theirs)) <= 1e-4 * np.max(np.abs(theirs))
+        corrected = anchors + ours.coefficients.reshape(2, 10)
+        divergence = entropic_divergence(corrected, anchors)
+        assert bounds[0].mass[0] - 1e-9 <= corrected[0, 0] <= bounds[0].mass[1] + 1e-9
+        assert np.max(box[:, :3] @ (corrected[0, 1:4] / corrected[0, 0]) + box[:, 3]) <= bands.hull_tolerance_m + 1e-9
+        assert divergence[0] <= bands.divergence + 1e-7
+        assert corrected[1, 0] > 1.25 * anchors[1, 0], "the tool body gains its mass"
+        bound = binding(bounds[0], anchors[0], corrected[0], float(divergence[0]), bands.mass_fraction)
+        assert bound, "the data push the first link against its bands: they bind, and say so"

@@ -19,8 +19,17 @@ import yaml
 from gap_fixtures import PANDA_JOINTS, build_dev_panda
 from sim2real.identification import fitting
 from sim2real.identification.effects.link_inertia import (
-    HULL_TOLERANCE_M, LinkInertia, body_changes, correction_anchors, hull_distance, plausibility, to_mass_com_inertia,
+    LinkInertia, body_changes, correction_anchors, hull_distance, plausibility, point_mass, to_mass_com_inertia,
 )
+from sim2real.identification.inertial.bands import InertiaBands, body_bounds
+
+HULL_TOLERANCE_M = InertiaBands().hull_tolerance_m
+
+
+def judged_bounds(cad_com, hull):
+    """The bounds the flag judges a 1 kg inner body by, its CAD centre of mass at ``cad_com``."""
+    anchor = point_mass(1.0, np.asarray(cad_com, dtype=float))
+    return body_bounds(np.stack([anchor, anchor]), [hull, None], InertiaBands(), margins=False)[0]
 from sim2real.report.markdown import _identified_markdown
 
 
@@ -78,12 +87,14 @@ def test_a_few_millimetres_outside_the_hull_still_count_inside():
     cube = np.array([[1, 0, 0, -0.1], [-1, 0, 0, -0.1], [0, 1, 0, -0.1], [0, -1, 0, -0.1], [0, 0, 1, -0.1],
                      [0, 0, -1, -0.1]], dtype=float)
     cad = {"mass": 1.0, "com": [0.0, 0.0, 0.0]}
-    near = plausibility(cad, {"mass": 1.0, "com": [0.1 + HULL_TOLERANCE_M - 0.002, 0.0, 0.0]}, 0.1, cube)
+    bounds = judged_bounds(cad["com"], cube)
+    near = plausibility(cad, {"mass": 1.0, "com": [0.1 + HULL_TOLERANCE_M - 0.002, 0.0, 0.0]}, 0.1, cube, bounds)
     assert near == {"com_inside_hull": True, "com_outside_hull_mm": 3.0, "implausible": []}
-    far = plausibility(cad, {"mass": 1.0, "com": [0.15, 0.0, 0.0]}, 0.1, cube)
+    far = plausibility(cad, {"mass": 1.0, "com": [0.15, 0.0, 0.0]}, 0.1, cube, bounds)
     assert far["com_inside_hull"] is False and far["implausible"] == ["centre of mass 50 mm outside the link's convex hull"]
     # A CAD COM already outside the meshes: they do not say where this link's mass is, no hull check.
-    odd = plausibility({"mass": 1.0, "com": [0.3, 0.0, 0.0]}, {"mass": 1.0, "com": [0.5, 0.0, 0.0]}, 0.1, cube)
+    outside = judged_bounds([0.3, 0.0, 0.0], cube)
+    odd = plausibility({"mass": 1.0, "com": [0.3, 0.0, 0.0]}, {"mass": 1.0, "com": [0.5, 0.0, 0.0]}, 0.1, cube, outside)
     assert odd["com_inside_hull"] is None and odd["implausible"] == []
 
 

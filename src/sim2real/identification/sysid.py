@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from sim2real.identification.inertial.bands import InertiaBands
 from sim2real.identification import links
 from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, model_free_ceiling
 from sim2real.identification.diagnosis import diagnose as run_diagnosis
@@ -484,7 +485,8 @@ def run_sysid(
     entries, prepared, _ = runs_for_model(measurement_list, urdf_path, root, FIT_ARRAYS)
     joints = prepared[0].joint_names
     cache = FitCache(cache_dir)
-    nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"), cache=cache)
+    nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"), cache=cache,
+                           inertia_bands=InertiaBands.of_robot(robot_config))
     by_role: dict[str, list[PreparedRun]] = {"fit": [], "holdout": []}
     for entry, run in zip(entries, prepared, strict=True):
         by_role[entry.role].append(run)

@@ -22,6 +22,7 @@ import numpy as np
 from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, explained_per_joint, per_joint_dict
 from sim2real import blas
 from sim2real.identification.inertial import entropic_divergence, physically_consistent
+from sim2real.identification.inertial.bands import BodyBounds, InertiaBands, binding, body_bounds
 
 RELATIVE_SINGULAR_TOL = 1e-3  # directions excited 1000x less than the best are left at nominal
 STRUCTURAL_ZERO = 1e-9  # relative column norm below which a parameter does not act at all
@@ -30,15 +31,8 @@ KEPT_COLUMNS_BYTES = 32 * 2**20  # the columns kept with their signals up to thi
 MOVED_MASS_FRACTION = 0.02
 MOVED_COM_M = 0.003
 MOVED_DIVERGENCE = 1e-3
-# A body is *implausible* beyond these: the fit bent it to soak up an effect the model lacks.
-IMPLAUSIBLE_MASS_FRACTION = 0.5  # CAD masses of a built arm are off by tens of percent, not half the link
-HULL_TOLERANCE_M = 0.005  # collision meshes are simplified and cables ride outside them: 5 mm still counts inside
-# Entropic divergence from CAD (dimensionless; the last body's from CAD plus the tool it gained, with_tool).
-# Measured on the Panda lab demo (real_arm_like, 20 s runs): the complete rung ends at <= 2.0 on inner links (0.08 on
-# the last beyond the demo's hidden 0.35 kg payload; 2.6 against the CAD link alone), the lab's hidden CAD errors
-# themselves (mass +-25%, COM 25 mm) are 0.1-2.5 on all links but the thin link 2; rungs still missing friction or
-# the sensor bias reach 6-55 on some link, and the real arm of issue 18 reached 11-36.
-IMPLAUSIBLE_DIVERGENCE = 5.0
+# A body is *implausible* beyond the bands of :class:`sim2real.identification.inertial.bands.InertiaBands` (robot.yaml
+# ``inertia_bands``), which the consistent fit holds as constraints: only an unconstrained fit can leave them.
 
 
 def parameter_scales(inertial: np.ndarray) -> np.ndarray:
@@ -107,29 +101,29 @@ def hull_distance(point: np.ndarray, equations: np.ndarray) -> float:
 
 
 def plausibility(before: dict[str, Any], after: dict[str, Any], divergence: float, hull: np.ndarray | None,
-                 carries_tools: bool = False) -> dict[str, Any]:
-    """Whether one identified body is still a plausible link: its mass near the CAD mass, its centre of
-    mass inside its collision meshes' convex hull, its divergence from CAD moderate; the reasons if not.
+                 bounds: BodyBounds) -> dict[str, Any]:
+    """Whether one identified body lies within its bands (``bounds``: :func:`sim2real.identification.inertial.bands.body_bounds`
+    without margins, the same bounds the consistent fit holds): its mass in its band around CAD, its centre of mass
+    inside its collision meshes' convex hull ``hull`` (within the tolerance folded into ``bounds.hull``), its divergence
+    from CAD bounded; the reasons if not.
 
-    The hull is skipped (``com_inside_hull`` null) where there is none (the last body carries tools) or where
-    the CAD COM itself lies outside it (then the meshes do not say where this link's mass is). The body that
-    ``carries_tools`` (the last) may gain any mass: a tool, a camera, a payload the URDF does not hold.
-    """
+    ``com_inside_hull`` is null where the hull does not bind (none, the last body carries tools, or the CAD COM itself
+    lies outside it: then the meshes do not say where this link's mass is). The tool body may gain any mass."""
     reasons = []
     m0, m1 = before["mass"], after["mass"]
-    if m0 > 0 and abs(m1 - m0) > IMPLAUSIBLE_MASS_FRACTION * m0 and not (carries_tools and m1 > m0):
+    lower, upper = bounds.mass
+    if m0 > 0 and not lower <= m1 <= upper:
         reasons.append(f"mass changed by {100 * (m1 - m0) / m0:+.0f}% ({m0:.3g} -> {m1:.3g} kg)")
     inside, outside_mm = None, None
-    if hull is not None and hull_distance(before["com"], hull) <= HULL_TOLERANCE_M:
-        distance = hull_distance(after["com"], hull)
-        inside = bool(distance <= HULL_TOLERANCE_M)
-        outside_mm = round(1000.0 * max(distance, 0.0), 1)
+    if bounds.hull is not None and hull is not None:
+        inside = bool(hull_distance(after["com"], bounds.hull) <= 0.0)
+        outside_mm = round(1000.0 * max(hull_distance(after["com"], hull), 0.0), 1)
         if not inside:
             reasons.append(f"centre of mass {outside_mm:.0f} mm outside the link's convex hull")
     if not np.isfinite(divergence):
         reasons.append("not physically consistent (no divergence from CAD)")
-    elif divergence > IMPLAUSIBLE_DIVERGENCE:
-        reasons.append(f"divergence from CAD {divergence:.3g} (above {IMPLAUSIBLE_DIVERGENCE:g})")
+    elif divergence > bounds.divergence:
+        reasons.append(f"divergence from CAD {divergence:.3g} (above {bounds.divergence:g})")
     return {"com_inside_hull": inside, "com_outside_hull_mm": outside_mm, "implausible": reasons}
 
 
@@ -155,12 +149,15 @@ def with_tool(anchors: np.ndarray, corrected: np.ndarray) -> np.ndarray:
 def body_changes(delta: np.ndarray, nominal: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """Which bodies the fit moved, and by how much (mass, centre of mass, divergence from CAD, the last body's from
     CAD plus the tool it gained: :func:`with_tool`); whether each is still plausible (:func:`plausibility`:
-    ``com_inside_hull``, ``com_outside_hull_mm``, ``implausible``)."""
+    ``com_inside_hull``, ``com_outside_hull_mm``, ``implausible``) and which of the bounds the consistent fit holds
+    bind (``binding``: :func:`sim2real.identification.inertial.bands.binding`)."""
     anchors = correction_anchors(nominal)
     corrected = anchors + np.reshape(delta, anchors.shape)
     divergence = entropic_divergence(corrected, with_tool(anchors, corrected))
-    bounds = nominal.get("mesh_bounds")
-    hulls = (bounds.hulls if bounds else None) or [None] * len(anchors)
+    mesh = nominal.get("mesh_bounds")
+    hulls = (mesh.hulls if mesh else None) or [None] * len(anchors)
+    bands = nominal.get("inertia_bands") or InertiaBands()
+    judged, held = body_bounds(anchors, hulls, bands, margins=False), body_bounds(anchors, hulls, bands)
     out = {}
     befores, afters = bodies_mass_com_inertia(anchors), bodies_mass_com_inertia(corrected)
     for b, link in enumerate(nominal["body_links"]):
@@ -172,7 +169,8 @@ def body_changes(delta: np.ndarray, nominal: dict[str, Any]) -> dict[str, dict[s
         out[link] = {
             "moved": moved, "mass_change_kg": round(dm, 4), "com_shift_mm": round(1000.0 * dc, 2),
             "divergence": round(float(divergence[b]), 6) if np.isfinite(divergence[b]) else None,
-            **plausibility(before, after, float(divergence[b]), hulls[b], carries_tools=b == len(anchors) - 1),
+            **plausibility(before, after, float(divergence[b]), hulls[b], judged[b]),
+            "binding": binding(held[b], anchors[b], corrected[b], float(divergence[b]), bands.mass_fraction),
         }
     return out
 
@@ -261,7 +259,7 @@ class LinkInertia(Effect):
         delta = state["basis"] @ theta + state["null_offset"]
         # The reasons as tuples: the bootstrap's intervals (fitting._intervals) walk lists item by item, and
         # replicates flag different numbers of reasons and bodies. JSON and YAML write them as lists.
-        bodies_changed = {link: {**body, "implausible": tuple(body["implausible"])}
+        bodies_changed = {link: {**body, "implausible": tuple(body["implausible"]), "binding": tuple(body["binding"])}
                           for link, body in body_changes(delta, signals.nominal).items()}
         nominal = np.asarray(signals.nominal["inertial"])
         total = nominal + delta
@@ -280,6 +278,7 @@ class LinkInertia(Effect):
             "physically_consistent": bool(physically_consistent(correction_anchors(signals.nominal).reshape(-1) + delta)),
             "bodies": bodies_changed,
             "implausible_bodies": tuple(link for link, body in bodies_changed.items() if body["implausible"]),
+            "binding_bodies": tuple(link for link, body in bodies_changed.items() if body["binding"]),
         }
 
     def evidence(self, residual, signals):

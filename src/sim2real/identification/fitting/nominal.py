@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from sim2real.identification.inertial.bands import InertiaBands
 from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.assets.robot_config import first_match
 from sim2real.identification.effects import Signals
@@ -214,10 +215,12 @@ def load_nominal(
     armature: Mapping[str, float] | None = None,
     flange: str | None = None,
     cache: FitCache | None = None,
+    inertia_bands: InertiaBands | None = None,
 ) -> NominalModel:
     """Nominal model of the measured joints. ``armature``: robot.yaml patterns (the MJCF's armature);
     ``cache``: the bodies' mesh bounds (:class:`MeshBounds`) are read back from it, or read from the meshes and
-    kept there, now (before the fit forks its workers); without one they are read when first asked for."""
+    kept there, now (before the fit forks its workers); without one they are read when first asked for.
+    ``inertia_bands``: how far the link inertias may move from CAD (default: :class:`InertiaBands`' defaults)."""
     urdf_path = Path(urdf_path)
     dynamics = RigidBodyModel(urdf_path, joint_names, armature=resolve_armature(armature, joint_names))
     model = dynamics.model
@@ -251,6 +254,7 @@ def load_nominal(
         "flange_translation": np.asarray(placement.translation).copy(),
         "link_own_inertial": _urdf_link_parameters(urdf_path),
         "mesh_bounds": bounds,  # where a body's mass and COM may plausibly lie (link_inertia)
+        "inertia_bands": inertia_bands or InertiaBands(),  # how far from CAD (robot.yaml inertia_bands)
     }
     return NominalModel(dynamics, info)
 

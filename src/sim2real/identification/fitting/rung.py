@@ -333,6 +333,7 @@ def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -
     :func:`sim2real.identification.inertial.solve_consistent` builds its program of."""
     from sim2real.identification.effects.link_inertia import correction_anchors
     from sim2real.identification.inertial import InertialBlock, pseudo_inertia
+    from sim2real.identification.inertial.bands import InertiaBands, body_bounds
 
     signals = problem.signals
     blocks, lower, inertial = [], [], None
@@ -349,7 +350,8 @@ def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -
                 q if q is not None and float(np.trace(pseudo_inertia(a) @ q)) >= 0 else None
                 for a, q in zip(anchors, (bounds.ellipsoids if bounds else None) or [None] * len(anchors), strict=True)
             ]
-            inertial = InertialBlock(slice(start, start + cols.shape[2]), anchors, ellipsoids)
+            inertial = InertialBlock(slice(start, start + cols.shape[2]), anchors, ellipsoids, body_bounds(
+                anchors, bounds.hulls if bounds else None, signals.nominal.get("inertia_bands") or InertiaBands()))
             lower.append(np.full(cols.shape[2], -np.inf))
             problem.states[effect.name]["null_offset"] = np.zeros(cols.shape[2])
         else:

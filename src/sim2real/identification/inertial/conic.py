@@ -1,7 +1,8 @@
 """The consistent fit's program in Clarabel's standard form, written directly (:class:`ConicForm`).
 
 The program of :mod:`sim2real.identification.inertial.program` has one fixed shape: a least-squares data term,
-lower bounds, and per body a PSD margin, an ellipsoid and the entropic divergence's log-det. Its conic form is
+lower bounds, and per body a PSD margin, an ellipsoid, the bands of :mod:`~.bands` (mass, hull: linear rows;
+divergence: a linear row on the log-det's ``t``) and the entropic divergence's log-det. Its conic form is
 written here in a few array operations per solve, so a fit never canonicalises (cvxpy took 0.3-0.7 s per program
 structure and about a second to import, and every new rung and candidate is a new structure):
 
@@ -75,6 +76,8 @@ class ConicForm:
         self.lower = lower[self.bounded]
         bodies = [] if inertial is None else list(enumerate(inertial.anchors))
         self.bodies = len(bodies)
+        self.anchors = [np.asarray(anchor, dtype=float) for _, anchor in bodies]
+        self.bounds = [] if inertial is None else list(inertial.bounds)
         self.n = self.p + 14 * self.bodies
         # Per body: its columns, the lift of its coefficients into J~ (16 x 10), tr(lift_k) (the divergence's
         # linear part) and, with an ellipsoid, tr(lift_k M) and tr(M).
@@ -118,6 +121,8 @@ class ConicForm:
                 for k, col in enumerate(cols):
                     nonneg.entry(row, int(col), -ell[k], int(col))
                 nonneg.b.append(trace)
+            if b < len(self.bounds):
+                self._band_rows(nonneg, b)
             # J~ - margin I in a 4x4 cone
             for r, c, sigma in _triangle(4):
                 row = len(cones_psd.b)
@@ -157,6 +162,34 @@ class ConicForm:
         self.m = int(offsets[-1])
         self.b = np.concatenate([np.asarray(block.b, dtype=float) for block in blocks])
         self.cone_sizes = (len(nonneg.b), psd_sizes, 4 * self.bodies)
+
+    def _band_rows(self, nonneg: _Rows, b: int) -> None:
+        """Body ``b``'s mass band, hull and divergence bound (:mod:`~.bands`) as nonnegative slacks ``b - A x``, with
+        ``x`` its correction (the mass its first column, the first moment the next three) added to its anchor."""
+        bounds, anchor, cols = self.bounds[b], self.anchors[b], self.columns[b]
+        lower, upper = bounds.mass
+        mass = int(cols[0])
+        nonneg.entry(len(nonneg.b), mass, -1.0, mass)  # m0 + dm - lower >= 0
+        nonneg.b.append(float(anchor[0] - lower))
+        if np.isfinite(upper):  # upper - m0 - dm >= 0
+            nonneg.entry(len(nonneg.b), mass, 1.0, mass)
+            nonneg.b.append(float(upper - anchor[0]))
+        if bounds.hull is not None:  # -(n . (h0 + dh) + d (m0 + dm)) >= 0, facet by facet
+            for facet in np.asarray(bounds.hull, dtype=float):
+                row = len(nonneg.b)
+                nonneg.entry(row, mass, float(facet[3]), mass)
+                for k in range(3):
+                    if facet[k] != 0.0:
+                        nonneg.entry(row, int(cols[1 + k]), float(facet[k]), int(cols[1 + k]))
+                nonneg.b.append(-float(facet[:3] @ anchor[1:4] + facet[3] * anchor[0]))
+        if np.isfinite(bounds.divergence):  # D - (tr J~ - 4 - sum t) >= 0, tr J~ = 4 + tr(lift_k) x_k
+            row = len(nonneg.b)
+            for k, col in enumerate(cols):
+                if self.traces[b][k] != 0.0:
+                    nonneg.entry(row, int(col), float(self.traces[b][k]), int(col))
+            for a in range(4):
+                nonneg.entry(row, self._z_var(b, 10 + a), -1.0)
+            nonneg.b.append(float(bounds.divergence))
 
     def _constraints(self, inverse_scale: np.ndarray) -> tuple[object, np.ndarray, list]:
         """A (CSC), b and Clarabel's cones at the column scale ``inverse_scale``."""

@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sim2real.identification.inertial.bands import BodyBounds
+
 PARAMS_PER_BODY = 10  # Pinocchio order: m, m*c (3), I about the body frame (xx, xy, yy, xz, yz, zz)
 
 
@@ -90,12 +92,15 @@ class InertialBlock:
     ``columns``: slice of the design's coefficients that are per-body corrections (10 per body,
     parameter units); ``anchors``: the parameters the corrections are added to, body by body (the
     URDF link that receives them: consistency of it implies consistency of the whole body, which
-    also holds the fixed links merged into it); ``ellipsoids``: bounding ellipsoid Q per body or None.
+    also holds the fixed links merged into it); ``ellipsoids``: bounding ellipsoid Q per body or None; ``bounds``:
+    each body's mass band, hull and divergence bound (:mod:`sim2real.identification.inertial.bands`; none when
+    empty).
     """
 
     columns: slice
     anchors: np.ndarray  # (n_bodies, 10)
     ellipsoids: list[np.ndarray | None] = field(default_factory=list)
+    bounds: list[BodyBounds] = field(default_factory=list)
 
     @property
     def n_bodies(self) -> int:

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim2real.identification.inertial.bands import BodyBounds
 from sim2real.identification.inertial.conic import ConicForm, SolverFailed
 from sim2real.identification.inertial.geometry import PARAMS_PER_BODY, PD_MARGIN, PSEUDO_BASIS, InertialBlock, pseudo_inertia
 from sim2real.identification.inertial.rows import DesignRows, _as_rows, _column_scale, _normal_equations
@@ -117,7 +118,10 @@ class _CvxpyProgram:
                 ellipsoid = inertial.ellipsoids[b] if b < len(inertial.ellipsoids) else None
                 if ellipsoid is not None:
                     constraints.append(cp.trace(body @ (root @ ellipsoid @ root)) >= 0)
-                penalty = penalty + cp.trace(body) - cp.log_det(body) - 4.0
+                divergence = cp.trace(body) - cp.log_det(body) - 4.0
+                if b < len(inertial.bounds):
+                    constraints += _band_constraints(inertial.bounds[b], anchor, delta, divergence)
+                penalty = penalty + divergence
             objective = objective + self.weight * penalty
         self.problem = cp.Problem(cp.Minimize(objective), constraints)
 
@@ -138,6 +142,20 @@ class _CvxpyProgram:
         value = self.problem.value
         return (None if self.z.value is None else np.asarray(self.z.value), str(self.problem.status),
                 float(value) if value is not None else float("nan"))
+
+
+def _band_constraints(bounds: BodyBounds, anchor: np.ndarray, delta, divergence) -> list:
+    """A body's mass band, hull and divergence bound (:mod:`~.bands`) on its correction ``delta`` (cvxpy)."""
+    lower, upper = bounds.mass
+    out = [anchor[0] + delta[0] >= lower]
+    if np.isfinite(upper):
+        out.append(anchor[0] + delta[0] <= upper)
+    if bounds.hull is not None:  # n . h + d m <= 0, h and m the corrected first moment and mass
+        hull = np.asarray(bounds.hull, dtype=float)
+        out.append(hull[:, :3] @ (anchor[1:4] + delta[1:4]) + hull[:, 3] * (anchor[0] + delta[0]) <= 0)
+    if np.isfinite(bounds.divergence):
+        out.append(divergence <= bounds.divergence)
+    return out
 
 
 @dataclass
@@ -180,6 +198,9 @@ def _program(size: int, lower: np.ndarray, inertial: InertialBlock | None) -> _C
         key.update(np.asarray(inertial.anchors, dtype=float).tobytes())
         for ellipsoid in inertial.ellipsoids:
             key.update(b"-" if ellipsoid is None else np.asarray(ellipsoid, dtype=float).tobytes())
+        for bound in inertial.bounds:
+            key.update(np.asarray([*bound.mass, bound.divergence], dtype=float).tobytes())
+            key.update(b"-" if bound.hull is None else np.asarray(bound.hull, dtype=float).tobytes())
     digest = key.digest()
     if digest not in _PROGRAMS:
         if len(_PROGRAMS) >= 32:
