@@ -189,6 +189,6 @@ def test_the_bands_are_constraints_of_both_forms_and_bind_where_the_data_push(an
         assert bounds[0].mass[0] - 1e-9 <= corrected[0, 0] <= bounds[0].mass[1] + 1e-9
         assert np.max(box[:, :3] @ (corrected[0, 1:4] / corrected[0, 0]) + box[:, 3]) <= bands.hull_tolerance_m + 1e-9
         assert divergence[0] <= bands.divergence + 1e-7
-        assert corrected[1, 0] > 1.15 * anchors[1, 0], "the tool body gains its mass beyond an inner body's band"
+        assert bounds[1].mass[1] == np.inf and corrected[1, 0] > anchors[1, 0], "the tool body gains mass freely"
         bound = binding(bounds[0], anchors[0], corrected[0], float(divergence[0]), bands.mass_fraction)
         assert bound, "the data push the first link against its bands: they bind, and say so"
