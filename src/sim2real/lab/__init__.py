@@ -34,6 +34,9 @@ joint order or a ``{joint: value}`` map):
   motion (:func:`dahl_step`): hysteresis around every reversal, which no static friction law follows.
 * ``cogging`` ``{amplitude, period_rad?}``: a detent torque amplitude * sin(2 pi q / period_rad), a function of
   the joint's position that the fit library has no effect for.
+* ``cable_spring`` ``{stiffness, rest_rad?, width_rad?}``: a cable harness pulling each joint towards a rest
+  posture, -stiffness * width * tanh((q - rest) / width): a function of the position outside the fit library
+  (not periodic, not a link's gravity), which free link inertias would bend to soak up.
 * ``torque_drift`` ``{amplitude, time_constant_s?}``: the torque sensor warms up, its offset drifting as
   level * (1 - exp(-t / time_constant_s)) with a level drawn anew in every run (0.5 to 1.5 x amplitude, either
   sign): nothing of the motion explains it.

@@ -17,6 +17,7 @@ EFFECTS = (
     "coulomb_friction",
     "hysteretic_friction",
     "cogging",
+    "cable_spring",
     "torque_drift",
     "rotor_inertia",
     "actuation_delay",

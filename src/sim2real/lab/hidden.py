@@ -132,6 +132,30 @@ def cogging_torque(q: np.ndarray, cogging: tuple[np.ndarray, np.ndarray]) -> np.
     return amplitude * np.sin(2.0 * np.pi * q / period)
 
 
+def _cable_spring(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None,
+                  truth: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """``cable_spring``'s (stiffness N*m/rad, rest rad, width rad) per joint, or None: a cable harness pulling each
+    joint towards a rest posture (:func:`cable_spring_torque`); recorded in ``truth``."""
+    hidden = effects.get("cable_spring")
+    if not hidden:
+        return None
+    stiffness = _per_joint(hidden["stiffness"], joints, "cable_spring/stiffness", path)
+    rest = _per_joint(hidden.get("rest_rad", 0.0), joints, "cable_spring/rest_rad", path)
+    width = _per_joint(hidden.get("width_rad", 0.3), joints, "cable_spring/width_rad", path)
+    if np.any(stiffness < 0) or np.any(~(width > 0)):
+        raise InputError(path, "cable_spring", "a stiffness is negative or a width is not positive",
+                         "give stiffnesses >= 0 N*m/rad and widths > 0 rad")
+    truth["cable_spring"] = {"stiffness": dict(zip(joints, stiffness.tolist())), "rest_rad": dict(zip(joints, rest.tolist())),
+                             "width_rad": dict(zip(joints, width.tolist()))}
+    return stiffness, rest, width
+
+
+def cable_spring_torque(q: np.ndarray, spring: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """-stiffness * width * tanh((q - rest) / width): stiff near the rest posture, saturating beyond ``width``."""
+    stiffness, rest, width = spring
+    return -stiffness * width * np.tanh((q - rest) / width)
+
+
 def _torque_drift(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None, seed: int,
                   truth: dict[str, Any], time: np.ndarray) -> np.ndarray | None:
     """``torque_drift``: each joint's torque sensor warms up, its offset drifting as level * (1 - exp(-t/tau)),

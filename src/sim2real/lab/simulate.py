@@ -16,7 +16,8 @@ from sim2real.filters import first_order_lag
 from sim2real.lab.arm import _apply_spec_effects, _gains_and_biases, arm_spec, compile_arm, drop_inert_meshes
 from sim2real.lab.config import EFFECTS, _per_joint, lab_scenario, read_excitation
 from sim2real.lab.hidden import (
-    _cogging, _hysteretic_friction, _joint_friction, _torque_drift, cogging_torque, dahl_step, passive_friction,
+    _cable_spring, _cogging, _hysteretic_friction, _joint_friction, _torque_drift, cable_spring_torque, cogging_torque,
+    dahl_step, passive_friction,
 )
 
 
@@ -146,6 +147,18 @@ def simulate_run(
     if dahl is not None:
         friction["dahl"], friction["dahl_state"] = dahl, np.zeros(len(joints))
     cogging = _cogging(effects, joints, path, truth)
+    spring = _cable_spring(effects, joints, path, truth)
+    positional = cogging is not None or spring is not None
+
+    def position_torque(q: np.ndarray) -> np.ndarray:
+        """The torques the joints' positions decide (a cogging, a cable's pull)."""
+        torque = np.zeros(n)
+        if cogging is not None:
+            torque = torque + cogging_torque(q, cogging)
+        if spring is not None:
+            torque = torque + cable_spring_torque(q, spring)
+        return torque
+
     drift = _torque_drift(effects, joints, path, seed, truth, time)
     passive = friction["gaz"] is not None or friction["stribeck"] is not None or dahl is not None
     after = friction["after"]
@@ -207,11 +220,9 @@ def simulate_run(
         out_q[k], out_qd[k], out_applied[k] = q_meas, qd_meas, applied
         real_data.ctrl[ctrl_index] = applied
         if link_side:
-            if passive or cogging is not None:
+            if passive or positional:
                 torque = np.zeros(n) if not passive else -passive_friction(real_data.qvel[dadr_r], friction)
-                if cogging is not None:
-                    torque = torque + cogging_torque(real_data.qpos[qadr_r], cogging)
-                real_data.qfrc_applied[dadr_r] = torque
+                real_data.qfrc_applied[dadr_r] = torque + position_torque(real_data.qpos[qadr_r])
             mujoco.mj_forward(real, real_data)  # the acceleration the step below integrates
             link_data.qpos[:] = real_data.qpos
             link_data.qvel[:] = real_data.qvel
@@ -224,11 +235,9 @@ def simulate_run(
                 out_link[k] += after * _friction_now(real_data, qd_true, friction, dof_of)
         for _ in range(substeps):
             before = real_data.qpos[qadr_r].copy()
-            if passive or cogging is not None:
+            if passive or positional:
                 torque = np.zeros(n) if not passive else -passive_friction(real_data.qvel[dadr_r], friction)
-                if cogging is not None:
-                    torque = torque + cogging_torque(real_data.qpos[qadr_r], cogging)
-                real_data.qfrc_applied[dadr_r] = torque
+                real_data.qfrc_applied[dadr_r] = torque + position_torque(real_data.qpos[qadr_r])
             mujoco.mj_step(real, real_data)
             if dahl is not None:  # the friction's memory follows the motion the step made
                 friction["dahl_state"] = dahl_step(friction["dahl_state"], real_data.qpos[qadr_r] - before, dahl[1])
@@ -339,6 +348,7 @@ def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, ou
     _gains_and_biases(effects, joints, Path(lab_config), truth)
     _hysteretic_friction(effects, joints, Path(lab_config), truth)
     _cogging(effects, joints, Path(lab_config), truth)
+    _cable_spring(effects, joints, Path(lab_config), truth)
     if "torque_drift" in effects:
         _torque_drift(effects, joints, Path(lab_config), 0, truth, np.zeros(1))
     write_yaml(output, {

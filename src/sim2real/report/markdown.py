@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from sim2real.identification.diagnosis.caveats import BOUND_TEXT, bounds_text
 from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR
 from sim2real.report.regimes import REGIME_LABELS
 
@@ -65,14 +66,23 @@ def _identified_markdown(rung: Mapping[str, Any], robot: str) -> list[str]:
     prior = _inertia_prior_text((rung.get("consistency") or {}).get("inertia_prior"))
     if prior:
         lines += [prior, ""]
-    lines += ["| body | moved | mass change [kg] | COM shift [mm] | divergence from CAD | plausible |",
-              "|---|---|---|---|---|---|"]
+    lines += ["| body | moved | mass change [kg] | COM shift [mm] | divergence from CAD | plausible | held at |",
+              "|---|---|---|---|---|---|---|"]
     for name, b in bodies.items():
-        # Documents written before the plausibility checks have no "implausible" key: n/a.
+        # Documents written before the plausibility checks (or the bands) have no "implausible" ("binding") key: n/a.
         reasons = b.get("implausible")
         plausible = "n/a" if reasons is None else "; ".join(reasons) if reasons else "yes"
+        held = "n/a" if b.get("binding") is None else ", ".join(BOUND_TEXT[k] for k in b["binding"]) or "–"
         lines.append(f"| {name} | {'yes' if b['moved'] else 'no'} | {b['mass_change_kg']:+.3g} | "
-                     f"{b['com_shift_mm']:.3g} | {_fmt(b['divergence'])} | {plausible} |")
+                     f"{b['com_shift_mm']:.3g} | {_fmt(b['divergence'])} | {plausible} | {held} |")
+    held_at = {name: b["binding"] for name, b in bodies.items() if b.get("binding")}
+    if held_at:
+        lines += ["", f"**Held at their bounds:** {bounds_text(held_at)}. The fit holds every link inside its bands "
+                  f"(mass around CAD, centre of mass inside the link's hull, divergence from CAD: `inertia_bands` in "
+                  f"configs/{robot}/robot.yaml), and the data push these as far as the bands let them: something the "
+                  "model lacks acts there like mass or a shifted centre of mass (friction, rotor inertia, a payload or "
+                  "tool, a torque sensor's offset or gain...). Read the diagnosis, whose candidates are judged on "
+                  "whether they release these bounds, before trusting these inertias."]
     flagged = ["{} ({})".format(name, ", ".join(b["implausible"])) for name, b in bodies.items() if b.get("implausible")]
     if flagged:
         lines += ["", f"**Moved beyond plausible:** {'; '.join(flagged)}. "

@@ -55,7 +55,7 @@ from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Signals, per_joint_dict
 from sim2real.stats import floor_multiple
 from sim2real.identification.diagnosis.caveats import (
-    NESTED_IN, SPANNED_BY, caveats, implausible_bodies, not_told_apart_verdict, recommend, separating_runs, ties,
+    NESTED_IN, SPANNED_BY, bound_changes, caveats, implausible_bodies, not_told_apart_verdict, recommend, separating_runs, ties,
     trades_with_model,
 )
 from sim2real.forked import map_forked
@@ -187,11 +187,21 @@ def _rank(candidates: list[dict[str, Any]], tolerance: float) -> list[dict[str, 
         return ranked  # nothing is named: the order is only what comes closest
     limit = best["evidence"]["x_floor_after"] + tolerance
     close = [c for c in ranked if c["decisive"] == best["decisive"] and c["evidence"]["x_floor_after"] <= limit]
-    # Among those that do as well, one that keeps every inertia plausible first, then the simplest: of two shapes of
+    # Among those that do as well, one that keeps every inertia plausible first, then one that pushes fewer bounds,
+    # then the simplest: of two shapes of
     # one lag, the delay (a filter gives the simulation a state of its own).
-    simplest = min(close, key=lambda c: (bool(c["evidence"]["implausible_bodies"]), c["evidence"]["parameters"],
+    simplest = min(close, key=lambda c: (bool(c["evidence"]["implausible_bodies"]), _bounds_pushed(c),
+                                         c["evidence"]["parameters"],
                                          EFFECTS[c["effect"]].lowpass, -c["explained"], c["effect"]))
     return [simplest] + [c for c in ranked if c is not simplest]
+
+
+def _bounds_pushed(candidate: Mapping[str, Any]) -> int:
+    """How many bounds a candidate's fit pushes the link inertias to, less those it releases (:func:`bound_changes`):
+    of two that do as well, the one that leaves the links freer names what acted like mass."""
+    bounds = candidate["evidence"].get("bounds") or {}
+    return (sum(len(v) for v in (bounds.get("pushes") or {}).values())
+            - sum(len(v) for v in (bounds.get("releases") or {}).values()))
 
 
 def _confounded(
@@ -410,7 +420,8 @@ def diagnose(
         evidence["coefficients"] = {"linear": [float(v) for v in result.theta.get(name, [])],
                                     "nonlinear": [float(v) for v in result.nonlinear.get(name, [])]}
         evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
-        evidence["implausible_bodies"] = implausible_bodies(result)
+        evidence["implausible_bodies"] = implausible_bodies(result, current)
+        evidence["bounds"] = bound_changes(result, current)
         if broken is None:
             residuals_after[name] = scaled
         else:

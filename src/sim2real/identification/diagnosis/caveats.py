@@ -4,7 +4,8 @@
   residual is the best one's within the spread of their paired difference over blocks of the holdout is not told
   apart from it on these runs; the verdict recommends the best-ranked plausible one (:func:`recommend`) or none,
   and names the separating run the experiment design builds.
-* **Inertias** (:func:`implausible_bodies`): the bodies a candidate's fit leaves beyond plausible.
+* **Inertias** (:func:`implausible_bodies`, :func:`bound_changes`): the bodies a candidate's fit leaves beyond
+  plausible, or pushes to the bounds the consistent fit holds, where the current model does not.
 * **Trades with the model** (:func:`trades_with_model`): a candidate whose own term the fit gives back through the
   effects already in the model.
 """
@@ -120,11 +121,42 @@ def tied(a: np.ndarray, b: np.ndarray) -> tuple[bool, float, float]:
     return abs(total) <= TIE_SPREAD * spread, total, spread
 
 
-def implausible_bodies(result: fitting.FitResult) -> list[str]:
-    """The bodies a fit leaves beyond plausible (:mod:`sim2real.identification.effects.link_inertia`), each with why."""
-    link = (result.values or {}).get("link_inertia") or {}
-    return [f"{name} ({', '.join(body['implausible'])})" for name, body in (link.get("bodies") or {}).items()
-            if body.get("implausible")]
+BOUND_TEXT = {"mass_lower": "mass at its band's lower edge", "mass_upper": "mass at its band's upper edge",
+              "hull": "centre of mass on its hull", "divergence": "divergence from CAD at its bound"}
+
+
+def _bodies(result: fitting.FitResult | None) -> dict[str, Any]:
+    link = ((result.values if result is not None else None) or {}).get("link_inertia") or {}
+    return link.get("bodies") or {}
+
+
+def implausible_bodies(result: fitting.FitResult, current: fitting.FitResult | None = None) -> list[str]:
+    """The bodies a fit leaves beyond plausible (:mod:`sim2real.identification.effects.link_inertia`), each with why;
+    with ``current`` (the model the fit adds to), only those the current model does not already leave so: a candidate
+    is judged on what it changes, never on a state it inherits. A consistent fit holds every body inside its bands
+    (:mod:`sim2real.identification.inertial.bands`): only an unconstrained one can leave any."""
+    inherited = {name for name, body in _bodies(current).items() if body.get("implausible")}
+    return [f"{name} ({', '.join(body['implausible'])})" for name, body in _bodies(result).items()
+            if body.get("implausible") and name not in inherited]
+
+
+def binding_bodies(result: fitting.FitResult | None) -> dict[str, list[str]]:
+    """The bodies whose bounds bind in a fit, with which (``mass_upper``, ``hull``, ...; :func:`sim2real.identification.
+    inertial.bands.binding`): where the data push a link as far as physics lets them."""
+    return {name: list(body["binding"]) for name, body in _bodies(result).items() if body.get("binding")}
+
+
+def bound_changes(result: fitting.FitResult, current: fitting.FitResult | None) -> dict[str, dict[str, list[str]]]:
+    """What a candidate's fit does to the bounds that bind: those it ``pushes`` (bind in its fit, not in the current
+    model's) and those it ``releases`` (bind in the current model's, not in its fit), by body."""
+    now, then = binding_bodies(result), binding_bodies(current)
+    pushed = {name: [b for b in bounds if b not in then.get(name, [])] for name, bounds in now.items()}
+    released = {name: [b for b in bounds if b not in now.get(name, [])] for name, bounds in then.items()}
+    return {"pushes": {k: v for k, v in pushed.items() if v}, "releases": {k: v for k, v in released.items() if v}}
+
+
+def bounds_text(bodies: Mapping[str, Sequence[str]]) -> str:
+    return "; ".join(f"{name} ({', '.join(BOUND_TEXT[b] for b in bounds)})" for name, bounds in bodies.items())
 
 
 def nested_pair(a: str, b: str) -> bool:
@@ -169,6 +201,9 @@ def _trouble(candidate: Mapping[str, Any]) -> list[str]:
     reasons = []
     if evidence.get("implausible_bodies"):
         reasons.append(f"it leaves link inertias implausible ({'; '.join(evidence['implausible_bodies'])})")
+    pushed = (evidence.get("bounds") or {}).get("pushes")
+    if pushed:
+        reasons.append(f"it pushes link inertias to their bounds ({bounds_text(pushed)})")
     for trade in evidence.get("trades_with", []):
         reasons.append(f"it trades places with {trade['effect']} already in the model (the fit moves that effect's "
                        f"term against its own, {trade['moved_x_own_term']:.2g}x its size, correlation "
@@ -187,7 +222,10 @@ def recommend(candidates: list[dict[str, Any]], ties: list[dict[str, Any]],
         return candidates, None
     if not ties:
         return candidates, candidates[0]
-    chosen = next((c for c in [candidates[0], *ties] if not _trouble(c)), None)
+    group = [candidates[0], *ties]
+    chosen = next((c for c in group if not _trouble(c)), None)
+    if chosen is None and all(_trouble(c) == _trouble(group[0]) for c in group):
+        chosen = group[0]  # a condition every tied candidate shares tells none of them apart: the best, cautioned
     if chosen is None:
         return candidates, None
     return [chosen] + [c for c in candidates if c is not chosen], chosen
