@@ -9,12 +9,16 @@ best-scoring, both being plausible), and names the run the experiment design bui
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
 from sim2real.identification import sysid
-from sim2real.identification.diagnosis.caveats import nested_pair, tied
+from sim2real.identification.diagnosis.caveats import (
+    bound_changes, caveats, implausible_bodies, nested_pair, recommend, tied,
+)
 from sim2real.design_names import separation_name
 
 FAST = {"fit": {"fit_rate_hz": 100.0, "bootstrap_replicates": 20, "refine_max_samples": 1500}}
@@ -62,3 +66,46 @@ def test_a_clear_winner_is_not_called_a_tie():
 def test_nested_effects_are_parsimony_not_a_tie():
     assert nested_pair("coulomb_friction", "asymmetric_friction") and nested_pair("link_inertia", "payload")
     assert not nested_pair("torque_gain", "rotor_inertia")
+
+
+def _fit(bodies: dict) -> SimpleNamespace:
+    """A fit whose link inertias hold ``bodies`` (name -> its binding bounds and implausible reasons)."""
+    return SimpleNamespace(values={"link_inertia": {"bodies": {
+        name: {"binding": list(bounds), "implausible": list(reasons)} for name, (bounds, reasons) in bodies.items()}}})
+
+
+def _candidate(effect: str, trial: SimpleNamespace, current: SimpleNamespace, x_floor: float) -> dict:
+    return {"effect": effect, "decisive": True, "joints": ["panda_joint2"], "explained": 0.5,
+            "evidence": {"x_floor_after": x_floor, "trades_with": [], "parameters": 7,
+                         "implausible_bodies": implausible_bodies(trial, current),
+                         "bounds": bound_changes(trial, current)}}
+
+
+def test_a_candidate_is_judged_on_what_it_changes_never_on_the_state_it_inherits():
+    """The current model holds panda_link2 at its mass bound (and, fitted without bands, bent link 3): a candidate
+    whose trial keeps that state and lowers the residual is recommended, tied or not; one that pushes a new bound
+    is the one cautioned, and loses a tie to one that does not; a condition every tied candidate shares tells none
+    of them apart."""
+    current = _fit({"panda_link2": (["mass_upper"], []), "panda_link3": ([], ["mass changed by +80%"])})
+    same = _fit({"panda_link2": (["mass_upper"], []), "panda_link3": ([], ["mass changed by +80%"])})
+    assert implausible_bodies(same, current) == [] and bound_changes(same, current) == {"pushes": {}, "releases": {}}
+    assert implausible_bodies(same) == ["panda_link3 (mass changed by +80%)"], "judged alone, the state is there"
+
+    keeps = _candidate("rotor_inertia", same, current, 1.2)
+    released = _fit({"panda_link3": ([], ["mass changed by +80%"])})
+    releases = _candidate("torque_gain", released, current, 1.25)
+    assert releases["evidence"]["bounds"] == {"pushes": {}, "releases": {"panda_link2": ["mass_upper"]}}
+    pushed = _fit({"panda_link2": (["mass_upper"], []), "panda_link4": (["hull"], []),
+                   "panda_link3": ([], ["mass changed by +80%"])})
+    pushes = _candidate("viscous_friction", pushed, current, 1.1)
+
+    ranked, chosen = recommend([keeps, releases], [releases])
+    assert chosen is keeps and ranked[0] is keeps, "a tie of two that each keep or improve the state: the best"
+    ranked, chosen = recommend([pushes, keeps], [keeps])
+    assert chosen is keeps, "of a tie, the one that pushes no new bound"
+    assert "pushes link inertias to their bounds (panda_link4 (centre of mass on its hull))" in caveats(pushes, [pushes], "panda")
+    assert "Caution" not in caveats(keeps, [keeps], "panda")
+    both = _candidate("stribeck_friction", pushed, current, 1.12)
+    ranked, chosen = recommend([pushes, both], [both])
+    assert chosen is pushes, "the same new bound on every tied candidate: the best, cautioned"
+    assert recommend([pushes], [])[1] is pushes, "untied, the best is recommended and its trouble said"
