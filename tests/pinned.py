@@ -86,10 +86,11 @@ CANDIDATE_KEYS = ("effect", "add", "decisive", "decided_on", "joints", "explaine
 
 
 def _known(intervals: Any) -> Any:
-    """``intervals`` without the ones that say nothing ([None, None]: a body's divergence where a replicate
-    had none; whether one is written at all depends on the replicates' last bits)."""
+    """``intervals`` without a body's divergence: whether the bootstrap writes one at all (for a body held at CAD
+    it spans -65..81 where it does) depends on the replicates' last bits; the divergence is judged by what it
+    does."""
     if isinstance(intervals, dict):
-        return {k: _known(v) for k, v in intervals.items() if not (isinstance(v, list) and v == [None, None])}
+        return {k: _known(v) for k, v in intervals.items() if k != "divergence"}
     return intervals
 
 
