@@ -10,7 +10,7 @@ fit's SDP solved to looser tolerances than Clarabel's 1e-11 (patched inside the 
 compared with the first (this machine's default kernel, one process): per kind of number the largest move, the
 tolerance's share it uses (largest move / tolerance) and the room left (tolerance / largest move).
 
-    python benchmarks/bench_pinned_spread.py [--kernels SkylakeX Haswell ...] [--save sweep.json]
+    python benchmarks/bench_pinned_spread.py [--kernels SkylakeX Haswell ...] [--save sweep.json | --load sweep.json]
 """
 
 from __future__ import annotations
