@@ -8,7 +8,8 @@ messy logs (``real_arm_like_dropouts``, ``_glitches``, ``_30hz``), a torque sens
 (``real_arm_like_sensor_lag``), drives whose current loop lags the command (``real_arm_like_drive_lag``), torque sensors
 still warming up (``real_arm_like_warm_up``, where the verdict's advice, ``sensor_drift``, is followed too), a link-side
 sensor's log with all of that at once (``real_panda_log``: Dahl friction beside Gaz's, a warm-up, the sensor's own
-2 ms filter, a cogging, lost stretches and glitches) and, with
+2 ms filter, a cogging, lost stretches and glitches), a short 30 Hz log with a cable's pull outside the library
+(``real_arm_like_30hz_cable``, where free link inertias bend: the fit's bands hold them) and, with
 ``--robot ur5``, the UR5's
 ``real_arm_like`` (torques from motor currents at 500 Hz) and ``real_arm_like_current_lag`` (those currents filtered)
 hide all of it. This script plays the user: it
@@ -35,7 +36,7 @@ FACTOR = 1.5
 SCENARIOS = ("real_arm_like", "link_side_sensor", "link_side_tau_only", "wrist_friction", "sensor_gains", "hysteresis",
              "drift", "ripple", "real_arm_like_dropouts", "real_arm_like_glitches", "real_arm_like_30hz",
              "real_arm_like_sensor_lag", "real_arm_like_drive_lag", "real_arm_like_cogging",
-             "link_side_cogging", "real_arm_like_warm_up", "real_panda_log")
+             "link_side_cogging", "real_arm_like_warm_up", "real_panda_log", "real_arm_like_30hz_cable")
 ROUNDS = 10  # real_panda_log's two links name lines in turn: ten rounds follow it to its end
 UR5_SCENARIOS = ("real_arm_like", "real_arm_like_current_lag")
 
@@ -55,7 +56,10 @@ def report(document: dict, round_: int, seconds: float | None = None) -> None:
         link = (rung.get("params") or {}).get("link_inertia") or {}
         prior = (rung.get("consistency") or {}).get("inertia_prior") or {}
         if link:
-            print(f"   implausible bodies: {', '.join(link.get('implausible_bodies') or []) or 'none'}; prior weight "
+            held = "; ".join(f"{name} ({', '.join(body['binding'])})" for name, body in (link.get("bodies") or {}).items()
+                             if body.get("binding"))
+            print(f"   implausible bodies: {', '.join(link.get('implausible_bodies') or []) or 'none'}; held at their "
+                  f"bounds: {held or 'none'}; prior weight "
                   f"{prior.get('weight')} ({'inside' if prior.get('inside_searched_range') else 'AT A BOUND of'} "
                   f"the searched {min(prior.get('grid') or [0]):g}..{max(prior.get('grid') or [0]):g})")
         ceiling = (section["diagnosis"].get("model_free") or {}).get("per_joint")
