@@ -39,7 +39,7 @@ MIN_SHARE = 0.3
 # offset per run does (else the runs merely sit at different offsets).
 DRIFT_BEYOND_OFFSET = 0.1
 TIME_DEGREE = 3  # a cubic in time within each run: a warm-up, a slow drift; not the motion's faster periods
-LEARNER = ("per joint, the best on the holdout runs of six learners fitted on the fit runs' residual of the last "
+LEARNER = ("per joint, the best on the holdout runs of five learners fitted on the fit runs' residual of the last "
            "rung: HistGradientBoostingRegressor on q, qd, qdd of every joint and on the joint's dynamics (the torque "
            "the rung predicts for it, the sign and magnitude of its velocity, its gravity torque), a ridge regression "
            "on the predicted torque times the sign of the velocity (a friction growing with the load, which trees cannot "
