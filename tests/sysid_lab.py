@@ -160,14 +160,17 @@ class Lab:
             )
         return self._data[scenario]
 
-    def ladder(self, scenario: str, effects: list[str], diagnose: bool = True) -> dict[str, Any]:
-        key = ("ladder", scenario, tuple(effects), diagnose)
+    def ladder(self, scenario: str, effects: list[str], diagnose: bool = True,
+               candidates: Sequence[str] | None = None) -> dict[str, Any]:
+        """The body link's ladder.json content (``sysid.fit_ladder``); ``candidates``: the effects its diagnosis tries
+        (None: the library), a test's switch to withhold one."""
+        key = ("ladder", scenario, tuple(effects), diagnose, None if candidates is None else tuple(candidates))
         if key not in self._documents:
             fit_data, holdout_data = self.data(scenario)
             with threadpool_limits(limits=1, user_api="blas"):
                 self._documents[key], _ = sysid.fit_ladder(effects, self.nominal, fit_data, holdout_data,
                                                            {"fit": FAST_FIT}, self.robot, diagnose=diagnose,
-                                                           workers=WORKERS)
+                                                           candidates=candidates, workers=WORKERS)
         return copy.deepcopy(self._documents[key])
 
 

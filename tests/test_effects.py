@@ -16,7 +16,7 @@ from sim2real.identification.effects import EFFECTS, apply_to_spec, calibration_
 from sim2real.errors import InputError
 
 VOCABULARY = {"viscous_friction", "coulomb_friction", "asymmetric_friction", "stribeck_friction", "rotor_inertia",
-              "actuation_delay", "payload", "link_inertia", "torque_bias", "torque_gain"}
+              "actuation_delay", "payload", "link_inertia", "torque_bias", "torque_gain", "load_friction"}
 JOINTS = [f"panda_joint{i}" for i in range(1, 8)]
 
 

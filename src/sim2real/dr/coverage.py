@@ -78,6 +78,8 @@ def _as_value(entry: Any) -> tuple[float, tuple[float, float]] | None:
 SYSID_QUANTITIES: dict[tuple[str, str], str] = {
     ("viscous_friction", "damping"): "damping",
     ("coulomb_friction", "friction"): "frictionloss",
+    # The calibrated MJCF's frictionloss holds a load friction's mean level (effects.load_friction).
+    ("load_friction", "mean_level"): "frictionloss",
     ("rotor_inertia", "armature"): "armature",
     ("actuation_delay", "delay"): "delay",
     ("actuation_lag", "time_constant"): "lag",

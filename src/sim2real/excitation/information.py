@@ -73,7 +73,7 @@ class Identification:
     def _signals(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> Signals:
         count = len(q)
         dynamics = self.dynamics
-        needs_nominal = any(effect.scales_judged for effect in self.effects)
+        needs_nominal = any(effect.scales_judged or effect.needs_model_torque for effect in self.effects)
         tau_nominal = dynamics.inverse_dynamics(q, qd, qdd) if needs_nominal else np.zeros_like(q)
         return Signals(joint_names=list(dynamics.joint_names), time=np.arange(count, dtype=float), q=q, qd=qd,
                        qdd=qdd, tau_nominal=tau_nominal, segments=[slice(0, count)],

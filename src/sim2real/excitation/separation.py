@@ -67,7 +67,7 @@ class Separation:
         """(tau_a - tau_b) / floor at each sample (N, n)."""
         count = len(q)
         dynamics = self.dynamics
-        needs_nominal = any(effect.scales_judged for effect, _, _ in self.effects)
+        needs_nominal = any(effect.scales_judged or effect.needs_model_torque for effect, _, _ in self.effects)
         signals = Signals(joint_names=list(dynamics.joint_names), time=np.arange(count, dtype=float), q=q, qd=qd,
                           qdd=qdd, tau_nominal=dynamics.inverse_dynamics(q, qd, qdd) if needs_nominal
                           else np.zeros_like(q), segments=[slice(0, count)],

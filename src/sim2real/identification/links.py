@@ -205,7 +205,8 @@ def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[S
         ]
         out["cannot_tell"] = [
             {"effects": ["actuator_gain", "link_inertia", "rotor_inertia", "coulomb_friction", "viscous_friction",
-                         "asymmetric_friction", "stribeck_friction", "hysteretic_friction", "position_ripple"],
+                         "asymmetric_friction", "stribeck_friction", "hysteretic_friction", "load_friction",
+                         "position_ripple"],
              "why": "a motor gain g common to all joints moves the arm exactly as the body with every torque "
              "scaled by 1/g (masses, inertias, armature and friction together): in the torque domain and in "
              "the replay alike. Only per-joint differences of the gain show. A joint torque sensor (tau) "

@@ -187,7 +187,8 @@ def _diagnose_link(effect_names: Sequence[str], nominal: NominalModel, fit_data:
     limits = {**DEFAULT_DIAGNOSIS, **settings.get("diagnosis", {})}
     ceiling = model_free_ceiling(fit_data, fit_residual, holdout_data, holdout_residual,
                                  float(limits["noise_floor_factor"]), workers=options.get("workers", 1),
-                                 model_effects=effect_names, robot=options.get("robot", "{robot}"))
+                                 model_effects=effect_names, robot=options.get("robot", "{robot}"),
+                                 gravity=nominal.dynamics.gravity)
     diagnosis["model_free"] = ceiling
     if diagnosis["status"] == "unexplained" and ceiling["text"]:
         diagnosis["verdict"] = diagnosis["verdict"].replace(" Look at the worst windows in the gap report.", "")

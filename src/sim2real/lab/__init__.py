@@ -32,6 +32,10 @@ joint order or a ``{joint: value}`` map):
 * ``hysteretic_friction`` ``{level, presliding_rad}``: Dahl friction in the drive, level * z with
   z' = (1 - z sign(dq)) dq / presliding_rad, a passive torque whose state is integrated along the simulated
   motion (:func:`dahl_step`): hysteresis around every reversal, which no static friction law follows.
+* ``load_friction`` ``{static, load_coefficient}``: a harmonic drive's friction, whose dry (Coulomb) level grows with
+  the torque the gear carries: a passive torque level * tanh(qd / 0.02), the level set at every control step to
+  static + load_coefficient * |torque transmitted to the link| (:func:`load_friction_level`: the real arm's rigid-body
+  inverse dynamics without the drive's terms, at the last step's acceleration).
 * ``cogging`` ``{amplitude, period_rad?}``: a detent torque amplitude * sin(2 pi q / period_rad), a function of
   the joint's position that the fit library has no effect for.
 * ``cable_spring`` ``{stiffness, rest_rad?, width_rad?}``: a cable harness pulling each joint towards a rest
@@ -93,7 +97,8 @@ _MODULE_OF = {
     **dict.fromkeys(["arm_spec", "compile_arm", "drop_inert_meshes", "meshes_inert"], "arm"),
     **dict.fromkeys(["EFFECTS", "excitation_designs", "lab_scenario", "load_lab_config", "read_excitation",
                      "scenario_runs"], "config"),
-    **dict.fromkeys(["cogging_torque", "dahl_step", "gaz_friction", "passive_friction", "stribeck_friction"], "hidden"),
+    **dict.fromkeys(["cogging_torque", "dahl_step", "gaz_friction", "load_friction_level", "passive_friction",
+                     "stribeck_friction"], "hidden"),
     **dict.fromkeys(["fourier_excitation", "run_lab_scenario_run", "simulate_run", "write_truth"], "simulate"),
 }
 __all__ = sorted(_MODULE_OF)
@@ -102,7 +107,8 @@ if TYPE_CHECKING:
     from sim2real.lab.arm import arm_spec, compile_arm, drop_inert_meshes, meshes_inert
     from sim2real.lab.config import (EFFECTS, excitation_designs, lab_scenario, load_lab_config, read_excitation,
                                      scenario_runs)
-    from sim2real.lab.hidden import cogging_torque, dahl_step, gaz_friction, passive_friction, stribeck_friction
+    from sim2real.lab.hidden import (cogging_torque, dahl_step, gaz_friction, load_friction_level, passive_friction,
+                                     stribeck_friction)
     from sim2real.lab.simulate import fourier_excitation, run_lab_scenario_run, simulate_run, write_truth
 
 

@@ -16,6 +16,7 @@ EFFECTS = (
     "viscous_friction",
     "coulomb_friction",
     "hysteretic_friction",
+    "load_friction",
     "cogging",
     "cable_spring",
     "torque_drift",

@@ -1,5 +1,5 @@
 """Hidden effects that act as torques along the motion or on the sensor: Gaz's friction, Stribeck humps, Dahl's
-friction with memory, cogging, a warm-up drift. The lab implements them itself: it never imports the fit's effects."""
+friction with memory, a friction that grows with the load, cogging, a warm-up drift. The lab implements them itself: it never imports the fit's effects."""
 
 from __future__ import annotations
 
@@ -72,14 +72,17 @@ def _joint_friction(effects: Mapping[str, Any], joints: Sequence[str], path: Pat
 
 
 def passive_friction(qd: np.ndarray, friction: Mapping[str, Any]) -> np.ndarray | None:
-    """The lab's friction applied as a passive torque (Gaz + Stribeck + the hysteretic friction's present state),
-    along qd; None when there is none."""
+    """The lab's friction applied as a passive torque (Gaz + Stribeck + the load friction at its present level + the
+    hysteretic friction's present state), along qd; None when there is none."""
     out = None
     if friction["gaz"] is not None:
         out = gaz_friction(qd, *friction["gaz"])
     if friction["stribeck"] is not None:
         hump = stribeck_friction(qd, *friction["stribeck"])
         out = hump if out is None else out + hump
+    if friction.get("load_level") is not None:
+        loaded = friction["load_level"] * np.tanh(qd / LOAD_SMOOTHING_RAD_S)
+        out = loaded if out is None else out + loaded
     if friction.get("dahl") is not None:
         level, _ = friction["dahl"]
         memory = level * friction["dahl_state"]
@@ -108,6 +111,37 @@ def _hysteretic_friction(effects: Mapping[str, Any], joints: Sequence[str], path
                          "give levels >= 0 N*m and presliding lengths > 0 rad")
     truth[where] = {"level": dict(zip(joints, level.tolist())), "presliding_rad": dict(zip(joints, presliding.tolist()))}
     return level, presliding
+
+
+# The load friction's sign is tanh(qd / this): smooth enough for the explicit passive torque at 1 kHz on a wrist
+# (slope level / 0.02 N*m*s/rad at rest).
+LOAD_SMOOTHING_RAD_S = 0.02
+
+
+def _load_friction(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None,
+                   truth: dict[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:
+    """``load_friction``'s (static N*m, load_coefficient) per joint, or None; recorded in ``truth``. The simulation
+    applies it as a passive torque level * tanh(qd / :data:`LOAD_SMOOTHING_RAD_S`), the level
+    static + load_coefficient * |transmitted torque| set anew at every control step (:func:`load_friction_level`)."""
+    hidden = effects.get("load_friction")
+    if not hidden:
+        return None
+    where = "load_friction"
+    static = _per_joint(hidden["static"], joints, f"{where}/static", path)
+    coefficient = _per_joint(hidden["load_coefficient"], joints, f"{where}/load_coefficient", path)
+    if not np.all(np.isfinite(static) & np.isfinite(coefficient)) or np.any(static < 0) or np.any(coefficient < 0):
+        raise InputError(path, where, "a static level or a load coefficient is negative or not finite",
+                         "give static levels >= 0 N*m and load coefficients >= 0 (N*m of friction per N*m of load)")
+    truth[where] = {"static": dict(zip(joints, static.tolist())),
+                    "load_coefficient": dict(zip(joints, coefficient.tolist()))}
+    return static, coefficient
+
+
+def load_friction_level(transmitted: np.ndarray, load: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The dry friction level of each joint under the torque its gear transmits to the link (the rigid-body inverse
+    dynamics of the real arm, without the drive's terms): static + load_coefficient * |transmitted|."""
+    static, coefficient = load
+    return static + coefficient * np.abs(transmitted)
 
 
 def _cogging(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None,

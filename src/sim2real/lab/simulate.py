@@ -16,8 +16,8 @@ from sim2real.filters import first_order_lag
 from sim2real.lab.arm import _apply_spec_effects, _gains_and_biases, arm_spec, compile_arm, drop_inert_meshes
 from sim2real.lab.config import EFFECTS, _per_joint, lab_scenario, read_excitation
 from sim2real.lab.hidden import (
-    _cable_spring, _cogging, _hysteretic_friction, _joint_friction, _torque_drift, cable_spring_torque, cogging_torque,
-    dahl_step, passive_friction,
+    _cable_spring, _cogging, _hysteretic_friction, _joint_friction, _load_friction, _torque_drift, cable_spring_torque,
+    cogging_torque, dahl_step, load_friction_level, passive_friction,
 )
 
 
@@ -146,6 +146,9 @@ def simulate_run(
     dahl = _hysteretic_friction(effects, joints, path, truth)
     if dahl is not None:
         friction["dahl"], friction["dahl_state"] = dahl, np.zeros(len(joints))
+    load = _load_friction(effects, joints, path, truth)
+    if load is not None:
+        friction["load_level"] = load[0].copy()
     cogging = _cogging(effects, joints, path, truth)
     spring = _cable_spring(effects, joints, path, truth)
     positional = cogging is not None or spring is not None
@@ -160,7 +163,7 @@ def simulate_run(
         return torque
 
     drift = _torque_drift(effects, joints, path, seed, truth, time)
-    passive = friction["gaz"] is not None or friction["stribeck"] is not None or dahl is not None
+    passive = friction["gaz"] is not None or friction["stribeck"] is not None or dahl is not None or load is not None
     after = friction["after"]
     delay_steps = 0
     if "actuation_delay" in effects:
@@ -181,10 +184,12 @@ def simulate_run(
     # A link-side torque sensor: the rigid-body inverse dynamics of the real arm without its drive terms,
     # at each sample's true state and acceleration (two MuJoCo calls per sample, only when tau is logged).
     link_side = _torque_sensor(scenario, path) == "link" and "tau" in scenario["columns"]
-    if link_side:
+    # A load friction's level follows the same torque: what the gear transmits to the link.
+    if link_side or load is not None:
         real_link = _link_side_model(mjcf_path, joints, effects, path)
         link_data = mujoco.MjData(real_link)
         dadr_l = np.array([real_link.jnt_dofadr[real_link.joint(j).id] for j in joints])
+    if link_side:
         out_link = np.empty((steps, n))
         dof_of = {int(d): i for i, d in enumerate(dadr_r)}
     controller = scenario["controller"]
@@ -219,6 +224,12 @@ def simulate_run(
             applied = lag_keep * out_applied[k - 1] + (1.0 - lag_keep) * applied
         out_q[k], out_qd[k], out_applied[k] = q_meas, qd_meas, applied
         real_data.ctrl[ctrl_index] = applied
+        if load is not None:
+            # The level the gear's load sets, held over the control step: the torque transmitted to the link at the
+            # last step's acceleration (one step late: what the friction of this step does is not known before it).
+            link_data.qpos[:], link_data.qvel[:], link_data.qacc[:] = real_data.qpos, real_data.qvel, real_data.qacc
+            mujoco.mj_inverse(real_link, link_data)
+            friction["load_level"] = load_friction_level(link_data.qfrc_inverse[dadr_l], load)
         if link_side:
             if passive or positional:
                 torque = np.zeros(n) if not passive else -passive_friction(real_data.qvel[dadr_r], friction)
@@ -347,6 +358,7 @@ def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, ou
         truth["actuation_lag"] = {"time_constant_s": float(effects["actuation_lag"]["time_constant_s"])}
     _gains_and_biases(effects, joints, Path(lab_config), truth)
     _hysteretic_friction(effects, joints, Path(lab_config), truth)
+    _load_friction(effects, joints, Path(lab_config), truth)
     _cogging(effects, joints, Path(lab_config), truth)
     _cable_spring(effects, joints, Path(lab_config), truth)
     if "torque_drift" in effects:

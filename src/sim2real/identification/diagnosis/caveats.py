@@ -24,14 +24,15 @@ from sim2real.identification.effects.base import Signals
 
 # Effects that are special cases of another: never tried once the larger one is in the model, and never a tie
 # (parsimony decides). Gaz's sigmoid with no velocity offset is a Coulomb tanh: asymmetric_friction holds
-# coulomb_friction.
+# coulomb_friction; so does load_friction, with no load coefficient.
 NESTED_IN: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",), "asymmetric_friction": ("coulomb_friction",),
-                                        "sensor_drift": ("torque_bias",)}
+                                        "sensor_drift": ("torque_bias",), "load_friction": ("coulomb_friction",)}
 # Of those, the special cases whose columns lie in the span of the larger effect's (a payload's are the last link's
 # inertial columns): both in one model fit the same torque twice, a fit only the inertial prior keeps from singular,
 # so the larger effect replaces the line (diagnosis.candidates.replaced_by). A Coulomb friction beside an asymmetric
-# one is not: a second sigmoid of its own slope, another shape of friction.
-SPANNED_BY: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",)}
+# one is not: a second sigmoid of its own slope, another shape of friction. A load friction's unloaded level is the
+# Coulomb friction's very column.
+SPANNED_BY: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",), "load_friction": ("coulomb_friction",)}
 
 # Ties: the holdout is cut into this many blocks of time (at most; 50 samples each at least); two candidates whose
 # summed squared residuals differ by less than TIE_SPREAD standard errors of that difference over the blocks (paired,

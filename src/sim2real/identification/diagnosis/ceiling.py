@@ -2,8 +2,9 @@
 
 When no effect of the library is decisive, the user needs to know what kind of thing is left. A flexible
 learner (scikit-learn's ``HistGradientBoostingRegressor``, one per joint) is fitted on the motion (q, qd,
-qdd of every joint) to the last rung's residual on the fit runs and judged on the holdout runs, like every
-rung. Per joint, above its floor:
+qdd of every joint), and another on the joint's dynamics (the torque the rung predicts for it, the sign and
+magnitude of its velocity, its gravity torque), to the last rung's residual on the fit runs and judged on the
+holdout runs, like every rung. Per joint, above its floor:
 
 * **ceiling well below the rung** (the learner's holdout RMSE under :data:`CLOSE_TO_RUNG` x the rung's):
   something that is a function of the motion is missing from the library. Which motion it follows is
@@ -20,7 +21,7 @@ The learner runs on one OpenMP thread with a fixed seed: the same numbers on eve
 from __future__ import annotations
 
 import importlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -38,10 +39,15 @@ MIN_SHARE = 0.3
 # offset per run does (else the runs merely sit at different offsets).
 DRIFT_BEYOND_OFFSET = 0.1
 TIME_DEGREE = 3  # a cubic in time within each run: a warm-up, a slow drift; not the motion's faster periods
-LEARNER = ("per joint, the best on the holdout runs of three learners fitted on the fit runs' residual of the last "
-           "rung: HistGradientBoostingRegressor on q, qd, qdd of every joint, and two ridge regressions on harmonics "
-           "of the joint's own position (a ripple the trees cannot carry from one run's positions to another's): of "
-           "whole turns, and of the period one sinusoid of the position fits best (a ripple of any period)")
+LEARNER = ("per joint, the best on the holdout runs of five learners fitted on the fit runs' residual of the last "
+           "rung: HistGradientBoostingRegressor on q, qd, qdd of every joint and on the joint's dynamics (the torque "
+           "the rung predicts for it, the sign and magnitude of its velocity, its gravity torque), a ridge regression "
+           "on the predicted torque times the sign of the velocity (a friction growing with the load, which trees cannot "
+           "carry from one run's torques to another's), and two ridge regressions on harmonics of the joint's own position (a ripple the trees cannot "
+           "carry from one run's positions to another's): of whole turns, and of the period one sinusoid of the "
+           "position fits best (a ripple of any period)")
+DYNAMICS_TREES = "trees on the joint's dynamics"
+DYNAMICS_LEARNER = "a ridge regression on the joint's dynamics times the sign of its velocity"
 # Harmonics of a joint's own position: sin and cos of k * q for k = 1..POSITION_HARMONICS (periods down to 2 pi / 40
 # = 0.16 rad of the joint), what a cogging or a gear's ripple follows, periodic wherever the runs go.
 POSITION_HARMONICS = 40
@@ -115,6 +121,46 @@ def motion_features(data: Any) -> tuple[np.ndarray, list[str]]:
     joints = list(data.joint_names)
     names = [f"{kind} of {joint}" for kind in ("position", "velocity", "acceleration") for joint in joints]
     return np.hstack([data.q, data.qd, data.qdd]), names
+
+
+def dynamics_features(data: Any, residual: np.ndarray, gravity: np.ndarray | None) -> np.ndarray:
+    """(N, n, k) per joint: the torque the last rung predicts (the judged torque less its residual), the sign and the
+    magnitude of the velocity, and the gravity torque when the nominal model gives it (``gravity``, (N, n))."""
+    features = [np.asarray(data.tau, dtype=float) - residual, np.sign(data.qd), np.abs(data.qd)]
+    if gravity is not None:
+        features.append(np.asarray(gravity, dtype=float))
+    return np.stack(features, axis=2)
+
+
+def dynamics_names(joint: str, k: int) -> list[str]:
+    """The names of :func:`dynamics_features`' ``k`` columns of ``joint``."""
+    return [f"the torque the model predicts for {joint}", f"the sign of velocity of {joint}", f"the speed of {joint}",
+            f"the gravity torque of {joint}"][:k]
+
+
+def signed_products(features: np.ndarray) -> np.ndarray:
+    """(N, 3) of one joint's :func:`dynamics_features` (N, k): the sign of its velocity, and the torque the rung
+    predicts times that sign, as it is and in magnitude. A friction that grows with the load is such a product: trees
+    on the factors cannot carry it to a run whose torques lie elsewhere, a line on the products can. The gravity
+    torque and the speed stay out: nearly the predicted torque on a shoulder, a line in them extrapolates noise."""
+    sign = features[:, 1]
+    return np.column_stack([sign, features[:, 0] * sign, np.abs(features[:, 0]) * sign])
+
+
+def signed_names(joint: str) -> list[str]:
+    """The names of :func:`signed_products`' columns of ``joint``."""
+    torque = f"the torque the model predicts for {joint}"
+    return [f"the sign of velocity of {joint}", f"{torque} times the sign of its velocity",
+            f"|{torque}| times the sign of its velocity"]
+
+
+def _dynamics_learner() -> Any:
+    from sklearn.linear_model import RidgeCV
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    # Standardised: a torque of tens of N*m and a sign of one are penalised alike.
+    return make_pipeline(StandardScaler(), RidgeCV(alphas=np.logspace(-3, 3, 13)))
 
 
 def since_reversal(q: np.ndarray, qd: np.ndarray, segments: Sequence[slice]) -> np.ndarray:
@@ -237,27 +283,37 @@ def _at_floor(rung: float, floor: float, noise_floor_factor: float) -> bool:
 
 
 def _learners(j: int, fit_data: Any, fit_column: np.ndarray, holdout_data: Any, holdout_column: np.ndarray,
-              ) -> tuple[str, np.ndarray, Any, float]:
-    """The best on the holdout of the three learners of :data:`LEARNER`, fitted on joint ``j``'s residual
-    ``fit_column``: (its name, ``holdout_column`` less its prediction, the trees, the searched period). A tie goes to
-    the earlier (the trees, then whole turns). Called on one OpenMP thread."""
+              dynamics: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[str, np.ndarray, Any, float]:
+    """The best on the holdout of the learners of :data:`LEARNER`, fitted on joint ``j``'s residual
+    ``fit_column``: (its name, ``holdout_column`` less its prediction, the trees of the chosen kind, the searched
+    period). A tie goes to the earlier (the trees on the motion, on the dynamics, the signed torques, then whole turns); ``dynamics``:
+    :func:`dynamics_features` of the fit and the holdout runs (None: no such learner). Called on one OpenMP thread."""
     x_fit, _ = motion_features(fit_data)
     x_holdout, _ = motion_features(holdout_data)
     train = _train_rows(fit_data.n_samples)
     learner = _learner().fit(x_fit[train], fit_column[train])
     trees = holdout_column - learner.predict(x_holdout)
+    tried = [("trees on the motion", trees)]
+    kept = {"trees on the motion": learner}
+    if dynamics is not None:
+        kept[DYNAMICS_TREES] = _learner().fit(dynamics[0][train, j], fit_column[train])
+        tried.append((DYNAMICS_TREES, holdout_column - kept[DYNAMICS_TREES].predict(dynamics[1][:, j])))
+        kept[DYNAMICS_LEARNER] = _dynamics_learner().fit(signed_products(dynamics[0][train, j]), fit_column[train])
+        tried.append((DYNAMICS_LEARNER,
+                      holdout_column - kept[DYNAMICS_LEARNER].predict(signed_products(dynamics[1][:, j]))))
     ripple = _harmonic_learner().fit(position_harmonics(fit_data.q[train, j]), fit_column[train])
     harmonics = holdout_column - ripple.predict(position_harmonics(holdout_data.q[:, j]))
     period = float(best_periods(fit_data.q[train, j:j + 1], fit_column[train, None])[0][0])
     searched = _harmonic_learner().fit(period_harmonics(fit_data.q[train, j], period), fit_column[train])
     of_period = holdout_column - searched.predict(period_harmonics(holdout_data.q[:, j], period))
-    chosen, after = min([("trees on the motion", trees), ("position harmonics", harmonics),
-                         ("a ripple of the searched period", of_period)], key=lambda item: float(np.mean(item[1] ** 2)))
-    return chosen, after, learner, period
+    chosen, after = min([*tried, ("position harmonics", harmonics), ("a ripple of the searched period", of_period)],
+                        key=lambda item: float(np.mean(item[1] ** 2)))
+    return chosen, after, kept.get(chosen, learner), period
 
 
 def _motion_beyond_drift(j: int, drift: str, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any,
-                         holdout_residual: np.ndarray, floor: float, noise_floor_factor: float) -> bool:
+                         holdout_residual: np.ndarray, floor: float, noise_floor_factor: float,
+                         dynamics: tuple[np.ndarray, np.ndarray] | None = None) -> bool:
     """Whether the learners still explain joint ``j``'s residual once each run's own ``drift`` (its offset, or its
     smooth function of time) is taken out of every run: a function of the motion beside the drift, not its
     imitation."""
@@ -267,15 +323,16 @@ def _motion_beyond_drift(j: int, drift: str, fit_data: Any, fit_residual: np.nda
     rung = float(np.sqrt(np.mean(holdout_column**2)))
     if _at_floor(rung, floor, noise_floor_factor):
         return False
-    _, after, _, _ = _learners(j, fit_data, fit_column, holdout_data, holdout_column)
+    _, after, _, _ = _learners(j, fit_data, fit_column, holdout_data, holdout_column, dynamics)
     return float(np.sqrt(np.mean(after**2))) < CLOSE_TO_RUNG * rung
 
 
 def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any,
                    holdout_residual: np.ndarray, noise_floor_factor: float, floors: Sequence[float],
-                   ) -> tuple[dict[str, Any], np.ndarray]:
+                   dynamics: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[dict[str, Any], np.ndarray]:
     """Joint ``j``'s row of :func:`model_free_ceiling` and its holdout residual after the better learner (the
-    rung's own where the joint is at its floor); ``floors``: each joint's as the ladder judges by it."""
+    rung's own where the joint is at its floor); ``floors``: each joint's as the ladder judges by it; ``dynamics``:
+    :func:`dynamics_features` of the fit and the holdout runs."""
     from threadpoolctl import threadpool_limits
 
     floor = float(floors[j])
@@ -287,8 +344,8 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
                  "kind": "at_floor", "fitted": False}, np.array(holdout_residual[:, j], dtype=float))
     with threadpool_limits(limits=1, user_api="openmp"):
         chosen, after, learner, period = _learners(j, fit_data, fit_residual[:, j], holdout_data,
-                                                   holdout_residual[:, j])
-        periodic = chosen != "trees on the motion"
+                                                   holdout_residual[:, j], dynamics)
+        periodic = chosen not in ("trees on the motion", DYNAMICS_TREES, DYNAMICS_LEARNER)
         ceiling = float(np.sqrt(np.mean(after**2)))
         row: dict[str, Any] = {
             "rung_rmse": round(rung, 6), "ceiling_rmse": round(ceiling, 6),
@@ -303,6 +360,13 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
             row["kind"] = "motion"
             every = f", every {period:.3g} rad" if chosen == "a ripple of the searched period" else ""
             x_holdout, names = motion_features(holdout_data)
+            if chosen in (DYNAMICS_TREES, DYNAMICS_LEARNER):
+                assert dynamics is not None
+                x_holdout = dynamics[1][:, j]
+                names = dynamics_names(holdout_data.joint_names[j], x_holdout.shape[1])
+                if chosen == DYNAMICS_LEARNER:
+                    names = signed_names(holdout_data.joint_names[j])
+                    x_holdout = signed_products(x_holdout)
             row["gains_most_with"] = ([f"position of {holdout_data.joint_names[j]} (periodic{every})"] if periodic
                                       else _gains_most(learner, x_holdout, holdout_residual[:, j], names))
             row["gains_most_in"] = _gain_regime(holdout_residual[:, j], after, holdout_data.qd[:, j],
@@ -316,7 +380,7 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
                 row["beyond_motion"] = {k: round(v, 4) for k, v in shares.items()}
                 row["follows"] = drift
                 row["imitated"] = not _motion_beyond_drift(j, drift, fit_data, fit_residual, holdout_data,
-                                                           holdout_residual, floor, noise_floor_factor)
+                                                           holdout_residual, floor, noise_floor_factor, dynamics)
         else:
             row["kind"] = "not_motion"
             shares = _beyond_motion(j, fit_data, fit_residual, holdout_data, holdout_residual, floor)
@@ -327,7 +391,7 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
 
 def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
                        noise_floor_factor: float = 1.5, workers: int = 1, model_effects: Sequence[str] = (),
-                       robot: str = "{robot}") -> dict[str, Any]:
+                       robot: str = "{robot}", gravity: Callable[[np.ndarray], np.ndarray] | None = None) -> dict[str, Any]:
     """The ceiling of ``diagnosis.model_free`` in gap.json (see the module docstring).
 
     ``fit_data``/``holdout_data``: :class:`sim2real.identification.fitting.TorqueData`; the residuals are the last rung's
@@ -336,7 +400,8 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
     ``workers``: processes the joints' learners are fitted on side by side (:func:`sim2real.forked.map_forked`:
     each joint's numbers are those it has alone). Where joints sit at an offset of each run's own or drift within
     it and ``model_effects`` lack :data:`DRIFT_EFFECT`, ``declare`` names it (the line of configs/``robot``/model.yaml
-    the text advises for runs already logged).
+    the text advises for runs already logged). ``gravity``: the nominal model's gravity torque (N, n) of positions
+    (N, n), a feature of the dynamics learner (None: it learns without), computed only where a joint is learned.
     """
     from sim2real.forked import map_forked
     from sim2real.identification.fitting.scoring import judged_floors
@@ -348,9 +413,13 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
     if learned:  # the learners' modules imported once, before the fork; a model at its floor needs neither
         for module in ("sklearn.ensemble", "sklearn.linear_model"):
             importlib.import_module(module)
+    dynamics = (dynamics_features(fit_data, fit_residual, gravity(fit_data.q) if gravity else None),
+                dynamics_features(holdout_data, holdout_residual, gravity(holdout_data.q) if gravity else None),
+                ) if learned else None
     rows = map_forked(_joint_ceiling, range(len(joints)), workers if learned else 1, {
         "fit_data": fit_data, "fit_residual": fit_residual, "holdout_data": holdout_data,
-        "holdout_residual": holdout_residual, "noise_floor_factor": float(noise_floor_factor), "floors": floors})
+        "holdout_residual": holdout_residual, "noise_floor_factor": float(noise_floor_factor), "floors": floors,
+        "dynamics": dynamics})
     per_joint = {joint: row for joint, (row, _) in zip(joints, rows, strict=True)}
     after = np.column_stack([column for _, column in rows])
     overall = float(np.sqrt(np.mean(after**2)))

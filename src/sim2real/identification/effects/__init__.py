@@ -24,6 +24,7 @@ from sim2real.identification.effects.command_bias import CommandBias
 from sim2real.identification.effects.coulomb_friction import CoulombFriction
 from sim2real.identification.effects.hysteretic_friction import HystereticFriction
 from sim2real.identification.effects.link_inertia import LinkInertia
+from sim2real.identification.effects.load_friction import LoadFriction
 from sim2real.identification.effects.payload import Payload
 from sim2real.identification.effects.position_ripple import PositionRipple
 from sim2real.identification.effects.rotor_inertia import RotorInertia
@@ -44,6 +45,7 @@ EFFECTS: dict[str, Effect] = {
         AsymmetricFriction(),
         StribeckFriction(),
         HystereticFriction(),
+        LoadFriction(),
         PositionRipple(),
         RotorInertia(),
         ActuationDelay(),

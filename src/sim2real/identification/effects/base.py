@@ -165,6 +165,8 @@ class Effect:
     needs_commands: ClassVar[bool] = False  # only observable when the judged torque is the command
     sensor_side: ClassVar[bool] = False  # an error of the torque sensor: meaningless on runs without one
     scales_judged: ClassVar[bool] = False  # its coefficient scales the whole judged torque (a gain)
+    # its columns read the nominal model's torque (Signals.tau_nominal), which a design computes only for those
+    needs_model_torque: ClassVar[bool] = False
     joint_local: ClassVar[bool] = True  # each parameter acts on its own joint only
     # a lag of the judged torque: the diagnosis fits it only where a lag, linearised, could matter
     # (sim2real.identification.fitting.lag_score)
