@@ -223,7 +223,9 @@ def test_the_run_that_separates_confounded_candidates(designed: Path, tmp_path: 
     result = build_excitation("panda", designed / "configs/panda/excitation.yaml", separating, urdf, mjcf, robot,
                               model, outputs, ladder=ladder, start=start)
     difference = result.summary["separation"]["difference_x_floor"]
-    assert difference["designed"] > 2 * difference["initial"]  # the design sought the difference out
+    # The design sought the difference out: 3.46x on OpenBLAS's SkylakeX, Haswell, SandyBridge and Prescott kernels
+    # (1.15x to 2.64x when a pass could end inside the table and the motion was scaled down to pass the dense check).
+    assert difference["designed"] > 2 * difference["initial"]
     assert "tells viscous_friction from coulomb_friction apart" in Path(outputs["md"]).read_text()
 
     run_lab_scenario_run(mjcf, lab_config, "panda", "slow_viscous", "separating", tmp_path / "separating.parquet",
