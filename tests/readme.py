@@ -47,8 +47,9 @@ COVERAGE: list[tuple[str, str, str]] = [
 ]
 
 
-def readme_blocks(language: str) -> list[str]:
-    return re.findall(rf"^```{language}\n(.*?)^```", README, flags=re.MULTILINE | re.DOTALL)
+def readme_blocks(language: str, text: str = README) -> list[str]:
+    """The ``language`` code blocks of ``text`` (default: the README and every page of docs/), in order."""
+    return re.findall(rf"^```{language}\n(.*?)^```", text, flags=re.MULTILINE | re.DOTALL)
 
 
 def readme_commands() -> list[str]:
