@@ -112,13 +112,27 @@ def test_a_design_kept_as_blocks_chooses_and_solves_to_the_same_bits(anchor, mon
     assert np.array_equal(solved[0].coefficients, solved[1].coefficients)
 
 
+def solved_both_ways(design: np.ndarray, target: np.ndarray, lower: np.ndarray, block: InertialBlock, weight: float):
+    """The consistent program of ``design`` ~ ``target`` solved in its conic form and as cvxpy states it (Clarabel at
+    1e-11 both): (ours, cvxpy's problem, cvxpy's coefficients in parameter units)."""
+    import cvxpy as cp
+
+    from sim2real.identification.inertial.program import _ConsistentProgram, _CvxpyProgram
+
+    size = design.shape[2]
+    program = _ConsistentProgram(size, lower, block)
+    term = program.prepare(design.reshape(-1, size), target.reshape(-1))
+    ours = program.solve_prepared(term, weight)
+    stated = _CvxpyProgram(size, lower, block)
+    stated.set(term.root, term.target_root, weight, 1.0 / term.scale)
+    stated.problem.solve(solver=cp.CLARABEL, tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11)
+    return ours, stated, np.asarray(stated.z.value) / term.scale
+
+
 def test_the_conic_form_solves_the_program_cvxpy_states(anchor):
     """The consistent fit's conic form, written for Clarabel directly (inertial.conic), against the same program
     written in cvxpy: two bodies (one with its ellipsoid), bounded and free columns, a weak and a strong pull."""
-    import cvxpy as cp
-
     from sim2real.identification.inertial import bounding_ellipsoid, pseudo_inertia
-    from sim2real.identification.inertial.program import _ConsistentProgram, _CvxpyProgram
 
     rng = np.random.default_rng(7)
     anchors = np.stack([anchor, 1.3 * anchor])
@@ -132,15 +146,9 @@ def test_the_conic_form_solves_the_program_cvxpy_states(anchor):
                              rng.normal(size=(600, 1, 4))], axis=2)
     truth = np.concatenate([0.2 * anchor, -0.1 * anchor, [0.3, -0.2, 0.1, 0.4]])
     target = design @ truth + NOISE * rng.normal(size=(600, 1))
-    program = _ConsistentProgram(24, lower, block)
     for weight in (1e-6, 1e-2):
-        term = program.prepare(design.reshape(600, 24), target.reshape(-1))
-        ours = program.solve_prepared(term, weight)
-        stated = _CvxpyProgram(24, lower, block)
-        stated.set(term.root, term.target_root, weight, 1.0 / term.scale)
-        stated.problem.solve(solver=cp.CLARABEL, tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11)
+        ours, stated, theirs = solved_both_ways(design, target, lower, block, weight)
         assert ours.status == "optimal" and stated.problem.status == "optimal"
-        theirs = np.asarray(stated.z.value) / term.scale
         assert np.max(np.abs(ours.coefficients - theirs)) <= 1e-5 * np.max(np.abs(theirs))
         assert ours.objective == pytest.approx(stated.problem.value, rel=1e-7)
         assert ours.coefficients[21] == pytest.approx(0.0, abs=1e-7) and ours.coefficients[23] >= 0.5 - 1e-9
@@ -152,11 +160,8 @@ def test_the_bands_are_constraints_of_both_forms_and_bind_where_the_data_push(an
     """The bands of inertial.bands (mass, hull, divergence) in the conic form and in cvxpy: the same solution where
     the data push a link beyond them (a mass 30 % up, a centre of mass 6 cm out), and every bound holds there. The
     last body carries tools: it gains its 30 % freely."""
-    import cvxpy as cp
-
     from sim2real.identification.inertial import entropic_divergence
     from sim2real.identification.inertial.bands import binding, body_bounds
-    from sim2real.identification.inertial.program import _ConsistentProgram, _CvxpyProgram
 
     rng = np.random.default_rng(11)
     anchors = np.stack([anchor, 1.3 * anchor])
@@ -173,16 +178,10 @@ def test_the_bands_are_constraints_of_both_forms_and_bind_where_the_data_push(an
     pushed[1:4] = pushed[0] * (com + np.array([0.06, 0.0, 0.0]))
     truth = np.concatenate([pushed - anchor, 0.3 * 1.3 * anchor])
     target = design @ truth + NOISE * rng.normal(size=(600, 1))
-    program = _ConsistentProgram(20, lower, block)
     for weight in (1e-6, 1e-2):
-        term = program.prepare(design.reshape(600, 20), target.reshape(-1))
-        ours = program.solve_prepared(term, weight)
-        stated = _CvxpyProgram(20, lower, block)
-        stated.set(term.root, term.target_root, weight, 1.0 / term.scale)
-        stated.problem.solve(solver=cp.CLARABEL, tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11)
+        ours, stated, theirs = solved_both_ways(design, target, lower, block, weight)
         # At 1e-11 a bound that binds may leave Clarabel a few digits short ("AlmostSolved"), as the fit accepts.
         assert {ours.status, stated.problem.status} <= {"optimal", "optimal_inaccurate"}
-        theirs = np.asarray(stated.z.value) / term.scale
         assert np.max(np.abs(ours.coefficients - theirs)) <= 1e-3 * np.max(np.abs(theirs))  # 1e-4 seen
         corrected = anchors + ours.coefficients.reshape(2, 10)
         divergence = entropic_divergence(corrected, anchors)

@@ -19,13 +19,10 @@ from sim2real.identification.effects.base import (
 DEFAULT_SMOOTHING = 0.02  # rad/s: start value of the refinement
 
 
-class CoulombFriction(Effect):
-    drive = True
-    in_urdf = True
-    name = "coulomb_friction"
-    summary = "Coulomb (dry) joint friction, constant magnitude opposing the motion"
-    signature = "residual steps with the sign of joint velocity (jumps at reversals)"
-    parameters = (ParameterSpec("friction", "N*m", 0.0, 100.0, True, "Coulomb friction torque (total)"),)
+class SmoothedSign:
+    """A friction law's sign of the velocity, tanh(qd / v) per joint, its smoothing velocity ``v`` refined (on a log
+    scale: smoothing velocities span decades) from :data:`DEFAULT_SMOOTHING`."""
+
     nonlinear = (ParameterSpec("smoothing_velocity", "rad/s", 1e-3, 0.5, True, "tanh transition width"),)
 
     def nonlinear_init(self, signals):
@@ -35,14 +32,23 @@ class CoulombFriction(Effect):
         return np.full(signals.n, self.nonlinear[0].lower), np.full(signals.n, self.nonlinear[0].upper)
 
     def nonlinear_log_scale(self, signals):
-        return np.ones(signals.n, dtype=bool)  # smoothing velocities span decades
+        return np.ones(signals.n, dtype=bool)
+
+    def sliding(self, signals, nonlinear: np.ndarray) -> np.ndarray:
+        """(N, n) tanh(qd / v) at the smoothing ``nonlinear`` (its start where none is given yet)."""
+        return np.tanh(signals.qd / (nonlinear if len(nonlinear) else self.nonlinear_init(signals)))
+
+
+class CoulombFriction(SmoothedSign, Effect):
+    drive = True
+    in_urdf = True
+    name = "coulomb_friction"
+    summary = "Coulomb (dry) joint friction, constant magnitude opposing the motion"
+    signature = "residual steps with the sign of joint velocity (jumps at reversals)"
+    parameters = (ParameterSpec("friction", "N*m", 0.0, 100.0, True, "Coulomb friction torque (total)"),)
 
     def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
-        smoothing = nonlinear if len(nonlinear) else self.nonlinear_init(signals)
-        return (
-            diagonal_columns(np.tanh(signals.qd / smoothing)),
-            [ColumnLabel("friction", j) for j in signals.joint_names],
-        )
+        return diagonal_columns(self.sliding(signals, nonlinear)), [ColumnLabel("friction", j) for j in signals.joint_names]
 
     def theta_lower(self, signals, size):
         # The total friction (nominal + fitted) is never negative.

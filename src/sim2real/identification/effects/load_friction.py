@@ -29,7 +29,7 @@ import numpy as np
 from sim2real.identification.effects.base import (
     ColumnLabel, Effect, ParameterSpec, Signals, diagonal_columns, explained_per_joint, per_joint_dict,
 )
-from sim2real.identification.effects.coulomb_friction import DEFAULT_SMOOTHING
+from sim2real.identification.effects.coulomb_friction import DEFAULT_SMOOTHING, SmoothedSign
 
 
 def transmitted_torque(signals: Signals) -> np.ndarray:
@@ -37,7 +37,7 @@ def transmitted_torque(signals: Signals) -> np.ndarray:
     return np.abs(signals.tau_nominal)
 
 
-class LoadFriction(Effect):
+class LoadFriction(SmoothedSign, Effect):
     drive = True
     in_urdf = True  # its mean level, as the Coulomb friction's (see the module docstring)
     name = "load_friction"
@@ -48,21 +48,10 @@ class LoadFriction(Effect):
         ParameterSpec("static", "N*m", 0.0, 100.0, True, "F_0: the Coulomb level without load (total)"),
         ParameterSpec("load_coefficient", "1", 0.0, 1.0, True, "mu: Coulomb level per N*m of transmitted torque"),
     )
-    nonlinear = (ParameterSpec("smoothing_velocity", "rad/s", 1e-3, 0.5, True, "tanh transition width"),)
     needs_model_torque = True
 
-    def nonlinear_init(self, signals):
-        return np.full(signals.n, DEFAULT_SMOOTHING)
-
-    def nonlinear_bounds(self, signals):
-        return np.full(signals.n, self.nonlinear[0].lower), np.full(signals.n, self.nonlinear[0].upper)
-
-    def nonlinear_log_scale(self, signals):
-        return np.ones(signals.n, dtype=bool)  # smoothing velocities span decades
-
     def columns(self, signals: Signals, state: dict[str, Any], nonlinear: np.ndarray):
-        smoothing = nonlinear if len(nonlinear) else self.nonlinear_init(signals)
-        sliding = np.tanh(signals.qd / smoothing)
+        sliding = self.sliding(signals, nonlinear)
         labels = ([ColumnLabel("static", j) for j in signals.joint_names]
                   + [ColumnLabel("load_coefficient", j) for j in signals.joint_names])
         return np.concatenate([diagonal_columns(sliding), diagonal_columns(transmitted_torque(signals) * sliding)],
