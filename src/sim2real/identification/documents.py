@@ -14,6 +14,7 @@ from sim2real.errors import InputError
 from sim2real.identification.effects import get_effect
 from sim2real.identification.effects.sensor_delay import actuation_beyond_sensor
 from sim2real.identification.fitting import FitResult, NominalModel
+from sim2real.identification.records import Side
 
 def round_floats(tree: Any, digits: int = 6) -> Any:
     """Round every float to ``digits`` significant digits: stable, readable, byte-identical outputs."""
@@ -77,7 +78,7 @@ def merge_link_values(results: Sequence[FitResult], nominal: NominalModel) -> tu
 
 
 def _actuator_lag(name: str) -> bool:
-    return get_effect(name).time_shift and get_effect(name).link == "actuator"
+    return get_effect(name).time_shift and get_effect(name).side == Side.DRIVE
 
 
 def _lag_key(name: str) -> str:

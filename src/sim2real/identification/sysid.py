@@ -3,16 +3,18 @@
 :func:`fit_ladder` composes the fitting core (:mod:`sim2real.identification.fitting`) and the diagnosis
 (:mod:`sim2real.identification.diagnosis`): every rung (nominal, then each effect added in turn, refining only the
 new effect's nonlinear parameters) fitted on the ``role: fit`` runs and judged on the
-``role: holdout`` runs, then the diagnosis of the last rung. :func:`fit_model` runs it on each link
-of the model (:mod:`sim2real.identification.links`: the actuator and the body, judged apart when the runs log
-both the measured and the commanded torque). It returns the ``ladder.json`` content;
-:func:`~sim2real.identification.documents.params_document` and :func:`sim2real.identification.effects.calibration_from_params`
-give params.yaml and calibration.yaml; :func:`run_sysid` is the files-in, files-out entry point of the rule.
-The fitting core's names are re-exported here (``sysid.fit``, ``sysid.TorqueData``, ...).
+``role: holdout`` runs, then the diagnosis of the last rung. :func:`fit_model` runs it on each side
+of the model (:mod:`sim2real.identification.sides`: the drive and the body, judged apart when the runs log
+both the measured and the commanded torque) and adds what each side's diagnosis takes from the other
+(:mod:`sim2real.identification.diagnosis.across`). It returns the ``ladder.json`` content, data without words
+(:mod:`sim2real.report.verdicts` words it); :func:`~sim2real.identification.documents.params_document` and
+:func:`sim2real.identification.effects.calibration_from_params` give params.yaml and calibration.yaml;
+:func:`run_sysid` is the files-in, files-out entry point of the rule.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -20,195 +22,214 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.identification.inertial.bands import InertiaBands
-from sim2real.identification import links
-from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, model_free_ceiling
-from sim2real.identification.diagnosis import diagnose as run_diagnosis
-from sim2real.identification.diagnosis.candidates import HARM_TOLERANCE
-from sim2real.identification.diagnosis.caveats import NESTED_IN
-from sim2real.identification.documents import (  # noqa: F401  (re-exported: the rule's documents)
-    load_model_config, merge_link_values, params_document, round_floats, write_model_residuals,
-)
-from sim2real.identification.effects import Signals, get_effect
-from sim2real.errors import InputError
-from sim2real.forked import Forked
-from sim2real.identification.fitting import (  # noqa: F401  (re-exported: the public names of the fit)
-    DEFAULT_SETTINGS, PRIOR_START_SETTING, FitResult, NominalModel, Refinements, TorqueData, fit, fit_on_the_previous, floor_units, holdout_metrics,
-    joint_weights,
-    kept_segments, load_nominal, make_signals, predict, resolve_armature, RunSamples, stack_runs,
-)
 from sim2real.blas import one_blas_thread
 from sim2real.cache import FitCache
+from sim2real.errors import InputError
+from sim2real.forked import Forked
+from sim2real.identification import sides
+from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, Diagnosis, diagnose, model_free_ceiling
+from sim2real.identification.diagnosis.across import across_sides
+from sim2real.identification.documents import load_model_config, params_document, round_floats, write_model_residuals
+from sim2real.identification.effects import get_effect
+from sim2real.identification.fitting import (
+    DEFAULT_SETTINGS, PRIOR_START_SETTING, FitContext, FitResult, NominalModel, Refinements, RunSamples, TorqueData,
+    fit_on_the_previous, floor_units, holdout_metrics, load_nominal, predict, stack_runs,
+)
+from sim2real.identification.inertial.bands import InertiaBands
+from sim2real.identification.records import Note, NoteKind, SensorPlacement, Side
 from sim2real.measurements import PreparedRun, noise_floor_of, torque_sensor_of
-from sim2real.stats import floor_multiple, rmse
+from sim2real.stats import rmse
+
+
+@dataclasses.dataclass(frozen=True)
+class SideLadder:
+    """One side's ladder: its ``ladder.json`` content (``ladder``, ``noise_floor``, ...), the last rung's fit, and
+    the diagnosis of that rung (None when not asked for)."""
+
+    document: dict[str, Any]
+    result: FitResult
+    diagnosis: Diagnosis | None
 
 
 def state_domain_status(data: TorqueData) -> dict[str, str]:
-    """The state-domain refinement replays commands in MuJoCo; say plainly when and why it is skipped."""
-    if not data.has_commands:
-        return {
-            "status": "skipped",
-            "reason": "the runs have no commanded torque (tau_cmd), so there is nothing to replay; "
-            "the ladder and the diagnosis use the torque domain only",
-        }
-    return {
-        "status": "skipped",
-        "reason": "the ladder is fitted and judged in the torque domain; the gap report replays each rung "
-        "with its fitted effects (gap.json ladder[].metrics.position_rmse)",
-    }
+    """The state-domain refinement replays commands in MuJoCo: skipped here, and why (``no_commands``: the runs have
+    no commanded torque to replay; ``replayed_in_gap_report``: the gap report replays each rung)."""
+    return {"status": "skipped", "reason": "replayed_in_gap_report" if data.has_commands else "no_commands"}
 
 
-def fit_ladder(
-    effect_names: Sequence[str],
-    nominal: NominalModel,
-    fit_data: TorqueData,
-    holdout_data: TorqueData,
-    settings: Mapping[str, Any] | None = None,
-    robot: str = "{robot}",
-    diagnose: bool = True,
-    *,
-    fit_signals: Signals | None = None,
-    holdout_signals: Signals | None = None,
-    link: str = "body",
-    candidates: Sequence[str] | None = None,
-    workers: int = 1,
-    cache: FitCache | None = None,
-    residuals_out: dict[str, np.ndarray] | None = None,
-) -> tuple[dict[str, Any], FitResult]:
-    """Every rung (nominal, then each effect added in turn) fitted and judged; diagnosis of the last.
+def fit_ladder(effect_names: Sequence[str], context: FitContext, *, side: Side = Side.BODY,
+               candidates: Sequence[str] | None = None, limits: Mapping[str, float] | None = None,
+               diagnosed: bool = True, cache: FitCache | None = None,
+               residuals_out: dict[str, np.ndarray] | None = None) -> SideLadder:
+    """Every rung (nominal, then each effect added in turn) fitted and judged on one side of the model
+    (:mod:`sim2real.identification.sides`); the diagnosis of the last (``diagnosed``).
 
-    Returns the ``ladder.json`` content (keys ``ladder``, ``diagnosis``, ``noise_floor``,
-    ``state_domain``, ...) and the last rung's fit. One link of the model (:mod:`sim2real.identification.links`):
-    ``link`` names it in the diagnosis, ``candidates`` are the effects the diagnosis tries, and the
-    signals (default: the nominal model's on the data) say what the judged torque is predicted from;
-    ``workers``: processes the rungs' two ways (:func:`sim2real.identification.fitting.fit_on_the_previous`) and the
-    diagnosis's candidates are fitted on; ``cache``: rungs and diagnoses of earlier rounds with the same
-    inputs are read back from it (:class:`sim2real.cache.FitCache`), the same to the last bit;
+    ``context``: the side's data, signals and fit settings; ``candidates``: the effects the diagnosis tries;
+    ``limits``: the diagnosis's (model.yaml ``diagnosis``); ``cache``: rungs and diagnoses of earlier rounds with the
+    same inputs are read back from it (:class:`sim2real.cache.FitCache`), the same to the last bit;
     ``residuals_out``: filled with the last rung's residual on the fit and the holdout data (keys ``fit``,
     ``holdout``: judged minus predicted torque), what the gap report judges the current model by.
     """
-    settings = dict(settings or {})
-    fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
-    fit_signals = fit_signals or make_signals(nominal, fit_data)
-    holdout_signals = holdout_signals or make_signals(nominal, holdout_data)
     cache = cache or FitCache(None)
     # Everything a rung depends on but its effects: a rung of an earlier round with the same is the same fit.
-    inputs = cache.key(link, nominal, fit_data, holdout_data, fit_signals, holdout_signals)
+    inputs = cache.key(str(side), context.nominal, context.fit_data, context.holdout_data, context.fit_signals,
+                       context.holdout_signals)
     # The diagnosis's trials keep their refinements: the rung of the candidate the user adds reads its back.
-    refinements = Refinements(cache, inputs) if cache.directory is not None else None
-    rungs = []
-    result = None
-    residual = None
+    if cache.directory is not None:
+        context = dataclasses.replace(context, refinements=Refinements(cache, inputs))
+    rungs, result, residual = _rungs(effect_names, context, cache, inputs)
+    document = _ladder_document(rungs, context)
+    # the model-free ceiling learns from the fit runs' residual (a side judged against the motion only)
+    fit_residual = context.fit_data.tau - predict(result, context.nominal, context.fit_data, context.fit_signals) if (
+        (diagnosed and side != Side.DRIVE) or residuals_out is not None) else None
+    if residuals_out is not None:
+        residuals_out.update({"fit": fit_residual, "holdout": residual})
+    if not diagnosed:
+        return SideLadder(round_floats(document), result, None)
+    prior = (result.consistency or {}).get("inertia_prior")
+    # Every candidate is fitted with the prior weight the current rung chose: a candidate that merely let the
+    # inertias move more would otherwise be credited with their fall, on joints where it does nothing. Its
+    # rung chooses again on held-out blocks, which can only help the holdout it was promised.
+    trials = context.with_settings({**context.settings, "inertia_regularization": prior["weight"]} if prior
+                                   else context.settings)
+    limits = {**DEFAULT_DIAGNOSIS, **(limits or {})}
+    key = cache.key(inputs, list(effect_names), residual, result.nonlinear, dict(trials.settings), limits, candidates)
+    diagnosis = cache.get_or_compute("diagnosis", key, functools.partial(
+        _diagnose_side, effect_names, trials, residual, fit_residual, side=side, current=result, limits=limits,
+        candidates=candidates))
+    return SideLadder(round_floats(document), result, diagnosis)
+
+
+def _rungs(effect_names: Sequence[str], context: FitContext, cache: FitCache,
+           inputs: str) -> tuple[list[dict[str, Any]], FitResult, np.ndarray]:
+    """Each rung's ``ladder.json`` entry, and the last rung's fit and holdout residual."""
+    rungs: list[dict[str, Any]] = []
+    result: FitResult | None = None
+    residual: np.ndarray | None = None
     for k in range(len(effect_names) + 1):
         effects = list(effect_names[:k])
         previous = result.nonlinear if result is not None else None
         # The prior's weight is searched from the previous rung's choice (fitting.PRIOR_START_SETTING).
         chosen = ((result.consistency or {}).get("inertia_prior") or {}) if result is not None else {}
-        rung_settings = ({**fit_settings, PRIOR_START_SETTING: chosen["weight"]} if "grid" in chosen
-                         else fit_settings)
+        rung_context = (context.with_settings({**context.settings, PRIOR_START_SETTING: chosen["weight"]})
+                        if "grid" in chosen else context)
         result, residual, carried, free = cache.get_or_compute(
-            "rung", cache.key(inputs, effects, previous, rung_settings),
-            functools.partial(_rung, effects, nominal, fit_data, holdout_data, previous, rung_settings,
-                              fit_signals=fit_signals, holdout_signals=holdout_signals, workers=workers,
-                              refinements=refinements))
-        metrics = {"torque_rmse": rmse(residual, holdout_data.joint_names)}
-        x_floor = floor_units(residual, holdout_data.noise_floor)
-        rung: dict[str, Any] = {
-            "effects": effects,
-            "params": result.values,
-            "intervals": result.intervals,
-            "metrics": {**metrics, "fit_torque_rmse": result.fit_rmse,
-                        # the rung's headline: each joint in units of its own noise floor
-                        "torque_x_floor": {"overall": x_floor["overall"], "per_joint": dict(
-                            zip(holdout_data.joint_names, x_floor["per_joint"], strict=True))}},
-        }
-        if free is not None:
-            # The same rung without the physical constraints: what consistency costs (or gains) on holdout.
-            rung["metrics"]["unconstrained_torque_rmse"] = free["torque_rmse"]
-            # Wall time stays out of the document (outputs are byte-identical on rebuild).
-            rung["consistency"] = {k: v for k, v in result.consistency.items() if k != "solve_time_s"}
-        if result.notes:
-            rung["notes"] = result.notes
-        if carried == "held":
-            rung.setdefault("notes", []).append(
-                "the previous rung's nonlinear parameters (friction slopes and offsets, delay) are held: refined "
-                "again, they predicted the holdout runs worse")
-        rungs.append(rung)
+            "rung", cache.key(inputs, effects, previous, dict(rung_context.settings)),
+            functools.partial(_rung, effects, rung_context, previous))
+        rungs.append(_rung_document(effects, result, residual, carried, free, context.holdout_data))
     assert result is not None and residual is not None
-    joints = holdout_data.joint_names
-    floor = np.asarray(holdout_data.noise_floor)
-    document: dict[str, Any] = {
-        "robot": robot,
-        "joints": joints,
-        "torque_source": holdout_data.torque_source,
-        "fit_runs": fit_data.run_names,
-        "holdout_runs": holdout_data.run_names,
-        "ladder": rungs,
-        "noise_floor": {
-            "torque_rmse": {
-                "overall": float(np.sqrt(np.mean(floor**2))),
-                "per_joint": {j: float(v) for j, v in zip(joints, floor, strict=True)},
-            }
-        },
-        "state_domain": state_domain_status(holdout_data),
-        "settings": {"fit": fit_settings},
+    return rungs, result, residual
+
+
+def _rung_document(effects: Sequence[str], result: FitResult, residual: np.ndarray, carried: str,
+                   free: Mapping[str, Any] | None, holdout_data: TorqueData) -> dict[str, Any]:
+    """One rung's entry of ``ladder.json``: its effects, parameters and intervals, its holdout metrics (each joint in
+    units of its own floor as its headline), and what it says of its fit."""
+    x_floor = floor_units(residual, holdout_data.noise_floor)
+    rung: dict[str, Any] = {
+        "effects": list(effects),
+        "params": result.values,
+        "intervals": result.intervals,
+        "metrics": {"torque_rmse": rmse(residual, holdout_data.joint_names), "fit_torque_rmse": result.fit_rmse,
+                    # the rung's headline: each joint in units of its own noise floor
+                    "torque_x_floor": {"overall": x_floor["overall"], "per_joint": dict(
+                        zip(holdout_data.joint_names, x_floor["per_joint"], strict=True))}},
     }
-    # the model-free ceiling learns from the fit runs' residual (a link judged against the motion only)
-    fit_residual = fit_data.tau - predict(result, nominal, fit_data, fit_signals) if (
-        (diagnose and link != "actuator") or residuals_out is not None) else None
-    if residuals_out is not None:
-        residuals_out.update({"fit": fit_residual, "holdout": residual})
-    if diagnose:
-        prior = (result.consistency or {}).get("inertia_prior")
-        # Every candidate is fitted with the prior weight the current rung chose: a candidate that merely let the
-        # inertias move more would otherwise be credited with their fall, on joints where it does nothing. Its
-        # rung chooses again on held-out blocks, which can only help the holdout it was promised.
-        diagnosis_fit = {**fit_settings, "inertia_regularization": prior["weight"]} if prior else fit_settings
-        diagnosis_settings = {"fit": diagnosis_fit, "diagnosis": settings.get("diagnosis", {})}
-        key = cache.key(inputs, list(effect_names), residual, result.nonlinear, diagnosis_settings, robot, candidates)
-        document["diagnosis"] = cache.get_or_compute("diagnosis", key, functools.partial(
-            _diagnose_link, effect_names, nominal, fit_data, holdout_data, residual, fit_residual, diagnosis_settings,
-            fit_signals=fit_signals, holdout_signals=holdout_signals, robot=robot, nonlinear_fixed=result.nonlinear,
-            candidates=candidates, link=link, workers=workers, current=result, refinements=refinements,
-        ))
-    return round_floats(document), result
+    if free is not None:
+        # The same rung without the physical constraints: what consistency costs (or gains) on holdout.
+        rung["metrics"]["unconstrained_torque_rmse"] = free["torque_rmse"]
+        # Wall time stays out of the document (outputs are byte-identical on rebuild).
+        rung["consistency"] = {k: v for k, v in result.consistency.items() if k != "solve_time_s"}
+    if result.notes:
+        rung["notes"] = list(result.notes)
+    if carried == "held":
+        # refined again, the previous rung's nonlinear parameters predicted the holdout runs worse
+        rung.setdefault("notes", []).append(Note(NoteKind.NONLINEAR_HELD).as_document())
+    return rung
 
 
-def _diagnose_link(effect_names: Sequence[str], nominal: NominalModel, fit_data: TorqueData,
-                   holdout_data: TorqueData, holdout_residual: np.ndarray, fit_residual: np.ndarray,
-                   settings: Mapping[str, Any], *, link: str, **options: Any) -> dict[str, Any]:
-    """The diagnosis of one link (:func:`sim2real.identification.diagnosis.diagnose`) and, on a link judged against the motion,
-    its model-free ceiling (:func:`sim2real.identification.diagnosis.model_free_ceiling`): when no effect is named, the
-    verdict says what kind of thing is left."""
-    diagnosis = run_diagnosis(effect_names, nominal, fit_data, holdout_data, holdout_residual, settings, link=link,
-                              **options)
-    if link == "actuator":
+def _ladder_document(rungs: list[dict[str, Any]], context: FitContext) -> dict[str, Any]:
+    """One side's ``ladder.json`` content around its rungs: the runs, the noise floor, the settings."""
+    holdout = context.holdout_data
+    joints = holdout.joint_names
+    floor = np.asarray(holdout.noise_floor)
+    return {
+        "joints": joints,
+        "torque_source": holdout.torque_source,
+        "fit_runs": context.fit_data.run_names,
+        "holdout_runs": holdout.run_names,
+        "ladder": rungs,
+        "noise_floor": {"torque_rmse": {"overall": float(np.sqrt(np.mean(floor**2))),
+                                        "per_joint": {j: float(v) for j, v in zip(joints, floor, strict=True)}}},
+        "state_domain": state_domain_status(holdout),
+        "settings": {"fit": dict(context.settings)},
+    }
+
+
+def _diagnose_side(effect_names: Sequence[str], context: FitContext, holdout_residual: np.ndarray,
+                   fit_residual: np.ndarray | None, *, side: Side, **options: Any) -> Diagnosis:
+    """The diagnosis of one side (:func:`sim2real.identification.diagnosis.diagnose`) and, on a side judged against
+    the motion, its model-free ceiling (:func:`sim2real.identification.diagnosis.model_free_ceiling`): when no effect
+    is named, what kind of thing is left."""
+    diagnosis = diagnose(effect_names, context, holdout_residual, side=side, **options)
+    if side == Side.DRIVE:
         return diagnosis  # predicted forward from the command: the motion is not what it is a function of
-    limits = {**DEFAULT_DIAGNOSIS, **settings.get("diagnosis", {})}
-    ceiling = model_free_ceiling(fit_data, fit_residual, holdout_data, holdout_residual,
-                                 float(limits["noise_floor_factor"]), workers=options.get("workers", 1),
-                                 model_effects=effect_names, robot=options.get("robot", "{robot}"),
-                                 gravity=nominal.dynamics.gravity)
-    diagnosis["model_free"] = ceiling
-    if diagnosis["status"] == "unexplained" and ceiling["text"]:
-        diagnosis["verdict"] = diagnosis["verdict"].replace(" Look at the worst windows in the gap report.", "")
-        diagnosis["verdict"] += " " + ceiling["text"] + " The gap report's worst windows and residual figures show it."
-    return diagnosis
+    ceiling = model_free_ceiling(context.fit_data, fit_residual, context.holdout_data, holdout_residual,
+                                 float(options["limits"]["noise_floor_factor"]), workers=context.workers,
+                                 model_effects=effect_names,
+                                 gravity=context.nominal.dynamics.gravity if context.nominal else None)
+    return dataclasses.replace(diagnosis, model_free=ceiling)
 
 
-def _rung(
-    effects: Sequence[str], nominal: NominalModel, fit_data: TorqueData, holdout_data: TorqueData,
-    previous: Mapping[str, np.ndarray] | None, settings: Mapping[str, Any], **options: Any,
-) -> tuple[FitResult, np.ndarray, str, dict[str, Any] | None]:
+def _rung(effects: Sequence[str], context: FitContext, previous: Mapping[str, np.ndarray] | None,
+          ) -> tuple[FitResult, np.ndarray, str, dict[str, Any] | None]:
     """One rung of :func:`fit_ladder` (:func:`fit_on_the_previous`) and, where it is constrained, the holdout
     metrics of the same rung without the constraints: (fit, holdout residual, how its nonlinear parameters were
     carried, unconstrained metrics or None), kept whole by the fit cache."""
-    result, residual, carried = fit_on_the_previous(effects, nominal, fit_data, holdout_data, previous, settings,
-                                                    **options)
+    result, residual, carried = fit_on_the_previous(
+        effects, context.nominal, context.fit_data, context.holdout_data, previous, context.settings,
+        fit_signals=context.fit_signals, holdout_signals=context.holdout_signals, workers=context.workers,
+        refinements=context.refinements)
     free = None
     if result.unconstrained is not None and result.consistency:
-        free, _ = holdout_metrics(result.unconstrained, nominal, holdout_data, options.get("holdout_signals"))
+        free, _ = holdout_metrics(result.unconstrained, context.nominal, context.holdout_data, context.holdout_signals)
     return result, residual, carried, free
+
+
+@dataclasses.dataclass(frozen=True)
+class _Sides:
+    """What the runs let the sides be (:func:`sim2real.identification.sides.side_mode`), the sensor's placement and the
+    lines model.yaml keeps on one side."""
+
+    mode: str
+    sensor: str
+    kept_on: Mapping[str, Side]
+
+    @property
+    def body(self) -> Side:
+        """The side judged against the motion: the body's, or both sides at once on runs without a sensor."""
+        return Side.COMBINED if self.mode == "commands_only" else Side.BODY
+
+    def body_effects(self, effect_names: Sequence[str]) -> list[str]:
+        return (list(effect_names) if self.body == Side.COMBINED
+                else sides.effects_of_side(effect_names, Side.BODY, self.sensor, self.kept_on))
+
+    def body_candidates(self) -> list[str] | None:
+        if self.mode == "separate" or self.sensor == SensorPlacement.LINK_SIDE:
+            return sides.candidates_of_side(Side.BODY, self.sensor, self.kept_on)
+        return None
+
+
+def _sides_of(runs: Mapping[str, Sequence[PreparedRun]], settings: Mapping[str, Any], robot: str) -> _Sides:
+    """The sides these runs judge; a line model.yaml keeps on a side they cannot keep it on is an input error."""
+    every = [*runs["fit"], *runs["holdout"]]
+    mode, sensor = sides.side_mode(every), torque_sensor_of(every)
+    kept_on = {name: Side(side) for name, side in (settings.get("links") or {}).items()}
+    for name, side in kept_on.items():
+        problem = sides.kept_on_problem(name, side, mode, sensor)
+        if problem:
+            raise InputError(f"configs/{robot}/model.yaml", f"effects: '- {name}: {side}'", problem, f"write '- {name}'")
+    return _Sides(mode, sensor, kept_on)
 
 
 def fit_model(
@@ -222,88 +243,68 @@ def fit_model(
     release_runs: bool = False,
     current_out: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], list[FitResult]]:
-    """Both links of the model (:mod:`sim2real.identification.links`) on prepared runs by role (``fit``, ``holdout``).
+    """Both sides of the model (:mod:`sim2real.identification.sides`) on prepared runs by role (``fit``, ``holdout``).
 
-    The body link's ladder and diagnosis are the document's ``ladder`` and ``diagnosis`` (on runs
-    without a torque sensor: both links together, judged on the command); with a sensor and commands the
-    actuator link's are under ``actuator``; ``links`` says what these runs can tell apart. Returns the
-    ``ladder.json`` content and the last rung's fit of each link fitted. ``workers``: processes the
+    The body side's ladder and diagnosis are the document's ``ladder`` and ``diagnosis`` (on runs
+    without a torque sensor: both sides together, judged on the command); with a sensor and commands the
+    drive side's are under ``actuator``; ``links`` says what these runs can tell apart. Returns the
+    ``ladder.json`` content and the last rung's fit of each side fitted. ``workers``: processes the
     diagnoses fit their candidates on; ``cache``: fits of earlier rounds (:func:`fit_ladder`);
-    ``release_runs``: empty the lists of ``runs`` once both links have what they need of them (the caller
-    holds no other reference: a 10-minute log's runs at 1 kHz are hundreds of MB the body link does not need);
-    ``current_out``: filled with the body link's data and last rung's residual by role (:func:`model_residuals`).
+    ``release_runs``: empty the lists of ``runs`` once both sides have what they need of them (the caller
+    holds no other reference: a 10-minute log's runs at 1 kHz are hundreds of MB the body side does not need);
+    ``current_out``: filled with the body side's data and last rung's residual by role (:func:`model_residuals`).
     """
     settings = dict(settings or {})
     fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
-    joints = nominal.joint_names
-    mode = links.link_mode([*runs["fit"], *runs["holdout"]])
-    sensor = torque_sensor_of([*runs["fit"], *runs["holdout"]])
-    kept_on = dict(settings.get("links") or {})
-    for name, link in kept_on.items():
-        problem = links.kept_on_problem(name, link, mode, sensor)
-        if problem:
-            raise InputError(f"configs/{robot}/model.yaml", f"effects: '- {name}: {link}'", problem, f"write '- {name}'")
-    body_link = "combined" if mode == "commands_only" else "body"
-    body_effects = (list(effect_names) if mode == "commands_only"
-                    else links.effects_of_link(effect_names, "body", sensor, kept_on))
-    body_data = {
-        role: stack_runs([RunSamples.of(run, noise_floor_of(run)) for run in runs[role]], joints,
-                         fit_settings["fit_rate_hz"])
-        for role in ("fit", "holdout")
-    }
-    # The actuator link does not depend on the body link: on two or more threads it is fitted beside it.
-    beside = (Forked(_actuator_link, effect_names, nominal, runs, settings, robot, sensor, 1, cache, fork=workers > 1)
-              if mode == "separate" else None)
+    split = _sides_of(runs, settings, robot)
+    body_effects = split.body_effects(effect_names)
+    body_data = {role: stack_runs([RunSamples.of(run, noise_floor_of(run)) for run in runs[role]],
+                                  nominal.joint_names, fit_settings["fit_rate_hz"]) for role in ("fit", "holdout")}
+    # The drive side does not depend on the body side: on two or more threads it is fitted beside it.
+    beside = (Forked(_drive_side, effect_names, nominal, runs, settings, split, cache, fork=workers > 1)
+              if split.mode == "separate" else None)
     if release_runs:
         if beside is not None and beside.process is None:
-            beside = _Done(beside.result())  # on one process the actuator link first, while the runs are here
+            beside = _Done(beside.result())  # on one process the drive side first, while the runs are here
         for listed in runs.values():
             if isinstance(listed, list):
                 listed.clear()
     residuals: dict[str, np.ndarray] = {}
-    document, result = fit_ladder(
-        body_effects, nominal, body_data["fit"], body_data["holdout"], settings, robot, link=body_link,
-        candidates=links.candidates_of_link("body", sensor, kept_on) if mode == "separate" or sensor == "link" else None,
-        workers=workers, cache=cache, residuals_out=residuals,
-    )
+    body = fit_ladder(body_effects, FitContext.on_nominal(nominal, body_data["fit"], body_data["holdout"],
+                                                          fit_settings, workers=workers),
+                      side=split.body, candidates=split.body_candidates(), limits=settings.get("diagnosis"),
+                      cache=cache, residuals_out=residuals)
     if current_out is not None:
-        current_out.update({"link": body_link, "effects": list(body_effects),
+        current_out.update({"link": str(split.body), "effects": list(body_effects),
                             **{role: (body_data[role], residuals[role]) for role in ("fit", "holdout")}})
-    results = [result]
-    if body_link == "body":
-        _note_drive(document.get("diagnosis"), "body", sensor)
-    confounded = list(document.get("diagnosis", {}).get("confounded", []))
-    if beside is not None:
-        section, link_result = beside.result()
-        document["actuator"] = {
-            "judged": "measured torque (tau) predicted from the commanded torque (tau_cmd); no dynamics"
-            if sensor == "motor" else "link-side measured torque (tau) predicted from the commanded torque "
-            "(tau_cmd) less the drive's rotor inertia, damping and friction on the measured motion",
-            **{key: section[key] for key in ("ladder", "diagnosis", "noise_floor") if key in section},
-        }
-        _note_drive(document["actuator"].get("diagnosis"), "actuator", sensor)
-        _note_sensor_lag(document["actuator"].get("diagnosis"), link_result, result, document.get("diagnosis"))
-        for named, other, other_link in ((document.get("diagnosis"), document["actuator"].get("diagnosis"), "actuator"),
-                                         (document["actuator"].get("diagnosis"), document.get("diagnosis"), body_link)):
-            _note_other_link(named, other, other_link, sensor)
-        _note_held_on_other_link(document.get("diagnosis"), link_result.effects, "actuator", sensor)
-        _note_held_on_other_link(document["actuator"].get("diagnosis"), result.effects, body_link, sensor)
-        confounded += section.get("diagnosis", {}).get("confounded", [])
-        results.append(link_result)
-    document["links"] = round_floats(links.separability(mode, effect_names, confounded, sensor))
-    if kept_on:
-        # the user's choice, said where the links are: neither link tries the line on the other
-        document["links"]["kept_on"] = kept_on
-    contradicted = [name for name in body_effects if get_effect(name).drive] if body_link == "body" else []
-    if sensor == "link" and contradicted:
-        # The metadata put the drive before the sensor; the model the user follows fits it after: say what that means.
-        document["links"]["metadata_note"] = (
-            f"The runs say the torque sensor is link-side (torque_sensor: link), so the body link was expected to be "
-            f"the rigid body alone; yet the model fits {', '.join(contradicted)} on it, against the motion, after "
-            "the sensor. The data say part of the joint's friction or inertia acts after the sensor (output "
-            "bearings, seals) or that the sensor sits before part of the drive; the calibrated model adds it to "
-            "the joint's value.")
-    return document, results
+    drive = beside.result() if beside is not None else None
+    return _model_document(robot, body, drive, split, effect_names), [body.result] + ([drive.result] if drive else [])
+
+
+def _model_document(robot: str, body: SideLadder, drive: SideLadder | None, split: _Sides,
+                    effect_names: Sequence[str]) -> dict[str, Any]:
+    """ladder.json: the body side's ladder and diagnosis, the drive side's under ``actuator``, and what the runs can
+    tell apart under ``links`` (the sides' diagnoses with what each takes from the other)."""
+    body_diagnosis, drive_diagnosis = across_sides(body.diagnosis, drive.diagnosis if drive else None, body.result,
+                                                   drive.result if drive else None, split.sensor)
+    document = {"robot": robot, **body.document}
+    if body_diagnosis is not None:
+        document["diagnosis"] = round_floats(body_diagnosis.as_document())
+    confounded = [list(pair) for d in (body_diagnosis, drive_diagnosis) if d is not None for pair in d.confounded]
+    if drive is not None:
+        document["actuator"] = {key: drive.document[key] for key in ("ladder", "noise_floor")}
+        if drive_diagnosis is not None:
+            document["actuator"]["diagnosis"] = round_floats(drive_diagnosis.as_document())
+    document["links"] = round_floats(sides.separability(split.mode, effect_names, confounded, split.sensor))
+    if split.kept_on:
+        # the user's choice, said where the sides are: neither side tries the line on the other
+        document["links"]["kept_on"] = {name: str(side) for name, side in split.kept_on.items()}
+    contradicted = ([name for name in split.body_effects(effect_names) if get_effect(name).drive]
+                    if split.body == Side.BODY else [])
+    if split.sensor == SensorPlacement.LINK_SIDE and contradicted:
+        # The metadata put the drive before the sensor; the model the user follows fits it after it.
+        document["links"]["drive_after_sensor"] = contradicted
+    return document
 
 
 class _Done:
@@ -316,141 +317,18 @@ class _Done:
         return self.value
 
 
-def _actuator_link(
-    effect_names: Sequence[str], nominal: NominalModel, runs: Mapping[str, Sequence[PreparedRun]],
-    settings: Mapping[str, Any], robot: str, sensor: str, workers: int, cache: FitCache | None = None,
-) -> tuple[dict[str, Any], FitResult]:
-    """The actuator link's ladder and diagnosis (:func:`fit_ladder` on the command and the measured torque)."""
+def _drive_side(effect_names: Sequence[str], nominal: NominalModel, runs: Mapping[str, Sequence[PreparedRun]],
+                settings: Mapping[str, Any], split: _Sides, cache: FitCache | None = None) -> SideLadder:
+    """The drive side's ladder and diagnosis (:func:`fit_ladder` on the command and the measured torque), on one
+    process (the body side's run beside it)."""
     joints = nominal.joint_names
-    fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
-    link_data = {role: links.actuator_data(runs[role], joints) for role in ("fit", "holdout")}
-    signals = {role: links.actuator_signals(*link_data[role], nominal) for role in link_data}
-    link_settings = {**settings, "fit": {**fit_settings, **links.ACTUATOR_FIT_SETTINGS}}
-    kept_on = dict(settings.get("links") or {})
-    return fit_ladder(
-        links.effects_of_link(effect_names, "actuator", sensor, kept_on), nominal, link_data["fit"][0],
-        link_data["holdout"][0], link_settings, robot, fit_signals=signals["fit"],
-        holdout_signals=signals["holdout"], link="actuator",
-        candidates=links.candidates_of_link("actuator", sensor, kept_on), workers=workers, cache=cache,
-    )
-
-
-AGREEING_LAGS = (0.5, 1.5)  # the body link's lag over the actuator link's: the same lag, seen from both links
-
-
-def _note_sensor_lag(diagnosis: dict[str, Any] | None, actuator: FitResult, body: FitResult,
-                     body_diagnosis: Mapping[str, Any] | None = None) -> None:
-    """The actuator link judges the sensor's reading against the command, so a lag of the sensor shows there as an
-    actuation lag (a delay, a first-order lag); only the body link (the reading against the motion) tells the two
-    apart. Where the actuator link holds or names an actuation lag, its verdict says what the body link finds: the
-    sensor lag of its model (sensor_delay, sensor_lag), or its trial of one (``body_diagnosis``)."""
-    if not diagnosis:
-        return
-
-    def actuation_lag(name: str) -> bool:
-        return get_effect(name).time_shift and get_effect(name).link == "actuator"
-
-    def sensor_lag(name: str) -> bool:
-        return get_effect(name).time_shift and get_effect(name).sensor_side
-
-    def lag_value(name: str, values: Mapping[str, Any]) -> float:
-        return float(values.get(get_effect(name).nonlinear[0].name) or 0.0)
-
-    top = diagnosis["candidates"][0] if diagnosis.get("candidates") else None
-    named = diagnosis.get("status") == "add_effect" and top is not None and actuation_lag(top["effect"])
-    held = [name for name in actuator.effects if actuation_lag(name)]
-    sensor = [name for name in body.effects if sensor_lag(name)]
-    lag = sum(lag_value(name, body.values.get(name) or {}) for name in sensor)
-    if lag > 0 and (held or named or diagnosis.get("status") != "at_noise_floor"):
-        note = (f" The body link finds the torque sensor's reading {lag * 1e3:.2g} ms behind the motion "
-                f"({', '.join(sensor)}): that much of the lag this link finds between the command and the reading is "
-                "the sensor's, which this link, judging the reading against the command, counts as actuation lag; the "
-                "calibrated actuators hold only what lies beyond it (params.yaml, by_link)."
-                + (" A sensor's lag is a filter rather than a pure delay: at the command's rate its noise shows the "
-                   "difference, which no effect of this link removes." if diagnosis.get("status") == "unexplained" else ""))
-    elif (held or named) and not sensor:
-        trials = [c for c in (body_diagnosis or {}).get("candidates", []) if sensor_lag(c["effect"])]
-        # Of its shapes, the one the body link's ranking would name: the delay where the filter does no better than the
-        # data can tell (sim2real.identification.diagnosis.candidates._rank).
-        reach = min((c["evidence"]["x_floor_after"] for c in trials), default=0.0)
-        trial = min((c for c in trials if c["evidence"]["x_floor_after"]
-                     <= reach + float(DEFAULT_DIAGNOSIS["parsimony_noise_fraction"])),
-                    key=lambda c: (get_effect(c["effect"]).lowpass, c["evidence"]["x_floor_after"]), default=None)
-        own = (sum(lag_value(name, actuator.values.get(name) or {}) for name in held) if held
-               else lag_value(top["effect"], top["evidence"]["fitted"]))
-        found = lag_value(trial["effect"], trial["evidence"]["fitted"]) if trial else 0.0
-        # The body link's lag must be this one, and show above the body's noise, to say whose it is.
-        if not own or not AGREEING_LAGS[0] <= found / float(own) <= AGREEING_LAGS[1] \
-                or trial["explained_beyond_noise"] < DEFAULT_DIAGNOSIS["joint_min_explained"]:
-            return
-        note = (" This link cannot tell an actuation lag from a lag of the torque sensor (the reading lags the command "
-                f"either way); the body link can, and its trial of {trial['effect']} finds the reading {found * 1e3:.2g} ms "
-                f"behind the motion (this link: {float(own) * 1e3:.2g} ms), removing {trial['explained_beyond_noise']:.0%} "
-                f"of what lies above its floor: the lag is the sensor's. Add '- {trial['effect']}' under 'effects:' and "
-                "the calibrated actuators hold only what lies beyond it.")
-    else:
-        return
-    diagnosis["verdict"] += note
-    diagnosis["lag_note"] = note.strip()
-
-
-def _note_other_link(diagnosis: dict[str, Any] | None, other: Mapping[str, Any] | None, other_link: str,
-                     sensor: str) -> None:
-    """A line one link names sits on the other link too (a drive's friction behind a link-side sensor): where the
-    other link's own trial of it leaves a joint worse than now, above the floor factor or by more than the harm
-    tolerance, the verdict says so; the user weighs the two links (``other_link_note``). Only where the other link asks
-    for nothing itself: then its next rung is its model with this line, which its trial fitted."""
-    if not diagnosis or not other or diagnosis.get("status") != "add_effect" \
-            or other.get("status") in ("add_effect", "not_told_apart"):
-        return
-    effect = diagnosis["candidates"][0]["effect"]
-    trial = next((c for c in other.get("candidates", []) if c["effect"] == effect), None)
-    if trial is None or not links.effects_of_link([effect], other_link, sensor):
-        return
-    factor = float(DEFAULT_DIAGNOSIS["noise_floor_factor"])
-    now = {j: row["x_floor"] for j, row in (other.get("per_joint") or {}).items()}
-    after = trial["evidence"].get("per_joint_x_floor_after") or {}
-    worse = [j for j, a in now.items() if j in after and after[j] > a
-             and (after[j] > factor or after[j] > a + HARM_TOLERANCE)]
-    if not worse:
-        return
-    explains = (f"explains {trial['explained']:.0%} of its residual" if trial["explained"] > 0
-                else "explains nothing")
-    link = "body" if other_link == "actuator" else "actuator"
-    note = (f" The line sits on the {other_link} link too, where its trial {explains} and leaves "
-            + ", ".join(f"{j} at {floor_multiple(after[j])} its floor ({floor_multiple(now[j])} now)" for j in worse)
-            + f". To keep it off the {other_link} link, write the line as '- {effect}: {link}'.")
-    diagnosis["verdict"] += note
-    diagnosis["other_link_note"] = note.strip()
-
-
-def _note_held_on_other_link(diagnosis: dict[str, Any] | None, other_effects: Sequence[str], other_link: str,
-                             sensor: str) -> None:
-    """A line one link names that a line kept on the other link alone holds (coulomb_friction, where
-    '- asymmetric_friction: actuator' is kept there): added as it is, it would sit on the other link beside its more
-    general shape, which that link's own diagnosis never proposes. The verdict says to keep the new line on the link
-    that named it (``held_note``)."""
-    if not diagnosis or diagnosis.get("status") != "add_effect":
-        return
-    effect = diagnosis["candidates"][0]["effect"]
-    holder = next((held for held in other_effects if effect in NESTED_IN.get(held, ())), None)
-    if holder is None or not get_effect(effect).drive or not links.effects_of_link([effect], other_link, sensor):
-        return
-    link = "body" if other_link == "actuator" else "actuator"
-    note = (f" The {other_link} link holds it already ({holder}, kept there, a more general shape of it): write the "
-            f"line as '- {effect}: {link}', so that it is not fitted there beside {holder}.")
-    diagnosis["verdict"] += note
-    diagnosis["held_note"] = note.strip()
-
-
-def _note_drive(diagnosis: dict[str, Any] | None, link: str, sensor: str) -> None:
-    """A drive effect named where the sensor's position did not expect it: the verdict says what that means."""
-    if not diagnosis or diagnosis.get("status") != "add_effect":
-        return
-    note = links.drive_verdict_note(link, diagnosis["candidates"][0]["effect"], sensor)
-    if note:
-        diagnosis["verdict"] += note
-        diagnosis["sensor_note"] = note.strip()
+    data = {role: sides.drive_data(runs[role], joints) for role in ("fit", "holdout")}
+    signals = {role: sides.drive_signals(*data[role], nominal) for role in data}
+    context = FitContext(nominal, data["fit"][0], data["holdout"][0], signals["fit"], signals["holdout"],
+                         {**DEFAULT_SETTINGS, **settings.get("fit", {}), **sides.DRIVE_FIT_SETTINGS})
+    return fit_ladder(sides.effects_of_side(effect_names, Side.DRIVE, split.sensor, split.kept_on), context,
+                      side=Side.DRIVE, candidates=sides.candidates_of_side(Side.DRIVE, split.sensor, split.kept_on),
+                      limits=settings.get("diagnosis"), cache=cache)
 
 
 @one_blas_thread

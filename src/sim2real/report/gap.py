@@ -42,6 +42,7 @@ from sim2real.measurements import PreparedRun, measured_after_drive, noise_floor
 from sim2real.report.metrics import TorqueComparison, per_joint_dict, torque_metrics
 from sim2real.report.regimes import where_it_fails
 from sim2real.report.replay import ReplayModels, ladder_position_rmse, model_armature, state_domain
+from sim2real.report.verdicts import worded
 
 def read_model_residuals(path: str | Path, model: RigidBodyModel) -> list[TorqueComparison]:
     """The last rung's holdout comparisons from the sysid rule's residuals (:func:`sim2real.identification.sysid.write_model_residuals`):
@@ -112,9 +113,10 @@ def compute_gap(
                    "method": "white part of the raw torque from second differences (MAD), per joint; "
                              "a model that explains everything else has about this RMSE"}
     gap: dict[str, Any] = {"robot": robot, "joints": joints, "noise_floor": noise_floor}
+    sections = worded(precomputed, robot) if precomputed else {}
     for key in ("ladder", "diagnosis", "actuator", "links"):
-        if precomputed and key in precomputed:
-            gap[key] = json.loads(json.dumps(precomputed[key]))
+        if key in sections:
+            gap[key] = json.loads(json.dumps(sections[key]))
     if progress is not None:
         progress(gap, None)
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from sim2real.identification.diagnosis.caveats import BOUND_TEXT, bounds_text
 from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR
 from sim2real.report.regimes import REGIME_LABELS
+from sim2real.report.verdicts import BOUND_TEXT, bounds_text
 
 # Where the runs' tau is measured (run metadata `torque_sensor`), as gap.md says it.
 SENSOR_TEXT = {

@@ -2,21 +2,29 @@
 
 * :mod:`~sim2real.identification.diagnosis.candidates`: every effect of the library not in the model fitted on top of it as
   its rung would be, ranked by the holdout residual it removes (each joint in units of its own floor), ties
-  and confounded pairs called so, the verdict;
-* :mod:`~sim2real.identification.diagnosis.lags`: when a lag (a delay, a first-order lag) is worth a trial, and what a
-  verdict says of its two shapes;
-* :mod:`~sim2real.identification.diagnosis.caveats`: what keeps a verdict from being a clean decision (ties, inertias left
-  implausible, trades with the model) and what it must then say;
+  and confounded pairs called so (:func:`diagnose`);
+* :mod:`~sim2real.identification.diagnosis.result`: what it returns, a typed :class:`Diagnosis` whose notes are records;
+* :mod:`~sim2real.identification.diagnosis.current`: the current residual as every decision reads it;
+* :mod:`~sim2real.identification.diagnosis.lags`, :mod:`~sim2real.identification.diagnosis.screens`: when a lag or a
+  ripple is worth a trial;
+* :mod:`~sim2real.identification.diagnosis.caveats`: what keeps a verdict from being a clean decision (ties, inertias
+  left implausible or at their bounds, trades with the model);
+* :mod:`~sim2real.identification.diagnosis.across`: the rules that look across the two sides of a joint's torque (the
+  other side's trial of a line, a line kept on one side, lags, the sensor's placement);
 * :mod:`~sim2real.identification.diagnosis.ceiling`: the model-free ceiling, a flexible learner on the motion fitted to the
   last rung's residual: how much any function of the motion could still explain, and, when that is little,
   what the rest follows (time within a run, the run, the history since a reversal).
 
-The diagnosis never looks at the lab's truth.yaml: it sees only runs.
+Nothing here writes a sentence: :mod:`sim2real.report.verdicts` words the diagnosis. The diagnosis never looks at the
+lab's truth.yaml: it sees only runs.
 """
 
-from sim2real.identification.diagnosis.candidates import (  # noqa: F401  (re-exported: the package's names)
-    CONFOUNDED_NOISE_FRACTION, DEFAULT_DIAGNOSIS, LINK_TEXT, add_line, candidates_to_try, diagnose,
-    trial_fits,
+from sim2real.identification.diagnosis.candidates import (
+    CONFOUNDED_NOISE_FRACTION, DEFAULT_DIAGNOSIS, HARM_TOLERANCE, add_line, candidates_to_try, diagnose, trial_fits,
 )
-from sim2real.identification.diagnosis.caveats import NESTED_IN  # noqa: F401
-from sim2real.identification.diagnosis.ceiling import model_free_ceiling  # noqa: F401
+from sim2real.identification.diagnosis.caveats import NESTED_IN
+from sim2real.identification.diagnosis.ceiling import model_free_ceiling
+from sim2real.identification.diagnosis.result import Candidate, Diagnosis
+
+__all__ = ["CONFOUNDED_NOISE_FRACTION", "DEFAULT_DIAGNOSIS", "HARM_TOLERANCE", "NESTED_IN", "Candidate", "Diagnosis",
+           "add_line", "candidates_to_try", "diagnose", "model_free_ceiling", "trial_fits"]

@@ -14,10 +14,11 @@ but only a small share of the whole residual, so the decision is taken on it.
 
 Each candidate also carries its residual signature (:meth:`sim2real.identification.effects.base.Effect.evidence`
 on the current holdout residual), the joints it acts on (those where it removes a good share of
-that joint's residual), its fitted values and ``add``, the line to add to configs/{robot}/model.yaml.
+that joint's residual), its fitted values and ``add``, the line to add to the model's model.yaml.
 
-The diagnosis runs per link of the model (:mod:`sim2real.identification.links`): ``candidates`` are the effects
-of that link, and the verdict names the link. Candidates whose holdout predictions agree to within a
+The diagnosis runs per side of the model (:mod:`sim2real.identification.sides`): ``candidates`` are the effects
+of that side. It returns a :class:`~sim2real.identification.diagnosis.result.Diagnosis`, data the report words
+(:mod:`sim2real.report.verdicts`). Candidates whose holdout predictions agree to within a
 tenth of the noise floor are listed as ``confounded``: these data cannot tell them apart.
 
 A verdict the user can trust says when it is not a clean decision:
@@ -45,24 +46,25 @@ each joint still above its floor and the candidate that comes closest there (``p
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from sim2real.identification import fitting
-from sim2real.identification.effects import EFFECTS
-from sim2real.identification.effects.base import Signals, per_joint_dict
-from sim2real.stats import floor_multiple
-from sim2real.identification.diagnosis.caveats import (
-    NESTED_IN, SPANNED_BY, bound_changes, caveats, implausible_bodies, not_told_apart_verdict, recommend, separating_runs, ties,
-    trades_with_model,
-)
 from sim2real.forked import map_forked
+from sim2real.identification import fitting
+from sim2real.identification.diagnosis.caveats import (
+    NESTED_IN, SPANNED_BY, bound_changes, caveat_notes, implausible_bodies, recommend, ties, trades_with_model,
+)
+from sim2real.identification.diagnosis.current import CurrentResidual
+from sim2real.identification.diagnosis.lags import after_other_shape, other_shapes, same_lag, screen_lags, shapes_note
+from sim2real.identification.diagnosis.result import Candidate, Diagnosis
 from sim2real.identification.diagnosis.screens import screen_ripples
-from sim2real.identification.diagnosis.lags import (after_other_shape, other_shapes, same_lag, screen_lags,
-                                                     shapes_sentence)
+from sim2real.identification.effects import EFFECTS
+from sim2real.identification.effects.base import per_joint_dict
 from sim2real.identification.inertial import import_solver
+from sim2real.identification.records import Note, NoteKind, Side, Status
 
 DEFAULT_DIAGNOSIS: dict[str, float] = {
     "min_explained": 0.3,  # a candidate must remove this share of the holdout residual beyond the noise floor
@@ -75,14 +77,6 @@ DEFAULT_DIAGNOSIS: dict[str, float] = {
     # Nested effects (a payload is a change of the last link's inertia): a candidate with fewer parameters
     # ranks first when its holdout residual is within this fraction of the noise floor of the best one's.
     "parsimony_noise_fraction": 0.1,
-}
-
-
-# How each link is named in verdicts (sim2real.identification.links.LINK_MODES says which links a data set has).
-LINK_TEXT: dict[str, str] = {
-    "body": "the body link (measured torque against the motion)",
-    "actuator": "the actuator link (measured against commanded torque)",
-    "combined": "the commanded torque against the motion (actuator and body together: no torque sensor)",
 }
 
 
@@ -149,16 +143,6 @@ def replaced_by(name: str, model_effects: Sequence[str]) -> list[str]:
     return [held for held in model_effects if held in SPANNED_BY.get(name, ())]
 
 
-def removal_text(candidate: Mapping[str, Any]) -> str:
-    """The verdict's words after its line to add, for a candidate that replaces lines of the model (empty otherwise)."""
-    replaced = candidate.get("replaces") or []
-    if not replaced:
-        return ""
-    lines = " and ".join(f"'{add_line(r)}'" for r in replaced)
-    return (f" and remove {lines}: {candidate['effect']} holds {', '.join(replaced)} (a special case of it), and both in "
-            "one model fit the same torque twice")
-
-
 def trial_effects(model_effects: Sequence[str], name: str) -> list[str]:
     """The model a trial of ``name`` fits, as the user's model.yaml will list it: the candidate's line added at the end,
     the lines it holds removed (:func:`replaced_by`)."""
@@ -221,45 +205,28 @@ def _confounded(
     return pairs
 
 
-def _joint_text(joints: Sequence[str], before: Mapping[str, float], after: Mapping[str, float]) -> str:
-    return ", ".join(f"{j} {floor_multiple(before[j])} -> {floor_multiple(after[j])}" for j in joints)
-
-
 def candidates_to_try(model_effects: Sequence[str], torque_source: str, forward: bool,
-                      candidates: Sequence[str] | None = None) -> tuple[list[str], list[dict[str, str]]]:
+                      candidates: Sequence[str] | None = None) -> tuple[list[str], list[Note]]:
     """The effects of ``candidates`` (default: the library) :func:`diagnose` fits on top of ``model_effects``, and
-    those it does not, each with why; ``torque_source`` is the judged torque's, ``forward`` the signals' (the
-    actuator link predicts the measured torque from the command)."""
+    those it does not, each a note of why; ``torque_source`` is the judged torque's, ``forward`` the signals' (the
+    drive side predicts the measured torque from the command)."""
     tried: list[str] = []
-    skipped: list[dict[str, str]] = []
+    skipped: list[Note] = []
     for name in candidates if candidates is not None else EFFECTS:
         effect = EFFECTS[name]
         if name in model_effects:
             continue
-        if effect.per_run:
-            skipped.append({"effect": name, "reason": "estimated on every run itself, the holdout runs included, so no "
-                            "held-out run can judge it: the model-free ceiling says when each run's offsets call for "
-                            "it, and the user declares it"})
-            continue
         holder = next((held for held in model_effects if name in NESTED_IN.get(held, ())), None)
-        if holder is not None:
-            skipped.append({"effect": name, "reason": f"{holder} in the model already holds it (a special case of it)"})
-            continue
-        if effect.needs_commands and torque_source != "tau_cmd" and not forward:
-            skipped.append({
-                "effect": name,
-                "reason": "an effect of the actuator link (command -> applied torque), and the torque judged here "
-                "is measured by a sensor (tau) after it; runs that also log tau_cmd judge it on the actuator link",
-            })
-            continue
-        if effect.sensor_side and (torque_source == "tau_cmd" or forward):
-            skipped.append({
-                "effect": name,
-                "reason": "an error of the torque sensor, and these runs judge the commanded torque (tau_cmd): "
-                "on commands the same column is the actuator's (actuator_gain, command_bias)",
-            })
-            continue
-        tried.append(name)
+        if effect.per_run:
+            skipped.append(Note(NoteKind.PER_RUN, effect=name))
+        elif holder is not None:
+            skipped.append(Note(NoteKind.NESTED, effect=name, figures={"holder": holder}))
+        elif effect.needs_commands and torque_source != "tau_cmd" and not forward:
+            skipped.append(Note(NoteKind.DRIVE_BEHIND_SENSOR, effect=name))
+        elif effect.sensor_side and (torque_source == "tau_cmd" or forward):
+            skipped.append(Note(NoteKind.SENSOR_ON_COMMANDS, effect=name))
+        else:
+            tried.append(name)
     return tried, skipped
 
 
@@ -275,270 +242,238 @@ def _trial_way(item: tuple[str, Mapping[str, Any]], model_effects: Sequence[str]
     return fitting._fit_way(way, effect_names=trial_effects(model_effects, name), **inputs)
 
 
-def trial_fits(names: Sequence[str], workers: int, *, model_effects: Sequence[str], nominal: Any, fit_data: Any,
-               holdout_data: Any, nonlinear_fixed: Mapping[str, np.ndarray] | None, settings: Mapping[str, Any] | None,
-               fit_signals: Signals, holdout_signals: Signals, refinements: fitting.Refinements | None = None,
-               ) -> dict[str, tuple[fitting.FitResult, np.ndarray]]:
-    """Each candidate of ``names`` fitted as its rung will be: the current nonlinear parameters refined again or
-    held, whichever predicts better (:func:`sim2real.identification.fitting.fit_on_the_previous`); (fit, holdout residual).
+def trial_fits(names: Sequence[str], model_effects: Sequence[str], context: fitting.FitContext,
+               nonlinear_fixed: Mapping[str, np.ndarray] | None) -> dict[str, tuple[fitting.FitResult, np.ndarray]]:
+    """Each candidate of ``names`` fitted as its rung will be: the current nonlinear parameters (``nonlinear_fixed``)
+    refined again or held, whichever predicts better (:func:`sim2real.identification.fitting.fit_on_the_previous`);
+    (fit, holdout residual).
 
-    Every way of every candidate is one piece of work, on up to ``workers`` processes side by side
+    Every way of every candidate is one piece of work, on up to ``context.workers`` processes side by side
     (:func:`sim2real.forked.map_forked`: the same numbers as one after the other). The candidates' first ways
     go first (they refine, and take longest).
     """
     previous = fitting.previous_nonlinear(nonlinear_fixed)
     ways = fitting.previous_ways(previous, uncertainty=False)
     items = [(name, way) for way in ways for name in names]
-    if workers > 1 and len(items) > 1:
+    if context.workers > 1 and len(items) > 1:
         import_solver()
-    fits = map_forked(_trial_way, items, workers, {"model_effects": list(model_effects), "nominal": nominal,
-                                                    "data": fit_data, "settings": settings, "signals": fit_signals,
-                                                    "holdout_data": holdout_data, "holdout_signals": holdout_signals,
-                                                    "refinements": refinements})
+    fits = map_forked(_trial_way, items, context.workers, {
+        "model_effects": list(model_effects), "nominal": context.nominal, "data": context.fit_data,
+        "settings": context.settings, "signals": context.fit_signals, "holdout_data": context.holdout_data,
+        "holdout_signals": context.holdout_signals, "refinements": context.refinements})
     out = {}
     for name in names:
         candidate = [fit for (item_name, _), fit in zip(items, fits, strict=True) if item_name == name]
         result, residual, _ = fitting.better_way(
-            candidate, trial_effects(model_effects, name), nominal, fit_data, holdout_data,
-            {e: v for e, v in previous.items() if e not in replaced_by(name, model_effects)}, settings,
-            fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=False)
+            candidate, trial_effects(model_effects, name), context.nominal, context.fit_data, context.holdout_data,
+            {e: v for e, v in previous.items() if e not in replaced_by(name, model_effects)}, context.settings,
+            fit_signals=context.fit_signals, holdout_signals=context.holdout_signals, uncertainty=False)
         out[name] = (result, residual)
     return out
 
 
-def diagnose(
-    model_effects: Sequence[str],
-    nominal: Any,
-    fit_data: Any,
-    holdout_data: Any,
-    holdout_residual: np.ndarray,
-    settings: Mapping[str, Any] | None = None,
-    fit_signals: Signals | None = None,
-    holdout_signals: Signals | None = None,
-    robot: str = "{robot}",
-    nonlinear_fixed: Mapping[str, np.ndarray] | None = None,
-    candidates: Sequence[str] | None = None,
-    link: str = "body",
-    workers: int = 1,
-    current: fitting.FitResult | None = None,
-    refinements: fitting.Refinements | None = None,
-) -> dict[str, Any]:
-    """Rank every effect of ``candidates`` (default: the library) not in ``model_effects`` by the
-    holdout residual it removes; ``link`` names the link of the model judged (:data:`LINK_TEXT`);
-    ``current``: the current rung's fit, against which a candidate that trades places with an effect already
-    in the model is found (:func:`trades_with_model`).
-
-    ``nominal``, ``fit_data``, ``holdout_data`` are :mod:`sim2real.identification.fitting` objects; the residual is the
-    current model's holdout residual (judged minus predicted torque). Each candidate is fitted exactly
-    as its rung would be (:func:`sim2real.identification.fitting.fit`, physically consistent, the current model's
-    nonlinear parameters ``nonlinear_fixed`` held), so ``rmse_after`` is the holdout error the ladder
-    delivers when the user adds it. ``workers``: processes that fit the candidates side by side (:func:`trial_fits`);
-    ``refinements``: where their refinements are kept, for the rung of the one the user adds.
-    """
-    settings = dict(settings or {})
-    limits = {**DEFAULT_DIAGNOSIS, **settings.get("diagnosis", {})}
-    fit_signals = fit_signals or fitting.make_signals(nominal, fit_data)
-    holdout_signals = holdout_signals or fitting.make_signals(nominal, holdout_data)
-    joints = list(holdout_data.joint_names)
-    floor = np.asarray(holdout_data.noise_floor, dtype=float)
-    noise = float(np.sqrt(np.mean(floor**2)))
-    # Every decision is taken in units of each joint's own noise floor (fitting.joint_weights): a wrist
-    # residual 8x its floor weighs what a shoulder residual 8x its floor weighs, whatever their N*m.
-    unit = noise / fitting.joint_weights(floor) if noise > 0 else np.ones(len(joints))
-    scaled_now = holdout_residual / unit
-    rows = holdout_residual.shape[0]
-    sse_now = _sse(scaled_now)
-    total_now = float(sse_now.sum())
-    rmse_now = float(np.sqrt(np.mean(holdout_residual**2)))
-    x_now = np.sqrt(sse_now / max(rows, 1))  # per joint, x its floor
-    ratio = float(np.sqrt(np.mean(x_now**2)))
-    excess_now = np.clip(sse_now - rows, 0.0, None)  # per joint, above white noise at the floor
-    above = [j for j, x in zip(joints, x_now, strict=True) if x > limits["noise_floor_factor"]]
-    ranked_candidates = []
-    residuals_after: dict[str, np.ndarray] = {}
-    tried, skipped = candidates_to_try(model_effects, holdout_data.torque_source, holdout_signals.forward, candidates)
+def _tried(model_effects: Sequence[str], context: fitting.FitContext, now: CurrentResidual,
+           current: fitting.FitResult | None, limits: Mapping[str, float],
+           candidates: Sequence[str] | None) -> tuple[dict[str, tuple[fitting.FitResult, np.ndarray]], list[str], list[Note]]:
+    """The trials of the candidates worth one (screened: :mod:`~sim2real.identification.diagnosis.lags`,
+    :mod:`~sim2real.identification.diagnosis.screens`), the names tried in order and the notes of those skipped."""
+    tried, skipped = candidates_to_try(model_effects, context.holdout_data.torque_source,
+                                       context.holdout_signals.forward, candidates)
     # A lag is fitted only where it could matter (diagnosis.lags): screened, or waiting for its other shape's trial.
-    waiting = screen_lags(tried, skipped, current, nominal, holdout_data, holdout_signals, holdout_residual, unit,
-                          excess_now, x_now, limits)
+    waiting = screen_lags(tried, skipped, current, context, now, limits)
     # A ripple is fitted only where some joint's residual repeats with its position (diagnosis.screens).
-    screen_ripples(tried, skipped, current, nominal, fit_data, fit_signals, holdout_data, holdout_residual, unit,
-                   excess_now, x_now, limits)
-    trial_inputs = {"model_effects": list(model_effects), "nominal": nominal, "fit_data": fit_data,
-                    "holdout_data": holdout_data, "nonlinear_fixed": nonlinear_fixed, "settings": settings.get("fit"),
-                    "fit_signals": fit_signals, "holdout_signals": holdout_signals, "refinements": refinements}
-    trials = trial_fits(tried, workers, **trial_inputs)
-    second = after_other_shape(waiting, trials, skipped, unit, sse_now, excess_now, x_now, limits)
+    screen_ripples(tried, skipped, current, context, now, limits)
+    fixed = current.nonlinear if current is not None else None
+    trials = trial_fits(tried, model_effects, context, fixed)
+    second = after_other_shape(waiting, trials, skipped, now, limits)
     if second:
-        trials.update(trial_fits(second, workers, **trial_inputs))
+        trials.update(trial_fits(second, model_effects, context, fixed))
         tried += second
-    failed: dict[str, dict[str, float]] = {}
-    for name in tried:
-        effect = EFFECTS[name]
-        result, residual = trials[name]
-        broken = failed_trial(result, current, fit_data)
-        if broken is not None:
-            failed[name] = broken
-        scaled = residual / unit
-        sse_after = _sse(scaled)
-        gain = total_now - float(sse_after.sum()) if broken is None else 0.0
-        explained = float(np.clip(gain / total_now, 0.0, 1.0)) if total_now > 0 else 0.0
-        beyond = float(np.clip(gain / excess_now.sum(), 0.0, 1.0)) if excess_now.sum() > 0 else 0.0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            per_joint = np.clip(np.where(sse_now > 0, 1.0 - sse_after / sse_now, 0.0), 0.0, 1.0)
-            per_joint_beyond = np.clip(np.where(excess_now > 0, (sse_now - sse_after) / excess_now, 0.0), 0.0, 1.0)
-        if broken is not None:  # a failed solve removes nothing and is named nowhere
-            per_joint, per_joint_beyond = np.zeros_like(per_joint), np.zeros_like(per_joint_beyond)
-        x_after = np.sqrt(sse_after / max(rows, 1))
-        arm_wide = beyond >= limits["min_explained"] and explained >= limits["min_gain"]
-        # A joint above its floor whose excess the candidate mostly removes names it on that joint, however
-        # small that joint's share of the arm; never at the price of the arm as a whole (gain > 0).
-        # Nor at the price of another joint: one pushed further above its floor is no joint's fix.
-        harmed = [j for j, a, b in zip(joints, x_now, x_after, strict=True)
-                  if b > max(a, limits["noise_floor_factor"]) + HARM_TOLERANCE]
-        on_joints = [j for j, x, v in zip(joints, x_now, per_joint_beyond, strict=True)
-                     if x > limits["noise_floor_factor"] and v >= limits["joint_decisive"]] if gain > 0 and not harmed else []
-        # Named on the joints where its own term shows, not where the residual fell because the rest of the
-        # model no longer bends to soak it up (joint 7's friction frees the link inertias of joints 2 to 6).
-        own = _own_term_x_floor(result, name, nominal, holdout_data, holdout_signals, unit)
-        seen = [True] * len(joints) if own is None else [bool(o >= OWN_TERM_MIN) for o in own]
-        on_joints = [j for j in on_joints if seen[joints.index(j)]]
-        acting = [j for j, v, ok in zip(joints, per_joint_beyond, seen, strict=True)
-                  if v >= limits["joint_min_explained"] and ok]
-        decisive = arm_wide or bool(on_joints)
-        evidence = effect.evidence(holdout_residual, holdout_signals)
-        evidence["per_joint_explained"] = per_joint_dict(joints, per_joint, 3)
-        evidence["per_joint_explained_beyond_noise"] = per_joint_dict(joints, per_joint_beyond, 3)
-        evidence["rmse_after"] = round(float(np.sqrt(np.mean(residual**2))), 6)
-        evidence["x_floor_after"] = round(float(np.sqrt(np.mean(x_after**2))), 4)
-        evidence["per_joint_x_floor_after"] = per_joint_dict(joints, x_after, 3)
-        evidence["harmed_joints"] = harmed
-        if own is not None:
-            evidence["per_joint_own_term_x_floor"] = per_joint_dict(joints, own, 3)
-        evidence["fitted"] = result.values[name]
-        # Its own coefficients (the linear ones added to the nominal model, and the nonlinear ones): what a
-        # design that separates two confounded candidates predicts each of them adds (sim2real.excitation).
-        evidence["coefficients"] = {"linear": [float(v) for v in result.theta.get(name, [])],
-                                    "nonlinear": [float(v) for v in result.nonlinear.get(name, [])]}
-        evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
-        evidence["implausible_bodies"] = implausible_bodies(result, current)
-        evidence["bounds"] = bound_changes(result, current)
-        if broken is None:
-            residuals_after[name] = scaled
-        else:
-            evidence["fit_failed"] = broken
-        ranked_candidates.append({
-            "effect": name,
-            "link": effect.link if link == "combined" else link,  # a drive effect's follows the torque sensor
-            "joints": (acting if arm_wide else on_joints) if decisive else [],
-            "decided_on": "arm" if arm_wide else ("joints" if on_joints else None),
-            "explained": round(explained, 4),
-            "explained_beyond_noise": round(beyond, 4),
-            "decisive": decisive,
-            "evidence": evidence,
-            "add": add_line(name),
-            **({"replaces": replaced_by(name, model_effects)} if replaced_by(name, model_effects) else {}),
-        })
-    solved = [c for c in ranked_candidates if c["effect"] not in failed]
-    candidates = _rank(solved, float(limits["parsimony_noise_fraction"]))
-    candidates += [c for c in ranked_candidates if c["effect"] in failed]  # last, whatever they would have scored
-    confounded = _confounded(candidates, residuals_after, CONFOUNDED_NOISE_FRACTION, float(limits["min_gain"]))
-    tied_with_best = ties(candidates, residuals_after, rows)
-    group = [candidates[0], *tied_with_best] if tied_with_best else []  # the best and those it is not told apart from
-    if current is not None:
-        for c in (group or candidates[:1]) if candidates and candidates[0]["decisive"] else []:
-            c["evidence"]["trades_with"] = trades_with_model(trials[c["effect"]][0], current, c["effect"], nominal,
-                                                             holdout_data, holdout_signals, unit)
-    candidates, recommended = recommend(candidates, tied_with_best)
-    best = candidates[0] if candidates else None
-    where = LINK_TEXT.get(link, link)
-    x_now_map = per_joint_dict(joints, x_now, 3)
-    per_joint_status = {}
-    for j, x in zip(joints, x_now, strict=True):
+    return trials, tried, skipped
+
+
+def _scores(residual: np.ndarray, now: CurrentResidual, broken: bool,
+            limits: Mapping[str, float]) -> dict[str, Any]:
+    """What a trial's holdout residual removes of the current one: arm-wide (``explained``, ``beyond``: of the excess
+    above the floors) and per joint, and the joints it pushes further above their floor (``harmed``)."""
+    scaled = residual / now.unit
+    sse_after = _sse(scaled)
+    gain = now.total - float(sse_after.sum()) if not broken else 0.0
+    excess = now.excess
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_joint = np.clip(np.where(now.sse > 0, 1.0 - sse_after / now.sse, 0.0), 0.0, 1.0)
+        per_joint_beyond = np.clip(np.where(excess > 0, (now.sse - sse_after) / excess, 0.0), 0.0, 1.0)
+    if broken:  # a failed solve removes nothing and is named nowhere
+        per_joint, per_joint_beyond = np.zeros_like(per_joint), np.zeros_like(per_joint_beyond)
+    x_after = np.sqrt(sse_after / max(now.rows, 1))
+    harmed = [bool(b > max(a, limits["noise_floor_factor"]) + HARM_TOLERANCE)
+              for a, b in zip(now.x_floor, x_after, strict=True)]
+    return {"scaled": scaled, "gain": gain,
+            "explained": float(np.clip(gain / now.total, 0.0, 1.0)) if now.total > 0 else 0.0,
+            "beyond": float(np.clip(gain / excess.sum(), 0.0, 1.0)) if excess.sum() > 0 else 0.0,
+            "per_joint": per_joint, "per_joint_beyond": per_joint_beyond, "x_after": x_after, "harmed": harmed}
+
+
+def _evidence(name: str, trial: tuple[fitting.FitResult, np.ndarray], scores: Mapping[str, Any],
+              context: fitting.FitContext, now: CurrentResidual, current: fitting.FitResult | None,
+              own: np.ndarray | None) -> dict[str, Any]:
+    """A trial's evidence: the effect's residual signature, then what its fit removes and does."""
+    result, residual = trial
+    joints = list(context.holdout_data.joint_names)
+    evidence = EFFECTS[name].evidence(now.residual, context.holdout_signals)
+    evidence["per_joint_explained"] = per_joint_dict(joints, scores["per_joint"], 3)
+    evidence["per_joint_explained_beyond_noise"] = per_joint_dict(joints, scores["per_joint_beyond"], 3)
+    evidence["rmse_after"] = round(float(np.sqrt(np.mean(residual**2))), 6)
+    evidence["x_floor_after"] = round(float(np.sqrt(np.mean(scores["x_after"] ** 2))), 4)
+    evidence["per_joint_x_floor_after"] = per_joint_dict(joints, scores["x_after"], 3)
+    evidence["harmed_joints"] = [j for j, h in zip(joints, scores["harmed"], strict=True) if h]
+    if own is not None:
+        evidence["per_joint_own_term_x_floor"] = per_joint_dict(joints, own, 3)
+    evidence["fitted"] = result.values[name]
+    # Its own coefficients (the linear ones added to the nominal model, and the nonlinear ones): what a
+    # design that separates two confounded candidates predicts each of them adds (sim2real.excitation).
+    evidence["coefficients"] = {"linear": [float(v) for v in result.theta.get(name, [])],
+                                "nonlinear": [float(v) for v in result.nonlinear.get(name, [])]}
+    evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
+    evidence["implausible_bodies"] = implausible_bodies(result, current)
+    evidence["bounds"] = bound_changes(result, current)
+    return evidence
+
+
+def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: fitting.FitContext,
+               now: CurrentResidual, current: fitting.FitResult | None, limits: Mapping[str, float],
+               side: Side, model_effects: Sequence[str]) -> tuple[dict[str, Any], np.ndarray, dict[str, float] | None]:
+    """One tried candidate (the ranking's dict), its holdout residual in floor units, and its fit-run figures when
+    its trial failed to solve (:func:`failed_trial`)."""
+    result, _ = trial
+    joints = list(context.holdout_data.joint_names)
+    broken = failed_trial(result, current, context.fit_data)
+    scores = _scores(trial[1], now, broken is not None, limits)
+    arm_wide = scores["beyond"] >= limits["min_explained"] and scores["explained"] >= limits["min_gain"]
+    # A joint above its floor whose excess the candidate mostly removes names it on that joint, however
+    # small that joint's share of the arm; never at the price of the arm as a whole (gain > 0).
+    # Nor at the price of another joint: one pushed further above its floor is no joint's fix.
+    on_joints = [j for j, x, v in zip(joints, now.x_floor, scores["per_joint_beyond"], strict=True)
+                 if x > limits["noise_floor_factor"] and v >= limits["joint_decisive"]
+                 ] if scores["gain"] > 0 and not any(scores["harmed"]) else []
+    # Named on the joints where its own term shows, not where the residual fell because the rest of the
+    # model no longer bends to soak it up (joint 7's friction frees the link inertias of joints 2 to 6).
+    own = _own_term_x_floor(result, name, context.nominal, context.holdout_data, context.holdout_signals, now.unit)
+    seen = [True] * len(joints) if own is None else [bool(o >= OWN_TERM_MIN) for o in own]
+    on_joints = [j for j in on_joints if seen[joints.index(j)]]
+    acting = [j for j, v, ok in zip(joints, scores["per_joint_beyond"], seen, strict=True)
+              if v >= limits["joint_min_explained"] and ok]
+    decisive = arm_wide or bool(on_joints)
+    evidence = _evidence(name, trial, scores, context, now, current, own)
+    if broken is not None:
+        evidence["fit_failed"] = broken
+    return {
+        "effect": name,
+        "link": EFFECTS[name].side if side == Side.COMBINED else side,  # a drive effect's follows the torque sensor
+        "joints": (acting if arm_wide else on_joints) if decisive else [],
+        "decided_on": "arm" if arm_wide else ("joints" if on_joints else None),
+        "explained": round(scores["explained"], 4),
+        "explained_beyond_noise": round(scores["beyond"], 4),
+        "decisive": decisive,
+        "evidence": evidence,
+        "add": add_line(name),
+        **({"replaces": replaced_by(name, model_effects)} if replaced_by(name, model_effects) else {}),
+    }, scores["scaled"], broken
+
+
+def _per_joint_status(joints: Sequence[str], now: CurrentResidual,
+                      candidates: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Each joint's residual x its floor and the candidate that removes most of its excess there."""
+    out = {}
+    for j, x in zip(joints, now.x_floor, strict=True):
         closest = max(candidates, key=lambda c: c["evidence"]["per_joint_explained_beyond_noise"][j], default=None)
         if closest is not None and closest["evidence"]["per_joint_explained_beyond_noise"][j] <= 0:
             closest = None  # nothing removes any of it
-        per_joint_status[j] = {
+        out[j] = {
             "x_floor": round(float(x), 3),
             "closest": closest["effect"] if closest else None,
             "closest_explained_beyond_noise": closest["evidence"]["per_joint_explained_beyond_noise"][j] if closest else 0.0,
             "closest_x_floor_after": closest["evidence"]["per_joint_x_floor_after"][j] if closest else round(float(x), 3),
         }
-    if best is not None and best["decisive"] and recommended is None:
-        status = "not_told_apart"
-        verdict = not_told_apart_verdict(group, where, robot)
-    elif best is not None and best["decisive"]:
-        status = "add_effect"
-        after = best["evidence"]["per_joint_x_floor_after"]
-        twins = [b for a, b in confounded if a == best["effect"]] + [a for a, b in confounded if b == best["effect"]]
-        twins = [t for t in twins if t not in {c["effect"] for c in group}]  # the ties' sentence names those
-        shape_text = shapes_sentence(best, other_shapes(best, candidates, residuals_after, limits,
-                                                                   CONFOUNDED_NOISE_FRACTION))
-        twin_text = shape_text + (f" These data cannot tell it apart from {', '.join(twins)} (the same prediction to within "
-                     f"{CONFOUNDED_NOISE_FRACTION:g}x the noise floor). The run that would: "
-                     + separating_runs(best["effect"], twins, robot)
-                     + " designs it (the motion on which their fitted predictions differ most, within the limits of "
-                     f"configs/{robot}/excitation.yaml); record it and add it to the fit runs." if twins else "")
-        if best["decided_on"] == "arm":
-            reach = (f"it explains {best['explained']:.0%} of the holdout residual ({best['explained_beyond_noise']:.0%} "
-                     f"of what lies above the noise floor, each joint in units of its own floor), bringing it from "
-                     f"{floor_multiple(ratio)} to {floor_multiple(best['evidence']['x_floor_after'])} the floor ({rmse_now:.3g} to "
-                     f"{best['evidence']['rmse_after']:.3g} N*m)")
+    return out
+
+
+def _named_notes(best: Mapping[str, Any], candidates: Sequence[Mapping[str, Any]], group: Sequence[Mapping[str, Any]],
+                 confounded: Sequence[tuple[str, str]], residuals: Mapping[str, np.ndarray],
+                 limits: Mapping[str, float]) -> list[Note]:
+    """The notes of a verdict that names ``best``: its lag's other shapes, the candidates it predicts the same as
+    (beyond those tied with it), the ties and its caution."""
+    twins = [b for a, b in confounded if a == best["effect"]] + [a for a, b in confounded if b == best["effect"]]
+    twins = [t for t in twins if t not in {c["effect"] for c in group}]  # the ties' note names those
+    shapes = shapes_note(best, other_shapes(best, candidates, residuals, limits, CONFOUNDED_NOISE_FRACTION))
+    notes = [shapes] if shapes is not None else []
+    if twins:
+        notes.append(Note(NoteKind.CONFOUNDED, effect=best["effect"],
+                          figures={"twins": twins, "within": CONFOUNDED_NOISE_FRACTION}))
+    return notes + caveat_notes(best, group)
+
+
+def _status(best: Mapping[str, Any] | None, recommended: Mapping[str, Any] | None, above: Sequence[str]) -> Status:
+    if best is not None and best["decisive"]:
+        return Status.ADD_EFFECT if recommended is not None else Status.NOT_TOLD_APART
+    return Status.UNEXPLAINED if above else Status.AT_NOISE_FLOOR
+
+
+def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_residual: np.ndarray, *,
+             side: Side = Side.BODY, current: fitting.FitResult | None = None, limits: Mapping[str, float] | None = None,
+             candidates: Sequence[str] | None = None) -> Diagnosis:
+    """Rank every effect of ``candidates`` (default: the library) not in ``model_effects`` by the
+    holdout residual it removes, on ``side`` (:class:`~sim2real.identification.records.Side`).
+
+    ``context``: the side's fit context (nominal model, data and signals by role, fit settings, workers, where
+    refinements are kept); the residual is the current model's holdout residual (judged minus predicted torque);
+    ``current``: the current rung's fit, whose nonlinear parameters each trial holds or refines again and against
+    which a candidate that trades places with an effect already in the model is found (:func:`trades_with_model`);
+    ``limits``: :data:`DEFAULT_DIAGNOSIS`'s, as model.yaml's ``diagnosis`` sets them. Each candidate is fitted exactly
+    as its rung would be (:func:`sim2real.identification.fitting.fit`, physically consistent), so ``rmse_after`` is
+    the holdout error the ladder delivers when the user adds it.
+    """
+    limits = {**DEFAULT_DIAGNOSIS, **(limits or {})}
+    joints = list(context.holdout_data.joint_names)
+    now = CurrentResidual.of(holdout_residual, context.holdout_data.noise_floor)
+    above = [j for j, x in zip(joints, now.x_floor, strict=True) if x > limits["noise_floor_factor"]]
+    trials, tried, skipped = _tried(model_effects, context, now, current, limits, candidates)
+    tried_candidates, residuals_after, failed = [], {}, {}
+    for name in tried:
+        candidate, scaled, broken = _candidate(name, trials[name], context, now, current, limits, side, model_effects)
+        tried_candidates.append(candidate)
+        if broken is None:
+            residuals_after[name] = scaled
         else:
-            reach = (f"on {', '.join(best['joints'])} it removes most of what lies above the noise floor "
-                     f"({_joint_text(best['joints'], x_now_map, after)} the joint's own floor), though only "
-                     f"{best['explained']:.0%} of the arm-wide residual")
-        joint_text = f" on {', '.join(best['joints'])}" if best["joints"] else ""
-        verdict = (
-            f"On {where}, the model is missing {best['effect']}{joint_text}: {reach}. "
-            f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml{removal_text(best)}.{twin_text}"
-            + caveats(best, group, robot)
-        )
-    elif not above:
-        status = "at_noise_floor"
-        verdict = (
-            f"Nothing to add on {where}: every joint's holdout residual is within {limits['noise_floor_factor']}x its "
-            f"own noise floor (worst {max(x_now_map, key=x_now_map.get) if x_now_map else '-'} "
-            f"{floor_multiple(max(x_now_map.values()) if x_now_map else 0)}; {rmse_now:.3g} N*m against {noise:.3g} N*m arm-wide) "
-            f"and no effect removes more than {limits['min_explained']:.0%} of what lies above it."
-        )
-    else:
-        status = "unexplained"
-        details = "; ".join(
-            f"{j} {floor_multiple(per_joint_status[j]['x_floor'])} its floor"
-            + (f" (closest: {per_joint_status[j]['closest']}, removing "
-               f"{per_joint_status[j]['closest_explained_beyond_noise']:.0%} of its excess)"
-               if per_joint_status[j]["closest"] else "")
-            for j in above)
-        verdict = (
-            f"No effect in the library explains the residual on {where}: {details}. The best candidate arm-wide "
-            f"({best['effect'] if best else 'none'}) removes only {best['explained_beyond_noise'] if best else 0:.0%} "
-            "of what lies above the floor. Look at the worst windows in the gap report."
-        )
+            failed[name] = broken
+    ranked = _rank([c for c in tried_candidates if c["effect"] not in failed], float(limits["parsimony_noise_fraction"]))
+    ranked += [c for c in tried_candidates if c["effect"] in failed]  # last, whatever they would have scored
+    confounded = _confounded(ranked, residuals_after, CONFOUNDED_NOISE_FRACTION, float(limits["min_gain"]))
+    tied_with_best = ties(ranked, residuals_after, now.rows)
+    group = [ranked[0], *tied_with_best] if tied_with_best else []  # the best and those it is not told apart from
+    if current is not None:
+        for c in (group or ranked[:1]) if ranked and ranked[0]["decisive"] else []:
+            c["evidence"]["trades_with"] = trades_with_model(trials[c["effect"]][0], current, c["effect"],
+                                                             context.nominal, context.holdout_data,
+                                                             context.holdout_signals, now.unit)
+    ranked, recommended = recommend(ranked, tied_with_best)
+    best = ranked[0] if ranked else None
+    status = _status(best, recommended, above)
+    notes = _named_notes(best, ranked, group, confounded, residuals_after, limits) \
+        if status == Status.ADD_EFFECT and best is not None else []
     if failed:
-        verdict += " " + failed_text(failed)
-    return {
-        "link": link,
-        "candidates": candidates,
-        "verdict": verdict,
-        "status": status,
-        "confounded": [list(pair) for pair in confounded],
-        "tied": [c["effect"] for c in group],
-        "residual_rmse": round(rmse_now, 6),
-        "noise_floor_ratio": round(ratio, 4) if np.isfinite(ratio) else None,
-        "per_joint": per_joint_status,
-        "above_floor": above,
-        "skipped": skipped,
-        "failed": sorted(failed),
-    }
+        notes.append(Note(NoteKind.FAILED_TRIALS, figures={"failed": {k: failed[k] for k in sorted(failed)}}))
+    return Diagnosis(
+        side=side, status=status, candidates=tuple(_typed(c) for c in ranked), confounded=tuple(confounded),
+        tied=tuple(c["effect"] for c in group), residual_rmse=round(now.rmse, 6),
+        noise_floor_ratio=round(now.ratio, 4) if np.isfinite(now.ratio) else None, noise_rmse=now.noise,
+        noise_floor_factor=limits["noise_floor_factor"], min_explained=limits["min_explained"],
+        per_joint=_per_joint_status(joints, now, ranked), above_floor=tuple(above), skipped=tuple(skipped),
+        failed=tuple(sorted(failed)), notes=tuple(notes))
 
 
-def failed_text(failed: Mapping[str, Mapping[str, Any]]) -> str:
-    """The verdict's sentence on trials that did not solve (:func:`failed_trial`)."""
-    def x(value: float | None) -> str:
-        return floor_multiple(value) if value is not None else "not finite"
-
-    parts = [f"{name} ({x(figures['fit_x_floor'])} the floors on the fit runs against the model's "
-             f"{x(figures['model_fit_x_floor'])})" for name, figures in sorted(failed.items())]
-    return (f"The trial of {', '.join(parts)} did not solve: a model that extends the current one fits its runs at "
-            "least as well, so it is left out of the ranking, neither named nor ruled out. The sysid log has the "
-            "solver's messages.")
+def _typed(candidate: Mapping[str, Any]) -> Candidate:
+    return Candidate(effect=candidate["effect"], side=Side(candidate["link"]), joints=tuple(candidate["joints"]),
+                     decided_on=candidate["decided_on"], explained=candidate["explained"],
+                     explained_beyond_noise=candidate["explained_beyond_noise"], decisive=candidate["decisive"],
+                     evidence=candidate["evidence"], add=candidate["add"], replaces=tuple(candidate.get("replaces") or ()))

@@ -1,4 +1,4 @@
-"""What keeps a verdict from being a clean decision, and what it must then say.
+"""What keeps a verdict from being a clean decision, and the notes it then carries (:func:`caveat_notes`).
 
 * **Ties** (:func:`tied`, :func:`ties`): a decisive candidate named on the same joints as the best whose holdout
   residual is the best one's within the spread of their paired difference over blocks of the holdout is not told
@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification import fitting
-from sim2real.design_names import separation_name
 from sim2real.identification.diagnosis.lags import same_lag
 from sim2real.identification.effects.base import Signals
+from sim2real.identification.records import Note, NoteKind
 
 # Effects that are special cases of another: never tried once the larger one is in the model, and never a tie
 # (parsimony decides). Gaz's sigmoid with no velocity offset is a Coulomb tanh: asymmetric_friction holds
@@ -122,10 +122,6 @@ def tied(a: np.ndarray, b: np.ndarray) -> tuple[bool, float, float]:
     return abs(total) <= TIE_SPREAD * spread, total, spread
 
 
-BOUND_TEXT = {"mass_lower": "mass at its band's lower edge", "mass_upper": "mass at its band's upper edge",
-              "hull": "centre of mass on its hull", "divergence": "divergence from CAD at its bound"}
-
-
 def _bodies(result: fitting.FitResult | None) -> dict[str, Any]:
     link = ((result.values if result is not None else None) or {}).get("link_inertia") or {}
     return link.get("bodies") or {}
@@ -154,10 +150,6 @@ def bound_changes(result: fitting.FitResult, current: fitting.FitResult | None) 
     pushed = {name: [b for b in bounds if b not in then.get(name, [])] for name, bounds in now.items()}
     released = {name: [b for b in bounds if b not in now.get(name, [])] for name, bounds in then.items()}
     return {"pushes": {k: v for k, v in pushed.items() if v}, "releases": {k: v for k, v in released.items() if v}}
-
-
-def bounds_text(bodies: Mapping[str, Sequence[str]]) -> str:
-    return "; ".join(f"{name} ({', '.join(BOUND_TEXT[b] for b in bounds)})" for name, bounds in bodies.items())
 
 
 def nested_pair(a: str, b: str) -> bool:
@@ -195,20 +187,19 @@ def ties(candidates: list[dict[str, Any]], residuals: Mapping[str, np.ndarray], 
     return out
 
 
-def _trouble(candidate: Mapping[str, Any]) -> list[str]:
-    """Why a candidate would leave the model less trustworthy: inertias bent beyond plausible, or a trade with an
-    effect already in the model."""
+def troubles(candidate: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Why a candidate would leave the model less trustworthy, each a record (``kind`` and its figures): inertias bent
+    beyond plausible (``implausible``), pushed to their bounds (``bounds``), or a trade with an effect already in the
+    model (``trade``)."""
     evidence = candidate["evidence"]
-    reasons = []
+    reasons: list[dict[str, Any]] = []
     if evidence.get("implausible_bodies"):
-        reasons.append(f"it leaves link inertias implausible ({'; '.join(evidence['implausible_bodies'])})")
+        reasons.append({"kind": "implausible", "bodies": list(evidence["implausible_bodies"])})
     pushed = (evidence.get("bounds") or {}).get("pushes")
     if pushed:
-        reasons.append(f"it pushes link inertias to their bounds ({bounds_text(pushed)})")
+        reasons.append({"kind": "bounds", "bodies": {name: list(b) for name, b in pushed.items()}})
     for trade in evidence.get("trades_with", []):
-        reasons.append(f"it trades places with {trade['effect']} already in the model (the fit moves that effect's "
-                       f"term against its own, {trade['moved_x_own_term']:.2g}x its size, correlation "
-                       f"{trade['correlation']:.2f}: the prediction hardly changes, the fall is relabelled)")
+        reasons.append({"kind": "trade", **trade})
     return reasons
 
 
@@ -217,52 +208,31 @@ def recommend(candidates: list[dict[str, Any]], ties: list[dict[str, Any]],
     """The candidate to add among the best and those tied with it: the first in the ranking (:func:`_rank`: the
     best holdout residual, nested effects by parsimony) that is physically plausible (no inertia bent beyond
     plausible, no trade with the model); None when the best is tied and none of the tied is plausible. A best
-    candidate that nothing ties is recommended, its trouble said beside it (:func:`caveats`): early in the loop
+    candidate that nothing ties is recommended, its trouble said beside it (:func:`caveat_notes`): early in the loop
     bent inertias are the symptom of what is still missing. The recommended one goes first."""
     if not candidates or not candidates[0]["decisive"]:
         return candidates, None
     if not ties:
         return candidates, candidates[0]
     group = [candidates[0], *ties]
-    chosen = next((c for c in group if not _trouble(c)), None)
-    if chosen is None and all(_trouble(c) == _trouble(group[0]) for c in group):
+    chosen = next((c for c in group if not troubles(c)), None)
+    if chosen is None and all(troubles(c) == troubles(group[0]) for c in group):
         chosen = group[0]  # a condition every tied candidate shares tells none of them apart: the best, cautioned
     if chosen is None:
         return candidates, None
     return [chosen] + [c for c in candidates if c is not chosen], chosen
 
 
-def separating_runs(first: str, others: Sequence[str], robot: str) -> str:
-    return "; ".join(f"`snakemake results/{robot}/excitation/{separation_name(first, other)}.csv`" for other in others)
-
-
-def caveats(best: Mapping[str, Any], group: Sequence[Mapping[str, Any]], robot: str) -> str:
-    """What the verdict must add when its candidate is not a clean decision: ties with other candidates (and the run
-    that would separate them), inertias it leaves implausible, effects of the model it trades with."""
-    text = ""
+def caveat_notes(best: Mapping[str, Any], group: Sequence[Mapping[str, Any]]) -> list[Note]:
+    """The notes a verdict carries when its candidate is not a clean decision: ties with other candidates (and the
+    run that would separate them), and what its fit does that makes it less trustworthy (inertias implausible or
+    pushed to their bounds, effects of the model it trades with)."""
+    notes = []
     others = [c["effect"] for c in group if c["effect"] != best["effect"]]
     if others:
-        text += (f" On these runs it is not told apart from {', '.join(others)}: each removes about the same residual "
-                 f"(within {TIE_SPREAD:g} standard errors of their difference over blocks of the holdout). "
-                 + (f"{best['effect']} is recommended: it scores best of them and keeps the model plausible. "
-                    if best is group[0] else
-                    f"{best['effect']} is recommended: it keeps the model plausible, which {group[0]['effect']} does "
-                    "not. ")
-                 + f"The run that would tell them apart: {separating_runs(best['effect'], others, robot)} designs "
-                 "it; record it and add it to the fit runs.")
-    reasons = _trouble(best)
+        notes.append(Note(NoteKind.TIED, effect=best["effect"],
+                          figures={"others": others, "first": group[0]["effect"], "spread": TIE_SPREAD}))
+    reasons = troubles(best)
     if reasons:
-        text += f" Caution: {'; '.join(reasons)}."
-    return text
-
-
-def not_told_apart_verdict(group: Sequence[Mapping[str, Any]], where: str, robot: str) -> str:
-    """The verdict when the best candidates are not told apart and none keeps the model plausible: no line to add."""
-    names = [c["effect"] for c in group]
-    reasons = "; ".join(f"{c['effect']}: {', '.join(_trouble(c))}" for c in group)
-    runs = (f" The run that would tell them apart: {separating_runs(names[0], names[1:], robot)} designs it; "
-            "record it and add it to the fit runs." if len(names) > 1 else
-            f" Record a run designed for the model (`snakemake results/{robot}/excitation/identification.csv`) "
-            "and add it to the fit runs.")
-    return (f"On {where}, {' and '.join(names)} {'each remove' if len(names) > 1 else 'removes'} part of the residual, "
-            f"but no line is recommended: {reasons}. What these runs show is not yet a trustworthy effect." + runs)
+        notes.append(Note(NoteKind.CAUTION, effect=best["effect"], figures={"troubles": reasons}))
+    return notes

@@ -27,8 +27,6 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.position_ripple import best_periods
-from sim2real.identification.effects.sensor_drift import SHAPE as DRIFT_SHAPE
-from sim2real.stats import floor_multiple
 
 # The learner's holdout RMSE at or above this fraction of the rung's: what is left is not a function of the
 # motion ("within about 15 %"); below it, the library lacks an effect the motion explains.
@@ -54,29 +52,13 @@ POSITION_HARMONICS = 40
 # A ripple whose period is no whole fraction of a turn parts from those harmonics beyond the positions the fit runs
 # visit: its own period (position_ripple.best_periods, on the fit runs) and this many of its harmonics.
 PERIOD_HARMONICS = 3
-KIND_TEXT = {
-    "time": "drifts with time within each run (a warm-up, a sensor offset that wanders, or an error of the slow pose "
-    "the run moves through)",
-    "run": "is an offset that differs from run to run",
-    "history": "follows the history of the motion: the displacement since the last velocity reversal "
-    "(hysteresis, presliding friction)",
-}
-
 # What sits at an offset of its own in each run or drifts within one is the sensor's, not the robot's; yet every fit
 # takes part of it for the robot (a link inertia fitted to one run's offset misses the next run's, and a candidate
 # the library has can then fail its trial): said where the ceiling finds it, with what a user does about it.
 OFFSET_KINDS = ("time", "run")
-OFFSET_ADVICE = ("On {joints} the torque sits at an offset of its own in each run or drifts within it (a torque sensor "
-                 "warming up, or zeroed at another moment): no property of the robot, but every fit takes part of it "
-                 "for one (a link inertia fitted to one run's offset misses the next run's), so it can hide an effect "
-                 "the library has. Log once the arm has warmed up, its torque sensors zeroed at rest, and run the loop "
-                 "again")
 # ... and for runs already logged, the effect that estimates each run's drift on the run itself (never a candidate:
 # no held-out run can judge it).
 DRIFT_EFFECT = "sensor_drift"
-DECLARE_ADVICE = ("; or, for these runs, add the line '- {effect}' under 'effects:' in configs/{robot}/model.yaml: "
-                  f"each run's drift ({DRIFT_SHAPE}) is then estimated on that run itself, "
-                  "the holdout runs included, and never written into the assets.")
 
 
 def _learner(seed: int = 0) -> Any:
@@ -256,10 +238,8 @@ def _gains_most(learner: Any, features: np.ndarray, target: np.ndarray, names: S
 # Regimes of the joint's own motion where a learner's gain can concentrate (sim2real.report.regimes defines the same two
 # for the gap report; these need no model): slow motion and reversals, hard accelerations.
 GAIN_REGIMES = {
-    "slow_reversal": ("slow motion and velocity reversals",
-                      lambda qd, qdd: np.abs(qd) < 0.15 * np.percentile(np.abs(qd), 99)),
-    "hard_acceleration": ("hard accelerations",
-                          lambda qd, qdd: np.abs(qdd) > np.percentile(np.abs(qdd), 80)),
+    "slow_reversal": lambda qd, qdd: np.abs(qd) < 0.15 * np.percentile(np.abs(qd), 99),
+    "hard_acceleration": lambda qd, qdd: np.abs(qdd) > np.percentile(np.abs(qdd), 80),
 }
 CONCENTRATED = 1.5  # a regime holds the gain when its gain per sample is this many times the joint's average
 
@@ -271,7 +251,7 @@ def _gain_regime(before: np.ndarray, after: np.ndarray, qd: np.ndarray, qdd: np.
     if average <= 0:
         return None
     best, density = None, CONCENTRATED * average
-    for name, (_, inside) in GAIN_REGIMES.items():
+    for name, inside in GAIN_REGIMES.items():
         mask = inside(qd, qdd)
         if 20 <= int(mask.sum()) < mask.size and float(np.mean(gain[mask])) >= density:
             best, density = name, float(np.mean(gain[mask]))
@@ -391,7 +371,7 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
 
 def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
                        noise_floor_factor: float = 1.5, workers: int = 1, model_effects: Sequence[str] = (),
-                       robot: str = "{robot}", gravity: Callable[[np.ndarray], np.ndarray] | None = None) -> dict[str, Any]:
+                       gravity: Callable[[np.ndarray], np.ndarray] | None = None) -> dict[str, Any]:
     """The ceiling of ``diagnosis.model_free`` in gap.json (see the module docstring).
 
     ``fit_data``/``holdout_data``: :class:`sim2real.identification.fitting.TorqueData`; the residuals are the last rung's
@@ -399,8 +379,8 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
     ``at_floor``: nothing to explain, no learner fitted (``fitted`` false; the ceiling is the rung's).
     ``workers``: processes the joints' learners are fitted on side by side (:func:`sim2real.forked.map_forked`:
     each joint's numbers are those it has alone). Where joints sit at an offset of each run's own or drift within
-    it and ``model_effects`` lack :data:`DRIFT_EFFECT`, ``declare`` names it (the line of configs/``robot``/model.yaml
-    the text advises for runs already logged). ``gravity``: the nominal model's gravity torque (N, n) of positions
+    it and ``model_effects`` lack :data:`DRIFT_EFFECT`, ``declare`` names it (the line of model.yaml the report
+    advises for runs already logged). ``gravity``: the nominal model's gravity torque (N, n) of positions
     (N, n), a feature of the dynamics learner (None: it learns without), computed only where a joint is learned.
     """
     from sim2real.forked import map_forked
@@ -433,7 +413,6 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
         "close_to_rung": CLOSE_TO_RUNG,
         "per_joint": per_joint,
         **({"declare": declare} if declare else {}),
-        "text": ceiling_text(per_joint, robot if declare else None),
     }
 
 
@@ -448,57 +427,3 @@ def imitated_joints(per_joint: dict[str, Any]) -> list[str]:
     own removes at least as much, and without it the learner explains nothing more: the motion merely follows the
     run's time."""
     return [j for j, r in per_joint.items() if r["kind"] == "motion" and r.get("imitated")]
-
-
-def ceiling_text(per_joint: dict[str, Any], declare_for: str | None = None) -> str:
-    """What the ceiling says, in sentences: joints where the library lacks a function of the motion, and
-    joints where nothing of the motion explains the rest, with what it follows; ``declare_for``: the robot whose
-    model.yaml the advice on offsets names :data:`DRIFT_EFFECT` for (None: the model has it)."""
-    sentences = []
-    imitated = imitated_joints(per_joint)
-    motion = [j for j, r in per_joint.items() if r["kind"] == "motion" and j not in imitated]
-
-    def learned(j: str) -> str:
-        r = per_joint[j]
-        follows = f", mostly as a function of {' and '.join(r['gains_most_with'])}" if r["gains_most_with"] else ""
-        if r.get("gains_most_in"):
-            follows += f", most in {GAIN_REGIMES[r['gains_most_in']][0]}"
-        return f"{j} {floor_multiple(r['rung_x_floor'])} -> {floor_multiple(r['ceiling_x_floor'])} its floor{follows}"
-
-    def beside(j: str) -> str:
-        r = per_joint[j]
-        if r.get("follows") not in OFFSET_KINDS:
-            return ""
-        return (f", beside a drift of each run's own that removes {r['beyond_motion'][r['follows']]:.0%} of its excess "
-                "(the learner, fitted again without it, still explains much)")
-
-    if motion:
-        sentences.append(
-            "A flexible learner on the motion explains much of what is left, so the library lacks an effect that is "
-            f"a function of the motion: {'; '.join(learned(j) + beside(j) for j in motion)}. Model that dependence (an effect of "
-            "the library's shape; a periodic one of a joint's position is position_ripple's, one period per joint) "
-            "before trusting the rest.")
-    if imitated:
-        parts = [f"{learned(j)}, yet a drift of each run's own removes "
-                 f"{per_joint[j]['beyond_motion'][per_joint[j]['follows']]:.0%} of its excess (the learner "
-                 f"{per_joint[j]['explained_beyond_noise']:.0%}): it {KIND_TEXT[per_joint[j]['follows']]}"
-                 for j in imitated]
-        sentences.append(
-            "A learner on the motion explains part of what is left where each run's motion follows its time, and "
-            f"there it only imitates a drift: {'; '.join(parts)}.")
-    still = [j for j, r in per_joint.items() if r["kind"] == "not_motion"]
-    if still:
-        parts = []
-        for j in still:
-            r = per_joint[j]
-            what = KIND_TEXT[r["follows"]] if r["follows"] else "follows none of time within a run, the run or the " \
-                "history since a reversal (a sensor's own dynamics, noise the floor misses)"
-            parts.append(f"{j} ({floor_multiple(r['rung_x_floor'])} its floor; the learner {floor_multiple(r['ceiling_x_floor'])}): it {what}")
-        sentences.append(
-            f"No function of the motion explains the rest: a flexible learner on the motion comes within "
-            f"{1 - CLOSE_TO_RUNG:.0%} of the last rung on {', '.join(still)}. " + "; ".join(parts) + ".")
-    offsets = offset_joints(per_joint)
-    if offsets:
-        sentences.append(OFFSET_ADVICE.format(joints=", ".join(offsets)) + (
-            "." if declare_for is None else DECLARE_ADVICE.format(effect=DRIFT_EFFECT, robot=declare_for)))
-    return " ".join(sentences)

@@ -14,8 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from sim2real.identification.diagnosis.current import CurrentResidual
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.position_ripple import best_periods
+from sim2real.identification.records import Note, NoteKind
 
 # The share of what names a candidate that a screened one must be able to remove to be tried.
 SCREEN_SHARE = 0.5
@@ -50,38 +52,36 @@ def ripple_gain(fit_q: np.ndarray, fit_residual: np.ndarray, holdout_q: np.ndarr
     return np.clip(gain, 0.0, None)
 
 
-def screen_ripples(tried: list[str], skipped: list[dict[str, str]], current: Any, nominal: Any, fit_data: Any,
-                   fit_signals: Any, holdout_data: Any, holdout_residual: np.ndarray, unit: np.ndarray,
-                   excess: np.ndarray, x_now: np.ndarray, limits: Mapping[str, float]) -> None:
+def screen_ripples(tried: list[str], skipped: list[Note], current: Any, context: Any, now: CurrentResidual,
+                   limits: Mapping[str, float]) -> None:
     """Take a position ripple out of ``tried`` (into ``skipped``, with why) where no joint's residual repeats with its
     own position: one sinusoid of each joint's position, fitted on the current model's residual on the fit runs and
     judged on the holdout runs (:func:`ripple_gain`), would not remove what :func:`worth_a_trial` asks. The joints at
-    their floor are not searched: they have nothing to give. Without the current model's fit, it is tried."""
+    their floor are not searched: they have nothing to give. Without the current model's fit, it is tried.
+    ``context``: the side's :class:`sim2real.identification.fitting.FitContext`."""
     ripples = [name for name in tried if EFFECTS[name].searched]
     if not ripples or current is None:
         return
-    above = x_now > limits["noise_floor_factor"]
-    gain = np.zeros(len(x_now))
+    above = now.x_floor > limits["noise_floor_factor"]
+    gain = np.zeros(len(now.x_floor))
     if above.any():
         from sim2real.identification.fitting import predict
 
-        fit_residual = (fit_data.tau - predict(current, nominal, fit_data, fit_signals)) / unit
+        fit_data = context.fit_data
+        fit_residual = (fit_data.tau - predict(current, context.nominal, fit_data, context.fit_signals)) / now.unit
         gain[above] = ripple_gain(np.asarray(fit_data.q)[:, above], fit_residual[:, above],
-                                  np.asarray(holdout_data.q)[:, above], (holdout_residual / unit)[:, above])
-    if worth_a_trial(gain, excess, x_now, limits):
+                                  np.asarray(context.holdout_data.q)[:, above], now.scaled[:, above])
+    if worth_a_trial(gain, now.excess, now.x_floor, limits):
         return
     if not above.any():
-        reason = ("every joint's residual is within its noise floor times the diagnosis's factor: no joint's ripple "
-                  "to search for")
+        reason = Note(NoteKind.RIPPLE_AT_FLOOR)
     else:
         with np.errstate(invalid="ignore", divide="ignore"):
-            per_joint = np.where(excess > 0, gain / excess, 0.0)
-        arm = float(gain.sum() / excess.sum()) if excess.sum() > 0 else 0.0
+            per_joint = np.where(now.excess > 0, gain / now.excess, 0.0)
+        arm = float(gain.sum() / now.excess.sum()) if now.excess.sum() > 0 else 0.0
         best = int(np.argmax(np.where(above, per_joint, -1.0)))
-        reason = ("no joint's residual repeats with its own position: one sinusoid of each joint's position, its period "
-                  f"and coefficients fitted on the fit runs, would remove at most {max(arm, 0.0):.0%} of what lies "
-                  f"above the noise floor of the holdout runs ({min(per_joint[best], 1.0):.0%} on "
-                  f"{holdout_data.joint_names[best]}), under half of what names a candidate")
+        reason = Note(NoteKind.RIPPLE_SCREENED, joints=(context.holdout_data.joint_names[best],),
+                      figures={"share": max(arm, 0.0), "joint_share": min(float(per_joint[best]), 1.0)})
     for name in ripples:
         tried.remove(name)
-        skipped.append({"effect": name, "reason": reason})
+        skipped.append(Note(reason.kind, effect=name, joints=reason.joints, figures=reason.figures))

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from sim2real.identification.records import Side
 from sim2real.identification.effects.base import (ParameterSpec, correlation_per_joint, identified_actuators,
                                                   per_joint_dict)
 from sim2real.identification.effects.timing import MAX_DELAY, TimeShift, best_lag, time_derivative
@@ -25,7 +26,7 @@ class ActuationDelay(TimeShift):
     summary = "delay between commanded and applied torque"
     signature = "residual proportional to the time derivative of the torque; commanded torque leads the model"
     nonlinear = (ParameterSpec("delay", "s", 0.0, MAX_DELAY, False, "actuation delay"),)
-    link = "actuator"
+    side = Side.DRIVE
     needs_commands = True
 
     def evidence(self, residual, signals):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim2real.identification.records import Side
 from sim2real.identification.effects.base import per_joint_dict
 from sim2real.identification.effects.torque_gain import TorqueGain
 
@@ -20,7 +21,7 @@ class ActuatorGain(TorqueGain):
     name = "actuator_gain"
     summary = "motor gain error: the applied torque is the command scaled"
     signature = "residual proportional to the commanded torque itself"
-    link = "actuator"
+    side = Side.DRIVE
     needs_commands = True
     sensor_side = False  # inherits the gain column (and scales_judged) of the sensor's gain
 

@@ -10,13 +10,13 @@ An effect is a physical phenomenon the nominal rigid-body model lacks. Each one 
   calibration YAML the Xacro reads (:meth:`Effect.calibration`),
 - its residual signature (:meth:`Effect.evidence`): per-joint statistics of a residual that
   show the effect is there,
-- its ``link``: ``actuator`` (between the commanded torque and the torque applied to the joint: a
-  delay, a motor gain, a command bias) or ``body`` (between the applied torque and the motion:
-  friction, inertias, payload; and the torque sensor's own gain and bias, which measure that torque).
-  When runs log both the measured and the commanded torque, each link is fitted and judged on its
-  own (:mod:`sim2real.identification.links`). A ``drive`` effect (rotor inertia, joint friction and damping) sits
-  in the drive between the motor and the link: on the body link behind a motor-side sensor, on the
-  actuator link in front of a link-side one (:func:`sim2real.identification.links.effect_link`).
+- its ``side`` (:class:`sim2real.identification.records.Side`): ``DRIVE`` (between the commanded torque and the
+  torque applied to the joint: a delay, a motor gain, a command bias) or ``BODY`` (between the applied torque and
+  the motion: friction, inertias, payload; and the torque sensor's own gain and bias, which measure that torque).
+  When runs log both the measured and the commanded torque, each side is fitted and judged on its
+  own (:mod:`sim2real.identification.sides`). A ``drive`` effect (rotor inertia, joint friction and damping) sits
+  in the drive between the motor and the link: on the body side behind a motor-side sensor, on the
+  drive side in front of a link-side one (:func:`sim2real.identification.sides.effect_side`).
 
 Fitted values always live in one structure, ``{param_name: {joint: value}}`` for per-joint
 parameters and ``{param_name: value}`` for global ones, in SI units, as *total* values (the
@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
+
+from sim2real.identification.records import Side
 
 
 @dataclass(frozen=True)
@@ -160,8 +162,8 @@ class Effect:
     nonlinear: ClassVar[tuple[ParameterSpec, ...]] = ()  # refined by nonlinear least squares
     time_shift: ClassVar[bool] = False  # a lag of the whole prediction instead of columns (effects.timing)
     lowpass: ClassVar[bool] = False  # a time shift shaped as a first-order lag (its time constant), not a delay
-    link: ClassVar[str] = "body"  # "actuator": command -> applied torque; "body": applied torque -> motion
-    drive: ClassVar[bool] = False  # in the drive (motor to link): its link follows the torque sensor's position
+    side: ClassVar[Side] = Side.BODY  # DRIVE: command -> applied torque; BODY: applied torque -> motion
+    drive: ClassVar[bool] = False  # in the drive (motor to link): its side follows the torque sensor's placement
     needs_commands: ClassVar[bool] = False  # only observable when the judged torque is the command
     sensor_side: ClassVar[bool] = False  # an error of the torque sensor: meaningless on runs without one
     scales_judged: ClassVar[bool] = False  # its coefficient scales the whole judged torque (a gain)
@@ -183,8 +185,8 @@ class Effect:
     # sensor's drift within each run): projected out of the judged torque and of every column
     # (sim2real.identification.fitting.problem._Problem); never a candidate, since no held-out run can judge it.
     per_run: ClassVar[bool] = False
-    # In the model of every link, whatever its place (the judged torque of each link is the sensor's reading).
-    every_link: ClassVar[bool] = False
+    # In the model of every side, whatever its place (the judged torque of each side is the sensor's reading).
+    every_side: ClassVar[bool] = False
 
     # --- inverse dynamics -------------------------------------------------------------------
     def prediction_shift(self, delay: float, forward: bool) -> float:

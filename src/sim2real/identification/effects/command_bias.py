@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim2real.identification.records import Side
 from sim2real.identification.effects.base import per_joint_dict
 from sim2real.identification.effects.torque_bias import TorqueBias
 
@@ -21,7 +22,7 @@ class CommandBias(TorqueBias):
     name = "command_bias"
     summary = "constant offset between commanded and applied torque"
     signature = "residual with a nonzero mean between command and applied torque, independent of the motion"
-    link = "actuator"
+    side = Side.DRIVE
     needs_commands = True
     sensor_side = False
 

@@ -77,8 +77,8 @@ class SensorDrift(Effect):
     in_design = False
     # Estimated on every run itself (holdout runs too) instead of fitted and carried over: no held-out judgement.
     per_run = True
-    # Whichever link is judged, its judged torque is the drifting sensor's reading.
-    every_link = True
+    # Whichever side is judged, its judged torque is the drifting sensor's reading.
+    every_side = True
 
     def values(self, theta, nonlinear, signals, state):
         # Words, not numbers: each run's coefficients are that run's alone, nothing an asset or another run can use

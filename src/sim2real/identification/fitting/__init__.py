@@ -65,3 +65,4 @@ from sim2real.identification.fitting.rung import (  # noqa: F401  (re-exported: 
     previous_nonlinear, previous_ways,
     _violations,
 )
+from sim2real.identification.fitting.context import FitContext  # noqa: F401
