@@ -11,10 +11,10 @@ virtual lab (:mod:`sim2real.lab`, which implements its hidden effects itself):
 
 The methods:
 
-* ours: ``sim2real.identification.sysid.fit([effect])`` on the prepared runs (zero-phase filtered, 200 Hz grid) with
+* ours: ``sim2real.identification.fitting.fit([effect])`` on the prepared runs (zero-phase filtered, 200 Hz grid) with
   the package's 95 % block-bootstrap intervals (1 s blocks; the delay by a linearised step per
   replicate from the same blocks).
-  For the friction, each joint's value and interval come from ``sysid.fit`` on the samples where that
+  For the friction, each joint's value and interval come from ``fitting.fit`` on the samples where that
   joint slides (|qd| >= 0.1 rad/s), the smoothing velocity held at 1 mrad/s (``nonlinear_fixed``):
   seven fits, all timed as ours (:func:`_friction_ours`). On all samples our tanh(qd / v_s) cannot
   follow MuJoCo's frictionloss, a soft constraint that sticks or creeps below a joint-dependent speed
@@ -47,7 +47,7 @@ Usage: ``.venv/bin/python benchmarks/bench_sysid.py [--case friction|delay|ladde
 [--repeats 3] [--draws 32] [--lab-dir DIR]`` (``--lab-dir`` keeps the simulated runs between invocations). ``ladder``
 times our whole ladder with the diagnosis (what ``sim2real sysid`` runs) once; ``consistent`` the physically
 consistent inertial fit beside the unconstrained one; ``actuator`` the actuator link's fit (the measured
-torque against the command, :mod:`sim2real.identification.links`) per rung, with and without its bootstrap. Sections are functions registered
+torque against the command, :mod:`sim2real.identification.sides`) per rung, with and without its bootstrap. Sections are functions registered
 in ``SECTIONS``: add one there (e.g. the timing of a physically consistent inertial fit) without
 touching the others.
 """
@@ -157,10 +157,10 @@ class BenchLab:
         return yaml.safe_load(path.read_text(encoding="utf-8"))["effects"]
 
 
-def torque_data(run: Run) -> sysid.TorqueData:
+def torque_data(run: Run) -> fitting.TorqueData:
     """One run prepared (filtered, trimmed) and stacked on our fit grid."""
     prepared = prepare_run(run)
-    return sysid.stack_runs([sysid.RunSamples.of(prepared, noise_floor_of(prepared))], JOINTS, FIT_RATE_HZ)
+    return fitting.stack_runs([fitting.RunSamples.of(prepared, noise_floor_of(prepared))], JOINTS, FIT_RATE_HZ)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -180,13 +180,13 @@ class Case:
     scale: float  # SI value * scale = printed value
     truth: Callable[[BenchLab], np.ndarray]
     # Our fit with its intervals on the prepared fit run: (the result that predicts, values, (n, 2) bounds).
-    our_fit: Callable[[sysid.NominalModel, sysid.TorqueData], tuple[sysid.FitResult, np.ndarray, np.ndarray]]
-    with_values: Callable[[sysid.FitResult, sysid.NominalModel, np.ndarray], sysid.FitResult]
+    our_fit: Callable[[fitting.NominalModel, fitting.TorqueData], tuple[fitting.FitResult, np.ndarray, np.ndarray]]
+    with_values: Callable[[fitting.FitResult, fitting.NominalModel, np.ndarray], fitting.FitResult]
     toolbox_spec: Callable[[mujoco.MjSpec], None]  # case-specific model settings (before compiling)
     toolbox_parameters: Callable[[mujoco.MjSpec], Any]  # -> ms.ParameterDict
     toolbox_optimizer: str  # the faster of the toolbox's backends on this problem (see the cases)
     # (N, n) bool: the (sample, joint) entries our fit uses, when not all of them (judged on them too).
-    fitted_entries: Callable[[sysid.TorqueData], np.ndarray] | None = None
+    fitted_entries: Callable[[fitting.TorqueData], np.ndarray] | None = None
     checks: Callable[[BenchLab, np.ndarray, np.ndarray], None] | None = None  # untimed: (lab, truth, our values)
 
 
@@ -200,13 +200,13 @@ def _friction_truth(lab: BenchLab) -> np.ndarray:
     return _base_frictionloss(lab) + np.array([hidden[j] for j in JOINTS])
 
 
-def sliding_rows(data: sysid.TorqueData, joint: int, speed: float = SLIDING_SPEED) -> np.ndarray:
+def sliding_rows(data: fitting.TorqueData, joint: int, speed: float = SLIDING_SPEED) -> np.ndarray:
     """Rows where the joint slides: |qd| at least ``speed`` (its filtered velocity, our fit grid)."""
     return np.flatnonzero(np.abs(data.qd[:, joint]) >= speed)
 
 
 def _friction_ours(nominal, data, speed: float = SLIDING_SPEED, settings: dict[str, Any] | None = None):
-    """Each joint's friction from ``sysid.fit`` on the rows where that joint slides, smoothing held.
+    """Each joint's friction from ``fitting.fit`` on the rows where that joint slides, smoothing held.
 
     The lab's friction is MuJoCo's frictionloss, a soft constraint: below a joint-dependent speed
     (up to ~0.07 rad/s here, widest on the light wrist joints) it transmits less than its full value
@@ -219,31 +219,31 @@ def _friction_ours(nominal, data, speed: float = SLIDING_SPEED, settings: dict[s
     held = {"coulomb_friction": np.full(len(JOINTS), HELD_SMOOTHING_RAD_S)}
     values, bounds = np.full(len(JOINTS), np.nan), np.full((len(JOINTS), 2), np.nan)
     result = None
-    signals = sysid.make_signals(nominal, data)  # the nominal model on the run once, each joint's rows taken of it
+    signals = fitting.make_signals(nominal, data)  # the nominal model on the run once, each joint's rows taken of it
     for index, joint in enumerate(JOINTS):
         rows = sliding_rows(data, index, speed)
-        result = sysid.fit(["coulomb_friction"], nominal, data.subset(rows), settings,
+        result = fitting.fit(["coulomb_friction"], nominal, data.subset(rows), settings,
                            signals=subset_signals(signals, rows), nonlinear_fixed=held)
         values[index] = result.values["coulomb_friction"]["friction"][joint]
         bounds[index] = result.intervals.get("coulomb_friction", {}).get("friction", {}).get(joint, [np.nan] * 2)
     return _friction_with(result, nominal, values), values, bounds
 
 
-def _sliding_entries(data: sysid.TorqueData) -> np.ndarray:
+def _sliding_entries(data: fitting.TorqueData) -> np.ndarray:
     return np.abs(data.qd) >= SLIDING_SPEED
 
 
 def _friction_checks(lab: BenchLab, truth: np.ndarray, values: np.ndarray) -> None:
     """Untimed: where the bias went, and that the sliding speed is not tuned on the truth."""
     run = lab.run("bench_friction", "fit")
-    nominal = sysid.load_nominal(lab.urdf, JOINTS)
+    nominal = fitting.load_nominal(lab.urdf, JOINTS)
     data = torque_data(run)
     kept = _sliding_entries(data).mean(axis=0)
     print(f"ours uses each joint's samples with |qd| >= {SLIDING_SPEED} rad/s (v_s held at "
           f"{HELD_SMOOTHING_RAD_S * 1e3:.0f} mrad/s): "
           + ", ".join(f"{100 * k:.0f} %" for k in kept) + " of the fit run")
     print("untimed checks, deviation from the truth [%] per joint:")
-    full = sysid.fit(["coulomb_friction"], nominal, data)  # the package's fit on all samples, v_s refined
+    full = fitting.fit(["coulomb_friction"], nominal, data)  # the package's fit on all samples, v_s refined
     full_values = np.array([full.values["coulomb_friction"]["friction"][j] for j in JOINTS])
     full_bounds = np.array([full.intervals["coulomb_friction"]["friction"][j] for j in JOINTS])
     outside = np.count_nonzero((truth < full_bounds[:, 0]) | (truth > full_bounds[:, 1]))
@@ -257,7 +257,7 @@ def _friction_checks(lab: BenchLab, truth: np.ndarray, values: np.ndarray) -> No
         print(f"  {label:44s}" + "".join(f"{100 * (v / t - 1):+8.3f}" for v, t in zip(estimate, truth, strict=True)))
 
 
-def _friction_with(result, nominal, values) -> sysid.FitResult:
+def _friction_with(result, nominal, values) -> fitting.FitResult:
     theta = {**result.theta, "coulomb_friction": np.asarray(values, float) - nominal.info["friction"]}
     return dataclasses.replace(result, theta=theta)
 
@@ -286,12 +286,12 @@ def _delay_truth(lab: BenchLab) -> np.ndarray:
 
 
 def _delay_ours(nominal, data):
-    result = sysid.fit(["actuation_delay"], nominal, data)
+    result = fitting.fit(["actuation_delay"], nominal, data)
     value = float(result.values["actuation_delay"]["delay"])
     return result, np.array([value]), np.array([result.intervals["actuation_delay"]["delay"]])
 
 
-def _delay_with(result, nominal, values) -> sysid.FitResult:
+def _delay_with(result, nominal, values) -> fitting.FitResult:
     nonlinear = {**result.nonlinear, "actuation_delay": np.array([float(values[0])])}
     return dataclasses.replace(result, nonlinear=nonlinear)
 
@@ -362,7 +362,7 @@ def fit_ours(case: Case, lab: BenchLab) -> Estimate:
     """Timed: nominal model from the URDF, run preparation, the fit with its intervals."""
     run = lab.run(case.scenario, "fit")
     start = time.perf_counter()
-    nominal = sysid.load_nominal(lab.urdf, JOINTS)
+    nominal = fitting.load_nominal(lab.urdf, JOINTS)
     data = torque_data(run)
     result, values, bounds = case.our_fit(nominal, data)
     seconds = time.perf_counter() - start
@@ -393,7 +393,7 @@ def holdout_torque_rmse(case: Case, lab: BenchLab, ours: Estimate, values: np.nd
     """Holdout torque RMSE of our predictor with the given parameters: all entries, and those our fit uses."""
     result, nominal = ours.detail
     holdout = torque_data(lab.run(case.scenario, "holdout"))
-    metrics, residual = sysid.holdout_metrics(case.with_values(result, nominal, values), nominal, holdout)
+    metrics, residual = fitting.holdout_metrics(case.with_values(result, nominal, values), nominal, holdout)
     entries = case.fitted_entries(holdout) if case.fitted_entries else np.ones(residual.shape, dtype=bool)
     return float(metrics["torque_rmse"]["overall"]), float(np.sqrt(np.mean(residual[entries] ** 2)))
 
@@ -613,9 +613,10 @@ def section_ladder(ctx: Context) -> None:
     print("\n=== ladder: our whole ladder with the diagnosis on the friction runs (what `sim2real sysid` runs)")
     fit_run, holdout_run = lab.run(FRICTION.scenario, "fit"), lab.run(FRICTION.scenario, "holdout")
     start = time.perf_counter()
-    nominal = sysid.load_nominal(lab.urdf, JOINTS)
+    nominal = fitting.load_nominal(lab.urdf, JOINTS)
     fit_data, holdout_data = torque_data(fit_run), torque_data(holdout_run)
-    document, _ = sysid.fit_ladder(["coulomb_friction", "torque_bias"], nominal, fit_data, holdout_data, {}, "panda")
+    context = fitting.FitContext.on_nominal(nominal, fit_data, holdout_data, fitting.DEFAULT_SETTINGS)
+    document = sysid.fit_ladder(["coulomb_friction", "torque_bias"], context).as_document()
     seconds = time.perf_counter() - start
     for rung in document["ladder"]:
         name = " + ".join(["nominal", *rung["effects"]])
@@ -645,18 +646,18 @@ def prepared_scenario_runs(directory: Path, scenario: str, duration_s: float = 2
 
 
 def section_actuator(ctx: Context) -> None:
-    """Issue 10: the actuator link's fit (tau against tau_cmd, every sample, no dynamics), per rung, timed."""
-    from sim2real.identification import fitting, links
+    """Issue 10: the drive side's fit (tau against tau_cmd, every sample, no dynamics), per rung, timed."""
+    from sim2real.identification import fitting, sides
 
     print("\n== Actuator link: measured torque against the command (Panda, lab scenario real_arm_like_actuator, "
           "20 s runs at 1 kHz; hidden: 5 ms delay, motor gains 0.90-1.08, and the real_arm_like body) ==")
     with tempfile.TemporaryDirectory() as tmp:
         _, prepared = prepared_scenario_runs(Path(tmp), "real_arm_like_actuator")
         started = time.perf_counter()
-        link = {role: links.actuator_data(runs, PANDA_JOINTS) for role, runs in prepared.items()}
-        signals = {role: links.actuator_signals(*data) for role, data in link.items()}
+        link = {role: sides.drive_data(runs, PANDA_JOINTS) for role, runs in prepared.items()}
+        signals = {role: sides.drive_signals(*data) for role, data in link.items()}
         prepare_s = time.perf_counter() - started
-        settings = {**fitting.DEFAULT_SETTINGS, **links.ACTUATOR_FIT_SETTINGS}
+        settings = {**fitting.DEFAULT_SETTINGS, **sides.DRIVE_FIT_SETTINGS}
         fit_data, holdout = link["fit"][0], link["holdout"][0]
         floor = float(np.sqrt(np.mean(holdout.noise_floor**2)))
         print(f"data: {fit_data.n_samples} fit samples x {len(PANDA_JOINTS)} joints; noise floors and stacking "
@@ -729,9 +730,9 @@ def section_calibration(ctx: Context) -> None:
     config = load_lab_config(lab.config)
     settings = config["scenarios"][FRICTION.scenario]
     truth = _friction_truth(lab)
-    nominal = sysid.load_nominal(lab.urdf, JOINTS)
+    nominal = fitting.load_nominal(lab.urdf, JOINTS)
     variants = {"as shipped": None,
-                "without the few-blocks correction": {**sysid.DEFAULT_SETTINGS, "bootstrap_few_blocks_correction": False}}
+                "without the few-blocks correction": {**fitting.DEFAULT_SETTINGS, "bootstrap_few_blocks_correction": False}}
     scores: dict[str, list[np.ndarray]] = {name: [] for name in variants}
     for seed in range(1000, 1000 + draws):  # seeds no other case uses
         path = lab.dir / "calibration" / f"draw_{seed}.csv"
@@ -780,7 +781,7 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         ctx = Context(BenchLab(args.lab_dir or Path(tmp)), max(1, args.repeats), max(2, args.draws))
         print(f"dev Panda (example-robot-data), virtual lab runs of {LAB_DURATION_S:.0f} s at 1 kHz; "
-              f"ours: sim2real.identification.sysid.fit, {FIT_RATE_HZ:.0f} Hz grid, 95% block-bootstrap intervals; "
+              f"ours: sim2real.identification.fitting.fit, {FIT_RATE_HZ:.0f} Hz grid, 95% block-bootstrap intervals; "
               f"mujoco.sysid: {'available' if HAVE_TOOLBOX else 'NOT INSTALLED'}")
         for name in names:
             SECTIONS[name](ctx)

@@ -20,4 +20,6 @@ with rule_entry(snakemake):
         residuals_npz=snakemake.output.residuals,
         robot_settings=snakemake.params.robot,
     )
-    logging.info("diagnosis: %s", document.get("diagnosis", {}).get("verdict"))
+    diagnosis = document.get("diagnosis") or {}
+    named = (diagnosis.get("candidates") or [{}])[0].get("effect") if diagnosis.get("status") == "add_effect" else None
+    logging.info("diagnosis: %s%s (gap.md words it)", diagnosis.get("status"), f", add {named}" if named else "")

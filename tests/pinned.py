@@ -55,6 +55,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sysid_lab import FAST_FIT, Lab  # noqa: E402
 
 from sim2real.identification import sysid  # noqa: E402
+from sim2real.report.verdicts import worded  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PINNED = ROOT / "tests" / "data" / "loop_pinned.json"
@@ -76,11 +77,11 @@ def demo_effects() -> list[str]:
 
 
 def loop_document(lab: Lab, workers: int) -> dict[str, Any]:
-    """Both links' ladder.json content for the demo's effects (BLAS on one thread, as run_sysid holds it)."""
+    """Both sides' ladder.json content for the demo's effects, with its words (BLAS on one thread, as run_sysid holds it)."""
     with threadpool_limits(limits=1, user_api="blas"):
         document, _ = sysid.fit_model(demo_effects(), lab.nominal, lab.prepared(lab.measurement_list(SCENARIO)),
                                       {"fit": FAST_FIT}, "panda", workers=workers)
-    return json.loads(json.dumps(document))
+    return json.loads(json.dumps(worded(document, "panda")))
 
 
 CANDIDATE_KEYS = ("effect", "add", "decisive", "decided_on", "joints", "explained", "explained_beyond_noise")

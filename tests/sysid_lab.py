@@ -19,7 +19,10 @@ import yaml
 from threadpoolctl import threadpool_limits
 
 from gap_fixtures import build_dev_panda, build_dev_ur5, short_lab_config
-from sim2real.identification import links, sysid
+from sim2real.identification import fitting
+from sim2real.identification import sides, sysid
+from sim2real.identification.fitting import FitContext
+from sim2real.report.verdicts import worded
 from sim2real.cache import FitCache
 from sim2real.lab import load_lab_config, run_lab_scenario_run, scenario_runs
 from sim2real.measurements import noise_floor_of, load_prepared_runs
@@ -46,8 +49,8 @@ class Lab:
         self.lab_config = short_lab_config(directory, duration_s=LAB_DURATION_S, robot=robot)
         self.joints = list(load_lab_config(self.lab_config)["joints"])
         # The dev MJCF comes straight from the URDF: no extra armature, the flange is the last link.
-        self.nominal = sysid.load_nominal(self.urdf, self.joints)
-        self._data: dict[str, tuple[sysid.TorqueData, sysid.TorqueData]] = {}
+        self.nominal = fitting.load_nominal(self.urdf, self.joints)
+        self._data: dict[str, tuple[fitting.TorqueData, fitting.TorqueData]] = {}
         self._followed: dict[tuple[str, int, tuple[str, ...]], list[dict[str, Any]]] = {}
         # Documents already fitted, by what was asked: the fits are deterministic, so a test asking again (another
         # parameter of the same test, the first round of a scenario another test followed) gets a copy of the same.
@@ -89,18 +92,19 @@ class Lab:
 
     def model(self, scenario: str, effects: list[str], with_sensor: bool = True,
               cache: FitCache | None = None, kept_on: dict[str, str] | None = None) -> dict[str, Any]:
-        """ladder.json content of both links (``sysid.fit_model``); ``with_sensor=False`` drops tau; ``cache``:
+        """ladder.json content of both sides, with its words (``sysid.fit_model``, :func:`sim2real.report.verdicts.worded`); ``with_sensor=False`` drops tau; ``cache``:
         rungs and diagnoses of earlier rounds read back, as the sysid rule does; ``kept_on``: the drive lines
         model.yaml keeps on one link (``- asymmetric_friction: actuator``)."""
         # the actuator link's settings too: a test may change them to see another way of fitting
-        key = ("model", scenario, tuple(effects), with_sensor, repr(sorted(links.ACTUATOR_FIT_SETTINGS.items())),
+        key = ("model", scenario, tuple(effects), with_sensor, repr(sorted(sides.DRIVE_FIT_SETTINGS.items())),
                tuple(sorted((kept_on or {}).items())))
         if key not in self._documents:
             listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
             settings = {"fit": FAST_FIT, **({"links": dict(kept_on)} if kept_on else {})}
             with threadpool_limits(limits=1, user_api="blas"):  # one BLAS thread per worker, as in run_sysid
-                self._documents[key], _ = sysid.fit_model(effects, self.nominal, self.prepared(listing),
-                                                          settings, self.robot, workers=WORKERS, cache=cache)
+                document, _ = sysid.fit_model(effects, self.nominal, self.prepared(listing), settings, self.robot,
+                                              workers=WORKERS, cache=cache)
+                self._documents[key] = worded(document, self.robot)
         return copy.deepcopy(self._documents[key])
 
     def follow(self, scenario: str, rounds: int = 7,
@@ -148,30 +152,42 @@ class Lab:
                     kept_on[effect] = link
         return documents
 
-    def data(self, scenario: str) -> tuple[sysid.TorqueData, sysid.TorqueData]:
+    def data(self, scenario: str) -> tuple[fitting.TorqueData, fitting.TorqueData]:
         if scenario not in self._data:
             entries, prepared, _ = load_prepared_runs(self.measurement_list(scenario), self.joints, "/")
             by_role: dict[str, list[dict[str, Any]]] = {"fit": [], "holdout": []}
             for entry, run in zip(entries, prepared, strict=True):
-                by_role[entry.role].append(sysid.RunSamples.of(run, noise_floor_of(run)))
+                by_role[entry.role].append(fitting.RunSamples.of(run, noise_floor_of(run)))
             self._data[scenario] = (
-                sysid.stack_runs(by_role["fit"], self.joints, FAST_FIT["fit_rate_hz"]),
-                sysid.stack_runs(by_role["holdout"], self.joints, FAST_FIT["fit_rate_hz"]),
+                fitting.stack_runs(by_role["fit"], self.joints, FAST_FIT["fit_rate_hz"]),
+                fitting.stack_runs(by_role["holdout"], self.joints, FAST_FIT["fit_rate_hz"]),
             )
         return self._data[scenario]
 
     def ladder(self, scenario: str, effects: list[str], diagnose: bool = True,
                candidates: Sequence[str] | None = None) -> dict[str, Any]:
-        """The body link's ladder.json content (``sysid.fit_ladder``); ``candidates``: the effects its diagnosis tries
+        """The body side's ladder.json content, with its words (``sysid.fit_ladder``); ``candidates``: the effects its diagnosis tries
         (None: the library), a test's switch to withhold one."""
         key = ("ladder", scenario, tuple(effects), diagnose, None if candidates is None else tuple(candidates))
         if key not in self._documents:
             fit_data, holdout_data = self.data(scenario)
             with threadpool_limits(limits=1, user_api="blas"):
-                self._documents[key], _ = sysid.fit_ladder(effects, self.nominal, fit_data, holdout_data,
-                                                           {"fit": FAST_FIT}, self.robot, diagnose=diagnose,
-                                                           candidates=candidates, workers=WORKERS)
+                context = FitContext.on_nominal(self.nominal, fit_data, holdout_data,
+                                                {**fitting.DEFAULT_SETTINGS, **FAST_FIT}, workers=WORKERS)
+                side = sysid.fit_ladder(effects, context, diagnosed=diagnose, candidates=candidates)
+                self._documents[key] = worded({"robot": self.robot, **side.as_document()}, self.robot)
         return copy.deepcopy(self._documents[key])
+
+
+def side_ladder(effects: Sequence[str], nominal: Any, fit_data: Any, holdout_data: Any,
+                fit_settings: dict[str, Any] | None = None, robot: str = "panda", **options: Any) -> tuple[dict[str, Any], Any]:
+    """The body side's ladder.json content with its words, and its last rung's fit (``sysid.fit_ladder`` on the
+    nominal model's signals; ``fit_settings`` over the defaults; ``options``: ``workers`` and fit_ladder's own)."""
+    context = FitContext.on_nominal(nominal, fit_data, holdout_data,
+                                    {**fitting.DEFAULT_SETTINGS, **(fit_settings or {})},
+                                    workers=options.pop("workers", 1))
+    side = sysid.fit_ladder(list(effects), context, **options)
+    return worded({"robot": robot, **side.as_document()}, robot), side.result
 
 
 def overall(rung: dict[str, Any]) -> float:

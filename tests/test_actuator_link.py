@@ -69,10 +69,10 @@ def test_a_long_logs_delay_is_refined_on_windows_at_the_logs_own_step(lab, monke
     """Beyond refine_max_samples the actuator link refines on windows spread over the runs (its memory stays
     put however long the log): the delay of a few samples is found as on every sample, and the link falls to
     its floor. The cap is lowered here so that the lab's short runs exceed it."""
-    from sim2real.identification import links
+    from sim2real.identification import sides
 
-    monkeypatch.setattr(links, "ACTUATOR_FIT_SETTINGS",
-                        {**links.ACTUATOR_FIT_SETTINGS, "refine_max_samples": 4000, "refine_windows_s": 1.0})
+    monkeypatch.setattr(sides, "DRIVE_FIT_SETTINGS",
+                        {**sides.DRIVE_FIT_SETTINGS, "refine_max_samples": 4000, "refine_windows_s": 1.0})
     link = lab.model("sensor_actuation_delay", ["actuation_delay"])["actuator"]
     delay = link["ladder"][-1]["params"]["actuation_delay"]["delay"]
     assert delay == pytest.approx(0.006, abs=0.5e-3)
@@ -226,6 +226,26 @@ def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
     assert model.actuator_biasprm[motor, 0] == pytest.approx(bias) and abs(bias) < 0.05  # none hidden
 
 
+def typed(document: dict, side: str) -> "Diagnosis":
+    """A diagnosis as data (:class:`sim2real.identification.diagnosis.Diagnosis`) from the few fields a test gives:
+    its status, candidates and per-joint rows."""
+    from sim2real.identification.diagnosis import Diagnosis
+
+    candidates = [{"link": side, "joints": [], "explained_beyond_noise": c["explained"], "add": f"- {c['effect']}",
+                   **c} for c in document.get("candidates", [])]
+    return Diagnosis.from_document({
+        "link": side, "status": document["status"], "candidates": candidates, "confounded": [], "tied": [],
+        "residual_rmse": 0.1, "noise_floor_ratio": 1.0, "noise_rmse": 0.1, "noise_floor_factor": 1.5,
+        "min_explained": 0.3, "per_joint": document.get("per_joint", {}), "above_floor": [], "skipped": [],
+        "failed": [], "notes": []})
+
+
+def note_text(note) -> str:
+    from sim2real.report.verdicts import NOTE_TEXT
+
+    return NOTE_TEXT[note.kind](note, "panda").strip()
+
+
 def test_an_actuation_delay_is_called_the_sensors_lag_only_where_the_body_link_finds_the_same_lag():
     """The actuator link judges the sensor's reading against the command: a lagging sensor looks like an actuation
     delay there. Its verdict says the lag is the sensor's where the body link's trial of sensor_delay finds the same
@@ -233,18 +253,21 @@ def test_an_actuation_delay_is_called_the_sensors_lag_only_where_the_body_link_f
     actuator link's 7 ms, 45 % of what lies above the floor); never on another lag, nor on one lost in the noise."""
     from types import SimpleNamespace
 
-    from sim2real.identification.sysid import _note_sensor_lag
+    from sim2real.identification.diagnosis.across import sensor_lag
+    from sim2real.report.verdicts import verdict
 
     actuator = SimpleNamespace(effects=["actuation_delay"], values={"actuation_delay": {"delay": 0.007}})
     body = SimpleNamespace(effects=["link_inertia", "coulomb_friction"], values={})
+    calm = typed({"status": "at_noise_floor"}, "actuator")
 
     def noted(delay: float, share: float) -> str | None:
-        diagnosis = {"status": "at_noise_floor", "verdict": "Nothing to add.", "candidates": []}
-        trial = {"effect": "sensor_delay", "explained_beyond_noise": share,
+        trial = {"effect": "sensor_delay", "explained": share, "explained_beyond_noise": share, "decisive": False,
                  "evidence": {"fitted": {"delay": delay}, "x_floor_after": 1.2}}
-        _note_sensor_lag(diagnosis, actuator, body, {"candidates": [trial]})
-        assert diagnosis["verdict"].startswith("Nothing to add.")
-        return diagnosis.get("lag_note")
+        note = sensor_lag(calm, actuator, body, typed({"status": "at_noise_floor", "candidates": [trial]}, "body"))
+        if note is None:
+            return None
+        assert verdict(calm.with_notes(note), "panda") == verdict(calm, "panda") + " " + note_text(note)
+        return note_text(note)
 
     note = noted(0.0075, 0.45)
     assert note is not None and "7.5 ms" in note and "the lag is the sensor's" in note and "- sensor_delay" in note
@@ -254,20 +277,18 @@ def test_an_actuation_delay_is_called_the_sensors_lag_only_where_the_body_link_f
 
     def named_shape(filter_after: float) -> str:
         """The line the note asks for when the body link tried both shapes of the sensor's lag."""
-        diagnosis = {"status": "at_noise_floor", "verdict": "Nothing to add.", "candidates": []}
-        trials = [{"effect": "sensor_delay", "explained_beyond_noise": 0.45,
+        trials = [{"effect": "sensor_delay", "explained": 0.45, "explained_beyond_noise": 0.45, "decisive": False,
                    "evidence": {"fitted": {"delay": 0.0075}, "x_floor_after": 1.2}},
-                  {"effect": "sensor_lag", "explained_beyond_noise": 0.5,
+                  {"effect": "sensor_lag", "explained": 0.5, "explained_beyond_noise": 0.5, "decisive": False,
                    "evidence": {"fitted": {"time_constant": 0.0077}, "x_floor_after": filter_after}}]
-        _note_sensor_lag(diagnosis, actuator, body, {"candidates": trials})
-        return "sensor_lag" if "- sensor_lag" in diagnosis["lag_note"] else "sensor_delay"
+        note = sensor_lag(calm, actuator, body, typed({"status": "at_noise_floor", "candidates": trials}, "body"))
+        return "sensor_lag" if "- sensor_lag" in note_text(note) else "sensor_delay"
 
     assert named_shape(1.15) == "sensor_delay"  # no better than the data can tell: the plainer shape
     assert named_shape(1.0) == "sensor_lag"  # clearly better: the filter
     with_it = SimpleNamespace(effects=["link_inertia", "sensor_delay"], values={"sensor_delay": {"delay": 0.0046}})
-    diagnosis = {"status": "unexplained", "verdict": "No effect explains it.", "candidates": []}
-    _note_sensor_lag(diagnosis, actuator, with_it, None)
-    assert "4.6 ms behind the motion (sensor_delay)" in diagnosis["lag_note"] and "filter" in diagnosis["lag_note"]
+    note = sensor_lag(typed({"status": "unexplained"}, "actuator"), actuator, with_it, None)
+    assert "4.6 ms behind the motion (sensor_delay)" in note_text(note) and "filter" in note_text(note)
 
 
 def test_a_line_one_link_names_says_what_its_trial_does_on_the_other_link():
@@ -282,39 +303,30 @@ def test_a_line_one_link_names_says_what_its_trial_does_on_the_other_link():
     import json
     from pathlib import Path
 
-    from sim2real.identification.sysid import _note_other_link
+    from sim2real.identification.diagnosis.across import other_side
 
     data = json.loads((Path(__file__).parent / "data" / "real_panda_log_round8_diagnoses.json").read_text())
-    actuator = copy.deepcopy(data["actuator"])
-    _note_other_link(actuator, data["body"], "body", "link")
-    assert actuator["other_link_note"] == ("The line sits on the body link too, where its trial explains nothing and "
-                                           "leaves panda_joint2 at 1.51x its floor (1.46x now). To keep it off the "
-                                           "body link, write the line as '- asymmetric_friction: actuator'.")
-    assert actuator["verdict"] == data["actuator"]["verdict"] + " " + actuator["other_link_note"]
-
-    body = copy.deepcopy(data["body"])  # at its floor: it names nothing, so it has nothing to say of the other link
-    _note_other_link(body, data["actuator"], "actuator", "link")
-    assert body == data["body"]
+    actuator, body = typed(data["actuator"], "actuator"), typed(data["body"], "body")
+    assert note_text(other_side(actuator, body, "link")) == (
+        "The line sits on the body link too, where its trial explains nothing and leaves panda_joint2 at 1.51x its "
+        "floor (1.46x now). To keep it off the body link, write the line as '- asymmetric_friction: actuator'.")
+    # at its floor the body link names nothing, so it has nothing to say of the other link
+    assert other_side(body, actuator, "link") is None
 
     calm = copy.deepcopy(data["body"])  # a trial that leaves every joint where it is: nothing to say
     for candidate in calm["candidates"]:
         candidate["evidence"]["per_joint_x_floor_after"] = {j: row["x_floor"] for j, row in calm["per_joint"].items()}
-    untouched = copy.deepcopy(data["actuator"])
-    _note_other_link(untouched, calm, "body", "link")
-    assert untouched == data["actuator"]
+    assert other_side(actuator, typed(calm, "body"), "link") is None
 
     asking = copy.deepcopy(data["body"])  # the other link names a line of its own: its next rung is not this trial
     asking["status"] = "add_effect"
-    untouched = copy.deepcopy(data["actuator"])
-    _note_other_link(untouched, asking, "body", "link")
-    assert untouched == data["actuator"]
+    assert other_side(actuator, typed(asking, "body"), "link") is None
 
     lag = copy.deepcopy(data["actuator"])  # a line the other link does not fit (an actuation lag): whatever its numbers
     lag["candidates"][0]["effect"] = "actuation_lag"
     harmed = copy.deepcopy(data["body"])
     harmed["candidates"][0]["effect"] = "actuation_lag"
-    _note_other_link(lag, harmed, "body", "link")
-    assert "other_link_note" not in lag
+    assert other_side(typed(lag, "actuator"), typed(harmed, "body"), "link") is None
 
 
 def test_a_drive_line_kept_on_the_actuator_link_stays_off_the_body_link(lab):
@@ -345,7 +357,7 @@ def test_a_drive_line_kept_on_the_actuator_link_stays_off_the_body_link(lab):
 
     with pytest.raises(InputError, match=r"model\.yaml.*asymmetric_friction: actuator.*motor-side"):
         fit_model(effects, lab.nominal, lab.prepared(lab.measurement_list("real_arm_like")), kept, lab.robot)
-    with pytest.raises(InputError, match="fit one link only"):
+    with pytest.raises(InputError, match="fit one side only"):
         fit_model(effects, lab.nominal, lab.prepared(lab.without_sensor("link_side_sensor")), kept, lab.robot)
 
 
@@ -358,20 +370,20 @@ def test_a_line_the_other_link_holds_in_a_kept_line_is_kept_on_the_link_that_nam
     import json
     from pathlib import Path
 
-    from sim2real.identification.sysid import _note_held_on_other_link
+    from sim2real.identification.diagnosis.across import held_on_other_side
+    from sim2real.identification.records import Side
+    from sim2real.report.verdicts import verdict
 
     data = json.loads((Path(__file__).parent / "data" / "real_panda_log_round8_diagnoses.json").read_text())
     named = copy.deepcopy(data["actuator"])  # a verdict of the loop's own, its top candidate made coulomb_friction
     named["candidates"][0]["effect"] = "coulomb_friction"
-    body = copy.deepcopy(named)
-    _note_held_on_other_link(body, ["coulomb_friction", "asymmetric_friction"], "actuator", "link")
-    assert body["held_note"] == ("The actuator link holds it already (asymmetric_friction, kept there, a more general "
-                                 "shape of it): write the line as '- coulomb_friction: body', so that it is not fitted "
-                                 "there beside asymmetric_friction.")
-    assert body["verdict"] == named["verdict"] + " " + body["held_note"]
+    body = typed(named, "body")
+    note = held_on_other_side(body, ["coulomb_friction", "asymmetric_friction"], Side.DRIVE, "link")
+    assert note_text(note) == ("The actuator link holds it already (asymmetric_friction, kept there, a more general "
+                               "shape of it): write the line as '- coulomb_friction: body', so that it is not fitted "
+                               "there beside asymmetric_friction.")
+    assert verdict(body.with_notes(note), "panda") == verdict(body, "panda") + " " + note_text(note)
 
     for other_effects, sensor in ((["coulomb_friction", "rotor_inertia"], "link"),  # not held there
                                   (["asymmetric_friction"], "motor")):  # behind a motor-side sensor: not fitted there
-        untouched = copy.deepcopy(named)
-        _note_held_on_other_link(untouched, other_effects, "actuator", sensor)
-        assert untouched == named
+        assert held_on_other_side(body, other_effects, Side.DRIVE, sensor) is None

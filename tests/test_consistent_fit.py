@@ -11,10 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sim2real.identification import fitting
 from sim2real.identification import sysid
 from sim2real.identification.effects.link_inertia import correction_anchors
 from sim2real.identification.inertial import inside_ellipsoids, physically_consistent, pseudo_inertia
-from sysid_lab import FAST_FIT, Lab, overall
+from sysid_lab import FAST_FIT, Lab, overall, side_ladder
 
 REALISTIC = ["real_arm_like", "heavy_links_and_armature", "payload_and_armature"]
 
@@ -83,7 +84,7 @@ def test_following_the_diagnosis_lowers_the_error_to_the_noise_floor(lab, scenar
 
 def test_identified_link_inertias_are_consistent_and_say_what_moved(lab):
     fit_data, _ = lab.data("real_arm_like")
-    result = sysid.fit(["link_inertia", "coulomb_friction"], lab.nominal, fit_data, FAST_FIT, uncertainty=False)
+    result = fitting.fit(["link_inertia", "coulomb_friction"], lab.nominal, fit_data, FAST_FIT, uncertainty=False)
     values = result.values["link_inertia"]
     state = result.states["link_inertia"]
     delta = state["basis"] @ result.theta["link_inertia"] + state["null_offset"]
@@ -107,11 +108,11 @@ def test_data_that_contradict_a_positive_mass_are_reported_not_hidden(lab):
     """Torque logged with the wrong sign: only negative masses fit; the rung says so."""
     fit_data, holdout = lab.data("clean")
     flipped = [
-        sysid.TorqueData(d.joint_names, d.time, d.q, d.qd, d.qdd, -d.tau, d.segments, d.run_names, d.torque_source,
+        fitting.TorqueData(d.joint_names, d.time, d.q, d.qd, d.qdd, -d.tau, d.segments, d.run_names, d.torque_source,
                          d.has_commands, d.noise_floor)
         for d in (fit_data, holdout)
     ]
-    document, _ = sysid.fit_ladder(["link_inertia"], lab.nominal, *flipped, {"fit": FAST_FIT}, "panda", diagnose=False)
+    document, _ = side_ladder(["link_inertia"], lab.nominal, *flipped, FAST_FIT, diagnosed=False)
     rung = document["ladder"][1]
     assert rung["consistency"]["unconstrained_physical"] is False
     assert rung["consistency"]["contradiction"] is True
@@ -161,8 +162,8 @@ def test_a_solution_outside_the_physical_set_is_reported_not_asserted(lab, monke
 
     monkeypatch.setattr(conic.ConicForm, "solve", outside)
     fit_data, holdout = lab.data("clean")
-    document, _ = sysid.fit_ladder(["link_inertia"], lab.nominal, fit_data, holdout,
-                                   {"fit": {**FAST_FIT, "inertia_regularization": 0.01}}, "panda", diagnose=False)
+    document, _ = side_ladder(["link_inertia"], lab.nominal, fit_data, holdout,
+                              {**FAST_FIT, "inertia_regularization": 0.01}, diagnosed=False)
     rung = document["ladder"][1]
     assert rung["consistency"]["status"] == "infeasible", rung["consistency"]
     assert any("indefinite" in note and "UNCONSTRAINED" in note for note in rung["notes"]), rung["notes"]

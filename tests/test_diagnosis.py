@@ -9,7 +9,7 @@ from threadpoolctl import threadpool_limits
 
 from sim2real.identification import fitting, sysid
 from sim2real.stats import rmse
-from sysid_lab import FAST_FIT, WORKERS, Lab, overall
+from sysid_lab import FAST_FIT, WORKERS, Lab, overall, side_ladder
 
 SINGLE_EFFECTS = [
     "viscous_friction", "coulomb_friction", "rotor_inertia", "actuation_delay",
@@ -113,8 +113,7 @@ def test_a_trial_that_does_not_solve_is_reported_not_ranked_as_explaining_nothin
     monkeypatch.setattr(fitting, "_fit_way", failing_link_inertia)
     fit_data, holdout_data = lab.data("payload")
     with threadpool_limits(limits=1, user_api="blas"):
-        document, _ = sysid.fit_ladder([], lab.nominal, fit_data, holdout_data, {"fit": FAST_FIT}, "panda",
-                                       workers=WORKERS)
+        document, _ = side_ladder([], lab.nominal, fit_data, holdout_data, FAST_FIT, workers=WORKERS)
     diagnosis = document["diagnosis"]
     assert diagnosis["failed"] == ["link_inertia"]
     assert diagnosis["candidates"][0]["effect"] == "payload" and diagnosis["status"] == "add_effect"

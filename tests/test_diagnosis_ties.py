@@ -15,24 +15,32 @@ import numpy as np
 import pytest
 
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
+from sysid_lab import side_ladder
+from sim2real.identification import fitting
 from sim2real.identification import sysid
 from sim2real.identification.diagnosis.caveats import (
-    bound_changes, caveats, implausible_bodies, nested_pair, recommend, tied,
+    bound_changes, caveat_notes, implausible_bodies, nested_pair, recommend, tied,
 )
+from sim2real.report.verdicts import NOTE_TEXT
 from sim2real.design_names import separation_name
+
+def caveats(best: dict, group: list) -> str:
+    """The words the report gives a named candidate's caveats (sim2real.report.verdicts)."""
+    return "".join(NOTE_TEXT[note.kind](note, "panda") for note in caveat_notes(best, group))
+
 
 FAST = {"fit": {"fit_rate_hz": 100.0, "bootstrap_replicates": 20, "refine_max_samples": 1500}}
 
 
 @pytest.fixture(scope="module")
 def wrist_friction() -> dict:
-    nominal = sysid.load_nominal(PANDA_URDF, PANDA_JOINTS, {"panda_joint*": 0.1}, "panda_link8")
+    nominal = fitting.load_nominal(PANDA_URDF, PANDA_JOINTS, {"panda_joint*": 0.1}, "panda_link8")
     dry, viscous = np.zeros(len(PANDA_JOINTS)), np.zeros(len(PANDA_JOINTS))
     dry[-1], viscous[-1] = 0.03, 0.15  # N*m and N*m*s/rad on joint 7, the noise 0.01 N*m
     hidden = {"coulomb_friction": dry, "viscous_friction": viscous}
-    data = [sysid.stack_runs([make_run(name, hidden, seed, duration=12.0, noise=0.01)], PANDA_JOINTS, 100.0)
+    data = [fitting.stack_runs([make_run(name, hidden, seed, duration=12.0, noise=0.01)], PANDA_JOINTS, 100.0)
             for name, seed in (("fit", 5), ("holdout", 6))]
-    document, _ = sysid.fit_ladder([], nominal, data[0], data[1], FAST, "panda")
+    document, _ = side_ladder([], nominal, data[0], data[1], FAST["fit"])
     return document["diagnosis"]
 
 
@@ -103,8 +111,8 @@ def test_a_candidate_is_judged_on_what_it_changes_never_on_the_state_it_inherits
     assert chosen is keeps and ranked[0] is keeps, "a tie of two that each keep or improve the state: the best"
     ranked, chosen = recommend([pushes, keeps], [keeps])
     assert chosen is keeps, "of a tie, the one that pushes no new bound"
-    assert "pushes link inertias to their bounds (panda_link4 (centre of mass on its hull))" in caveats(pushes, [pushes], "panda")
-    assert "Caution" not in caveats(keeps, [keeps], "panda")
+    assert "pushes link inertias to their bounds (panda_link4 (centre of mass on its hull))" in caveats(pushes, [pushes])
+    assert "Caution" not in caveats(keeps, [keeps])
     both = _candidate("stribeck_friction", pushed, current, 1.12)
     ranked, chosen = recommend([pushes, both], [both])
     assert chosen is pushes, "the same new bound on every tied candidate: the best, cautioned"

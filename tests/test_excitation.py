@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from buildtree import run_snakemake
 from readme import copy_built
+from sim2real.report.verdicts import worded
 from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.errors import InputError
 from sim2real.excitation.config import load_designs
@@ -211,8 +212,8 @@ def test_the_run_that_separates_confounded_candidates(designed: Path, tmp_path: 
     for run in ("fit", "holdout"):
         run_lab_scenario_run(mjcf, lab_config, "panda", "slow_viscous", run, tmp_path / f"{run}.parquet")
     ladder = tmp_path / "ladder.json"
-    before = run_sysid("panda", urdf, robot, model, runs("fit", "holdout"), ladder, tmp_path / "p.yaml",
-                       tmp_path / "c.yaml")["diagnosis"]
+    before = worded(run_sysid("panda", urdf, robot, model, runs("fit", "holdout"), ladder, tmp_path / "p.yaml",
+                              tmp_path / "c.yaml"), "panda")["diagnosis"]
     assert ["viscous_friction", "coulomb_friction"] in before["confounded"]
     assert f"`snakemake results/panda/excitation/{separating}.csv`" in before["verdict"]
 

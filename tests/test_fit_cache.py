@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
+from sim2real.identification import fitting
 from sim2real.identification import sysid
 from sim2real.cache import ROUND_MARK, FitCache, digest
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
@@ -20,8 +21,8 @@ from test_sysid import _write_real_log
 
 
 def test_digest_follows_every_value_and_nothing_else():
-    data = sysid.stack_runs([make_run("a", {}, 1, duration=2.0)], PANDA_JOINTS)
-    same = sysid.stack_runs([make_run("a", {}, 1, duration=2.0)], PANDA_JOINTS)
+    data = fitting.stack_runs([make_run("a", {}, 1, duration=2.0)], PANDA_JOINTS)
+    same = fitting.stack_runs([make_run("a", {}, 1, duration=2.0)], PANDA_JOINTS)
     assert digest(data, ["coulomb_friction"]) == digest(same, ["coulomb_friction"])
     moved = dataclasses.replace(data, tau=data.tau.copy())
     moved.tau[5, 3] = np.nextafter(moved.tau[5, 3], np.inf)  # one bit of one sample
@@ -93,7 +94,7 @@ def test_a_round_after_one_added_line_refits_only_the_new_rung_and_writes_the_sa
     (tmp_path / "robot.yaml").write_text(yaml.safe_dump({"armature": {"panda_joint*": 0.1}, "flange": "panda_link8"}))
     settings = "fit: {bootstrap_replicates: 10, fit_rate_hz: 100}\ndiagnosis: {}\n"
     fitted = []
-    original = sysid.fit_on_the_previous
+    original = fitting.fit_on_the_previous
 
     def counted(effects, *args, **kwargs):
         fitted.append(list(effects))
@@ -140,11 +141,11 @@ def test_the_bodies_mesh_bounds_are_kept_and_follow_the_meshes(tmp_path, monkeyp
     calls = []
     real = nominal_module._mesh_bounds
     monkeypatch.setattr(nominal_module, "_mesh_bounds", lambda *a: calls.append(1) or real(*a))
-    plain = sysid.load_nominal(urdf, PANDA_JOINTS)
+    plain = fitting.load_nominal(urdf, PANDA_JOINTS)
     assert calls == []  # without a cache they are read when first asked for: a friction fit never reads them
     plain_ellipsoids = plain.info["mesh_bounds"].ellipsoids
     cache = FitCache(tmp_path / "fits")
-    kept = [sysid.load_nominal(urdf, PANDA_JOINTS, cache=FitCache(tmp_path / "fits")) for _ in range(2)]
+    kept = [fitting.load_nominal(urdf, PANDA_JOINTS, cache=FitCache(tmp_path / "fits")) for _ in range(2)]
     assert len(calls) == 2  # once without the cache, once to fill it
     assert digest(kept[1].info) == digest(plain.info)
     assert all((a is None and b is None) or np.array_equal(a, b)
@@ -156,10 +157,10 @@ def test_the_bodies_mesh_bounds_are_kept_and_follow_the_meshes(tmp_path, monkeyp
     local = tmp_path / Path(source).name
     shutil.copy(source, local)
     urdf.write_text(text.replace(f'filename="{collision}"', f'filename="{local.name}"'))
-    sysid.load_nominal(urdf, PANDA_JOINTS, cache=cache)
+    fitting.load_nominal(urdf, PANDA_JOINTS, cache=cache)
     assert len(calls) == 3
-    sysid.load_nominal(urdf, PANDA_JOINTS, cache=cache)
+    fitting.load_nominal(urdf, PANDA_JOINTS, cache=cache)
     assert len(calls) == 3
     local.write_bytes(local.read_bytes() + b"\n")
-    sysid.load_nominal(urdf, PANDA_JOINTS, cache=cache)
+    fitting.load_nominal(urdf, PANDA_JOINTS, cache=cache)
     assert len(calls) == 4

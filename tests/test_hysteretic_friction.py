@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
+from sysid_lab import side_ladder
+from sim2real.identification import fitting
 from sim2real.identification.fitting import RunSamples
 from sim2real.identification import sysid
 from sim2real.identification.effects import apply_to_spec, get_effect
@@ -49,11 +51,11 @@ def _dahl_run(name: str, seed: int, level: float, presliding: float) -> RunSampl
 
 
 def test_the_fit_recovers_the_level_and_the_presliding_length():
-    nominal = sysid.load_nominal(PANDA_URDF, PANDA_JOINTS, {"panda_joint*": 0.1}, "panda_link8")
-    data = [sysid.stack_runs([_dahl_run(n, s, 0.3, 0.04)], PANDA_JOINTS) for n, s in (("fit", 3), ("holdout", 4))]
+    nominal = fitting.load_nominal(PANDA_URDF, PANDA_JOINTS, {"panda_joint*": 0.1}, "panda_link8")
+    data = [fitting.stack_runs([_dahl_run(n, s, 0.3, 0.04)], PANDA_JOINTS) for n, s in (("fit", 3), ("holdout", 4))]
     settings = {"fit": {"bootstrap_replicates": 20, "refine_max_samples": 1500}}
-    document, result = sysid.fit_ladder(["hysteretic_friction"], nominal, data[0], data[1], settings, "panda",
-                                        diagnose=False)
+    document, result = side_ladder(["hysteretic_friction"], nominal, data[0], data[1], settings["fit"],
+                                   diagnosed=False)
     values = result.values["hysteretic_friction"]
     for joint in PANDA_JOINTS:
         assert values["level"][joint] == pytest.approx(0.3, rel=0.1), joint

@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
+from sim2real.identification import fitting
 from sim2real.errors import InputError
 from sim2real.lab import EFFECTS, load_lab_config, run_lab_scenario_run, simulate_run, write_truth
 from sim2real.measurements import load_run
@@ -594,12 +595,12 @@ def _last_rung_x_floor(lab, measurements: Path) -> tuple[list, np.ndarray]:
     holdout residual per joint x its floor)."""
     from sim2real.identification import sysid
     from sim2real.measurements import load_prepared_runs, noise_floor_of
-    from sysid_lab import FAST_FIT
+    from sysid_lab import FAST_FIT, side_ladder
 
     entries, prepared, _ = load_prepared_runs(measurements, PANDA_JOINTS, "/")
-    data = [sysid.stack_runs([sysid.RunSamples.of(p, noise_floor_of(p)) for e, p in zip(entries, prepared)
+    data = [fitting.stack_runs([fitting.RunSamples.of(p, noise_floor_of(p)) for e, p in zip(entries, prepared)
                               if e.role == role], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]) for role in ("fit", "holdout")]
-    document, _ = sysid.fit_ladder(DEMO_EFFECTS, lab.nominal, *data, {"fit": FAST_FIT}, "panda", diagnose=False)
+    document, _ = side_ladder(DEMO_EFFECTS, lab.nominal, *data, FAST_FIT, diagnosed=False)
     return prepared, np.array(list(document["ladder"][-1]["metrics"]["torque_x_floor"]["per_joint"].values()))
 
 

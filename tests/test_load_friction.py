@@ -18,7 +18,8 @@ from sim2real.errors import InputError
 from sim2real.identification.diagnosis.caveats import NESTED_IN, SPANNED_BY
 from sim2real.identification.effects import EFFECTS, apply_to_spec, calibration_from_params, get_effect
 from sim2real.identification.effects.base import Signals
-from sim2real.identification.links import candidates_of_link
+from sim2real.identification.records import Side
+from sim2real.identification.sides import candidates_of_side
 from sysid_lab import Lab
 
 FACTOR = 1.5
@@ -69,7 +70,7 @@ def test_its_columns_are_linear_in_the_unloaded_level_and_the_load_coefficient()
 
 def test_it_holds_coulomb_friction_and_replaces_its_line():
     assert "coulomb_friction" in NESTED_IN["load_friction"] and "coulomb_friction" in SPANNED_BY["load_friction"]
-    assert "load_friction" in candidates_of_link("body")
+    assert "load_friction" in candidates_of_side(Side.BODY)
     assert get_effect("load_friction").needs_model_torque  # designs compute the nominal torque it reads
 
 
@@ -148,7 +149,7 @@ def test_with_load_friction_withheld_the_ceiling_calls_the_rest_a_function_of_th
     """The same arm with load_friction withheld from the candidates (the library as it was): the loop names
     coulomb_friction and then nothing; the ceiling, which sees each joint's predicted torque and velocity sign, calls
     what the loaded joints keep a function of the motion and names the torque."""
-    candidates = [e for e in candidates_of_link("body") if e != "load_friction"]
+    candidates = [e for e in candidates_of_side(Side.BODY) if e != "load_friction"]
     first = lab.ladder("load_friction", [], candidates=candidates)
     assert first["diagnosis"]["status"] == "add_effect"
     assert first["diagnosis"]["candidates"][0]["effect"] == "coulomb_friction", first["diagnosis"]["verdict"]

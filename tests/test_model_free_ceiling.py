@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim2real.identification.diagnosis import model_free_ceiling
+from sim2real.identification.diagnosis import model_free_ceiling as ceiling_data
+from sim2real.report.verdicts import ceiling_text
 from sim2real.identification.diagnosis.ceiling import since_reversal
 from sim2real.identification.fitting import TorqueData
 
@@ -36,6 +37,12 @@ def motion(seed: int, duration: float = 20.0, trend: float = 0.0) -> tuple[np.nd
     q[:, 0] += trend * t
     qd[:, 0] += trend
     return t, q, qd, qdd
+
+
+def model_free_ceiling(*args, **options) -> dict:
+    """The ceiling's document with the words the report gives it (``text``)."""
+    result = ceiling_data(*args, **options)
+    return {**result, "text": ceiling_text(result, "{robot}")}
 
 
 def data(name: str, seed: int, residual_of, trend: float = 0.0) -> tuple[TorqueData, np.ndarray]:

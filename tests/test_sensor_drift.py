@@ -19,7 +19,9 @@ from hypothesis import strategies as st
 
 import sysid_lab
 from sim2real.excitation.config import identification_effects
-from sim2real.identification import fitting, links
+from sim2real.identification import fitting, sides
+from sim2real.identification.records import Side
+from sim2real.report.verdicts import skip_reason
 from sim2real.identification.diagnosis import candidates_to_try
 from sim2real.identification.effects import EFFECTS, apply_to_spec, calibration_from_params
 from sim2real.identification.effects.sensor_drift import DEGREE, SETTLING, remove_runs, run_bases
@@ -109,15 +111,15 @@ def test_it_is_declared_never_proposed_and_holds_a_torque_bias():
     model, it holds a constant offset (torque_bias is a special case of it) and sits in every link's model."""
     tried, skipped = candidates_to_try(["link_inertia"], "tau", False)
     assert "sensor_drift" not in tried and "torque_bias" in tried
-    reason = {s["effect"]: s["reason"] for s in skipped}["sensor_drift"]
+    reason = {s.effect: skip_reason(s) for s in skipped}["sensor_drift"]
     assert reason.startswith("estimated on every run itself, the holdout runs included")
     tried, skipped = candidates_to_try(["link_inertia", "sensor_drift"], "tau", False)
     assert "torque_bias" not in tried
-    assert {s["effect"]: s["reason"] for s in skipped}["torque_bias"].startswith("sensor_drift in the model already")
+    assert {s.effect: skip_reason(s) for s in skipped}["torque_bias"].startswith("sensor_drift in the model already")
     model = ["link_inertia", "sensor_drift", "actuation_delay"]
-    assert links.effects_of_link(model, "body") == ["link_inertia", "sensor_drift"]
-    assert links.effects_of_link(model, "actuator") == ["sensor_drift", "actuation_delay"]
-    told = [name for fact in links.separability("separate", model, [])["can_tell"] for name in fact["effects"]]
+    assert sides.effects_of_side(model, Side.BODY) == ["link_inertia", "sensor_drift"]
+    assert sides.effects_of_side(model, Side.DRIVE) == ["sensor_drift", "actuation_delay"]
+    told = [name for fact in sides.separability("separate", model, [])["can_tell"] for name in fact["effects"]]
     assert "link_inertia" in told and "sensor_drift" not in told, "told apart from nothing: it is never judged"
 
 

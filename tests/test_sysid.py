@@ -11,6 +11,8 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from sysid_lab import side_ladder
+from sim2real.identification import fitting
 from sim2real.identification import sysid
 from sim2real.errors import InputError
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
@@ -20,11 +22,11 @@ FAST = {"fit_rate_hz": 100.0, "bootstrap_replicates": 50, "refine_max_samples": 
 
 @pytest.fixture(scope="module")
 def nominal():
-    return sysid.load_nominal(PANDA_URDF, PANDA_JOINTS, {"panda_joint*": 0.1}, "panda_link8")
+    return fitting.load_nominal(PANDA_URDF, PANDA_JOINTS, {"panda_joint*": 0.1}, "panda_link8")
 
 
 def _data(hidden, seeds):
-    return sysid.stack_runs([make_run(f"r{s}", hidden, s, duration=12.0) for s in seeds], PANDA_JOINTS)
+    return fitting.stack_runs([make_run(f"r{s}", hidden, s, duration=12.0) for s in seeds], PANDA_JOINTS)
 
 
 @pytest.mark.parametrize(
@@ -38,7 +40,7 @@ def _data(hidden, seeds):
     ],
 )
 def test_per_joint_effects_are_recovered_inside_their_intervals(nominal, effect, hidden, param, truth):
-    result = sysid.fit([effect], nominal, _data(hidden, [1, 2]), FAST)
+    result = fitting.fit([effect], nominal, _data(hidden, [1, 2]), FAST)
     for joint in PANDA_JOINTS:
         value = result.values[effect][param][joint]
         lo, hi = result.intervals[effect][param][joint]
@@ -202,13 +204,13 @@ def test_a_long_logs_block_is_scaled_chunk_by_chunk_to_the_same_bits(samples, jo
 
 
 def test_payload_and_delay_are_recovered(nominal):
-    payload = sysid.fit(["payload"], nominal, _data({"payload": (1.2, [0.02, 0.0, 0.12])}, [3]), FAST)
+    payload = fitting.fit(["payload"], nominal, _data({"payload": (1.2, [0.02, 0.0, 0.12])}, [3]), FAST)
     assert payload.values["payload"]["mass"] == pytest.approx(1.2, rel=0.02)
     assert payload.values["payload"]["com_in_last_link"] == pytest.approx([0.02, 0.0, 0.12], abs=0.005)
     assert payload.values["payload"]["link"] == "panda_link8"  # reported at the flange, as the Xacro wants it
     delayed = _data({"actuation_delay": 0.012}, [4])
     assert delayed.torque_source == "tau_cmd"
-    delay = sysid.fit(["actuation_delay"], nominal, delayed, FAST)
+    delay = fitting.fit(["actuation_delay"], nominal, delayed, FAST)
     assert delay.values["actuation_delay"]["delay"] == pytest.approx(0.012, abs=0.002)
     # The delay has an interval like the linear parameters (a linearised step per bootstrap replicate). It
     # is statistical: on this 100 Hz grid the linear interpolation of the shift biases the delay ~0.2 ms.
@@ -220,8 +222,8 @@ def test_payload_and_delay_are_recovered(nominal):
 def test_ladder_falls_rung_by_rung_and_is_deterministic(nominal):
     hidden = {"coulomb_friction": [0.5] * 7, "rotor_inertia": [0.2] * 7}
     fit_data, holdout = _data(hidden, [5]), _data(hidden, [6])
-    first, _ = sysid.fit_ladder(["coulomb_friction", "rotor_inertia"], nominal, fit_data, holdout, {"fit": FAST})
-    again, _ = sysid.fit_ladder(["coulomb_friction", "rotor_inertia"], nominal, fit_data, holdout, {"fit": FAST})
+    first, _ = side_ladder(["coulomb_friction", "rotor_inertia"], nominal, fit_data, holdout, FAST)
+    again, _ = side_ladder(["coulomb_friction", "rotor_inertia"], nominal, fit_data, holdout, FAST)
     assert json.dumps(first, sort_keys=True) == json.dumps(again, sort_keys=True)
     rmse = [r["metrics"]["torque_rmse"]["overall"] for r in first["ladder"]]
     assert rmse[0] > rmse[1] > rmse[2]
@@ -261,7 +263,7 @@ def test_real_log_mode_without_commands(tmp_path):
         out / "ladder.json", out / "params.yaml", out / "calibration.yaml", root=tmp_path,
     )
     assert document["state_domain"]["status"] == "skipped"
-    assert "no commanded torque" in document["state_domain"]["reason"]
+    assert document["state_domain"]["reason"] == "no_commands"  # nothing to replay
     assert "actuation_delay" in [s["effect"] for s in document["diagnosis"]["skipped"]]
     rmse = [r["metrics"]["torque_rmse"]["overall"] for r in document["ladder"]]
     assert rmse[1] < 0.3 * rmse[0]
@@ -302,4 +304,4 @@ def test_a_drive_line_can_be_kept_on_one_link_and_only_a_drive_line(tmp_path):
 def test_runs_mixing_torque_sources_are_refused(nominal):
     runs = [make_run("a", {}, 1, duration=3.0), make_run("b", {"actuation_delay": 0.01}, 2, duration=3.0)]
     with pytest.raises(InputError, match="torque sources"):
-        sysid.stack_runs(runs, PANDA_JOINTS)
+        fitting.stack_runs(runs, PANDA_JOINTS)

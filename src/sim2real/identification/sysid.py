@@ -50,6 +50,12 @@ class SideLadder:
     result: FitResult
     diagnosis: Diagnosis | None
 
+    def as_document(self) -> dict[str, Any]:
+        """The side's ``ladder.json`` content with its diagnosis's document (a side judged alone)."""
+        if self.diagnosis is None:
+            return dict(self.document)
+        return {**self.document, "diagnosis": round_floats(self.diagnosis.as_document())}
+
 
 def state_domain_status(data: TorqueData) -> dict[str, str]:
     """The state-domain refinement replays commands in MuJoCo: skipped here, and why (``no_commands``: the runs have

@@ -422,7 +422,9 @@ def _why(why: str, sensor: str) -> str:
 
 
 def sides_section(links: Mapping[str, Any]) -> dict[str, Any]:
-    """gap.json's ``links``: ladder.json's with its words."""
+    """gap.json's ``links``: ladder.json's with its words (one that has them already as it is)."""
+    if "text" in links:
+        return copy.deepcopy(dict(links))
     sensor = links.get("torque_sensor", SensorPlacement.MOTOR_SIDE)
     out = {key: copy.deepcopy(value) for key, value in links.items() if key != "drive_after_sensor"}
     out["text"] = MODE_TEXT[links["mode"]]
@@ -444,7 +446,10 @@ DATA_ONLY = ("notes", "noise_rmse", "noise_floor_factor", "min_explained")
 
 
 def diagnosis_section(document: Mapping[str, Any], robot: str) -> dict[str, Any]:
-    """gap.json's ``diagnosis`` (or ``actuator.diagnosis``): ladder.json's with its words."""
+    """gap.json's ``diagnosis`` (or ``actuator.diagnosis``): ladder.json's with its words (one that has them already,
+    worded or written by a release before the words moved here, as it is)."""
+    if "verdict" in document:
+        return copy.deepcopy(dict(document))
     d = Diagnosis.from_document(document)
     out = {key: copy.deepcopy(value) for key, value in document.items() if key not in DATA_ONLY}
     out["verdict"] = verdict(d, robot)
