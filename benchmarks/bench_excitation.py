@@ -114,7 +114,7 @@ def main() -> None:
             listing.write_text(yaml.safe_dump({"runs": [
                 {"name": "fit", "path": f"results/panda/lab/{scenario}/fit.parquet", "role": "fit"},
                 {"name": "holdout", "path": holdout, "role": "holdout"}]}))
-            _, prepared, _ = load_prepared_runs(listing, joints, tree)
+            prepared = load_prepared_runs(listing, joints, tree)
             fit_run = prepared[0]
             step = max(1, len(fit_run.time) // 2000)
             cond = condition_number(ident.matrix(fit_run.q[::step], fit_run.qd[::step], fit_run.qdd[::step]))

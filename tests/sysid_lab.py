@@ -83,9 +83,8 @@ class Lab:
 
     def prepared(self, measurement_list: Path) -> dict[str, list[Any]]:
         """Prepared runs of a measurement list, by role."""
-        entries, prepared, _ = load_prepared_runs(measurement_list, self.joints, "/")
-        return {role: [run for entry, run in zip(entries, prepared, strict=True) if entry.role == role]
-                for role in ("fit", "holdout")}
+        prepared = load_prepared_runs(measurement_list, self.joints, "/")
+        return {"fit": list(prepared.fit), "holdout": list(prepared.holdout)}
 
     def model(self, scenario: str, effects: list[str], with_sensor: bool = True,
               cache: FitCache | None = None, kept_on: dict[str, str] | None = None) -> dict[str, Any]:
@@ -150,14 +149,11 @@ class Lab:
 
     def data(self, scenario: str) -> tuple[sysid.TorqueData, sysid.TorqueData]:
         if scenario not in self._data:
-            entries, prepared, _ = load_prepared_runs(self.measurement_list(scenario), self.joints, "/")
-            by_role: dict[str, list[dict[str, Any]]] = {"fit": [], "holdout": []}
-            for entry, run in zip(entries, prepared, strict=True):
-                by_role[entry.role].append(sysid.RunSamples.of(run, noise_floor_of(run)))
-            self._data[scenario] = (
-                sysid.stack_runs(by_role["fit"], self.joints, FAST_FIT["fit_rate_hz"]),
-                sysid.stack_runs(by_role["holdout"], self.joints, FAST_FIT["fit_rate_hz"]),
-            )
+            prepared = load_prepared_runs(self.measurement_list(scenario), self.joints, "/")
+            self._data[scenario] = tuple(
+                sysid.stack_runs([sysid.RunSamples.of(run, noise_floor_of(run)) for run in runs], self.joints,
+                                 FAST_FIT["fit_rate_hz"])
+                for runs in (prepared.fit, prepared.holdout))
         return self._data[scenario]
 
     def ladder(self, scenario: str, effects: list[str], diagnose: bool = True,

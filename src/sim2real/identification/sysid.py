@@ -483,15 +483,13 @@ def run_sysid(
 
     model_config = load_model_config(model_config_path)
     robot_config = dict(robot_settings) if robot_settings is not None else (read_yaml(robot_config_path) or {})
-    entries, prepared, _ = runs_for_model(measurement_list, urdf_path, root, FIT_ARRAYS)
-    joints = prepared[0].joint_names
+    runs = runs_for_model(measurement_list, urdf_path, root, FIT_ARRAYS)
+    joints = runs[0].joint_names
     cache = FitCache(cache_dir)
     nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"), cache=cache,
                            inertia_bands=InertiaBands.of_robot(robot_config))
-    by_role: dict[str, list[PreparedRun]] = {"fit": [], "holdout": []}
-    for entry, run in zip(entries, prepared, strict=True):
-        by_role[entry.role].append(run)
-    del prepared, run  # by_role holds the runs alone: fit_model empties it once the links have what they need
+    by_role: dict[str, list[PreparedRun]] = {"fit": list(runs.fit), "holdout": list(runs.holdout)}
+    del runs  # by_role holds the runs alone: fit_model empties it once the links have what they need
     for role in ("fit", "holdout"):
         if not by_role[role]:
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
