@@ -104,9 +104,9 @@ def main() -> None:
         joints = settings.joints
         nominal = load_nominal(tree / "results/panda/panda.urdf", joints, robot["armature"], robot["flange"])
         dyn = nominal.dynamics
-        ident = Identification(nominal, identification_effects(model["effects"]), settings.per_joint("noise_floor"),
+        ident = Identification(nominal, identification_effects(model.effects), settings.per_joint("noise_floor"),
                                dyn.lower, dyn.upper, dyn.velocity_limit, settings.per_joint("acceleration_limit"))
-        print(f"model: {', '.join(model['effects'])}")
+        print(f"model: {', '.join(model.effects)}")
         rows = []
         for (label, scenario), holdout in [(case, h) for h in HOLDOUTS for case in CASES.items()]:
             print(f"  {label}: fit on {scenario}/fit, judged on {holdout}")

@@ -144,8 +144,9 @@ def test_model_yaml(tmp_path_factory: pytest.TempPathFactory, doc: Any) -> None:
 
     path = dump(tmp_path_factory.mktemp("model") / "model.yaml", doc)
 
-    def valid(config: dict) -> None:
-        assert set(config["effects"]) <= set(EFFECTS) and len(set(config["effects"])) == len(config["effects"])
+    def valid(config: Any) -> None:
+        assert set(config.effects) <= set(EFFECTS) and len(set(config.effects)) == len(config.effects)
+        assert set(config.sides) <= set(config.effects) and set(config.sides.values()) <= {"body", "actuator"}
 
     holds(lambda: load_model_config(path), path, [path], valid=valid)
 

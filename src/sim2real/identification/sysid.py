@@ -495,7 +495,7 @@ def run_sysid(
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
     current: dict[str, Any] = {}
-    document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot,
+    document, results = fit_model(list(model_config.effects), nominal, by_role, model_config.as_settings(), robot,
                                   workers=threads, cache=cache, release_runs=True, current_out=current)
     params = params_document(results, nominal, document["torque_source"], robot)
     write_json(ladder_json, document)
