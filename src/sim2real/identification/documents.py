@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
+from sim2real.identification.model_config import load_model_config  # noqa: F401  (the sysid rule reads it from here)
 from sim2real.identification.effects import get_effect
 from sim2real.identification.effects.sensor_delay import actuation_beyond_sensor
 from sim2real.identification.fitting import FitResult, NominalModel
-from sim2real.identification.model_config import load_model_config  # noqa: F401  (the sysid rule reads it from here)
 
 def round_floats(tree: Any, digits: int = 6) -> Any:
     """Round every float to ``digits`` significant digits: stable, readable, byte-identical outputs."""

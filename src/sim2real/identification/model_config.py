@@ -17,9 +17,10 @@ from typing import Any, Literal
 
 from sim2real.errors import InputError
 
-Side = Literal["body", "actuator"]
-# The sides a drive effect's line may keep it on (sim2real.identification.links), as model.yaml writes them.
-SIDES: tuple[Side, ...] = ("body", "actuator")
+# The sides a drive effect's line may keep it on (sim2real.identification.links), as model.yaml writes them (the
+# values of the sides' enum once the identification names them: body, and the drive's "actuator").
+LineSide = Literal["body", "actuator"]
+LINE_SIDES: tuple[LineSide, ...] = ("body", "actuator")
 
 
 @dataclass(frozen=True)
@@ -27,7 +28,7 @@ class EffectLine:
     """A line of model.yaml's ``effects``: the effect, and the side it is kept on (None: every side it belongs to)."""
 
     name: str
-    side: Side | None = None
+    side: LineSide | None = None
 
 
 @dataclass(frozen=True)
@@ -69,7 +70,7 @@ class ModelConfig:
         return tuple(line.name for line in self.lines)
 
     @property
-    def sides(self) -> dict[str, Side]:
+    def sides(self) -> dict[str, LineSide]:
         """The effects kept on one side: {effect: side}."""
         return {line.name: line.side for line in self.lines if line.side is not None}
 
@@ -116,12 +117,12 @@ def effect_lines(lines: Sequence[str | Mapping[str, str]], path: str | Path) -> 
         if name in seen:
             raise InputError(path, f"effects/{i}", f"'{name}' is listed twice", "list each effect once")
         seen.add(name)
-    sides: dict[int, Side] = {}
+    sides: dict[int, LineSide] = {}
     for i, line in enumerate(lines):
         if not isinstance(line, Mapping):
             continue
         name, side = next(iter(line.items()))
-        if side not in SIDES:
+        if side not in LINE_SIDES:
             raise InputError(path, f"effects/{i}", f"'{name}: {side}' names no link",
                              f"write '- {name}: actuator' or '- {name}: body'")
         if not get_effect(name, str(path)).drive:
