@@ -104,9 +104,9 @@ def main() -> None:
         joints = settings.joints
         nominal = load_nominal(tree / "results/panda/panda.urdf", joints, robot["armature"], robot["flange"])
         dyn = nominal.dynamics
-        ident = Identification(nominal, identification_effects(model["effects"]), settings.per_joint("noise_floor"),
+        ident = Identification(nominal, identification_effects(model.effects), settings.per_joint("noise_floor"),
                                dyn.lower, dyn.upper, dyn.velocity_limit, settings.per_joint("acceleration_limit"))
-        print(f"model: {', '.join(model['effects'])}")
+        print(f"model: {', '.join(model.effects)}")
         rows = []
         for (label, scenario), holdout in [(case, h) for h in HOLDOUTS for case in CASES.items()]:
             print(f"  {label}: fit on {scenario}/fit, judged on {holdout}")
@@ -114,7 +114,7 @@ def main() -> None:
             listing.write_text(yaml.safe_dump({"runs": [
                 {"name": "fit", "path": f"results/panda/lab/{scenario}/fit.parquet", "role": "fit"},
                 {"name": "holdout", "path": holdout, "role": "holdout"}]}))
-            _, prepared, _ = load_prepared_runs(listing, joints, tree)
+            prepared = load_prepared_runs(listing, joints, tree)
             fit_run = prepared[0]
             step = max(1, len(fit_run.time) // 2000)
             cond = condition_number(ident.matrix(fit_run.q[::step], fit_run.qd[::step], fit_run.qdd[::step]))

@@ -94,7 +94,7 @@ def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiproc
     started = time.perf_counter()
     profiler.enable()
     if rule == "prepare_runs":  # once per log: a round reads the prepared runs
-        write_prepared_runs(prepared, *prepare_for_model(measurements, t / "results/panda/panda.urdf", t))
+        write_prepared_runs(prepared, prepare_for_model(measurements, t / "results/panda/panda.urdf", t))
     elif rule == "sysid":
         run_sysid("panda", t / "results/panda/panda.urdf", t / "configs/panda/robot.yaml",
                   t / "configs/panda/model.yaml", prepared, o / "ladder.json", o / "params.yaml",

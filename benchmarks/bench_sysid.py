@@ -640,9 +640,8 @@ def prepared_scenario_runs(directory: Path, scenario: str, duration_s: float = 2
         runs.append({"name": run["name"], "path": str(path), "role": run["role"]})
     listing = directory / "measurements.yaml"
     listing.write_text(yaml.safe_dump({"runs": runs}), encoding="utf-8")
-    entries, prepared, _ = load_prepared_runs(listing, PANDA_JOINTS, "/")
-    return urdf, {role: [run for entry, run in zip(entries, prepared, strict=True) if entry.role == role]
-                  for role in ("fit", "holdout")}
+    prepared = load_prepared_runs(listing, PANDA_JOINTS, "/")
+    return urdf, {"fit": list(prepared.fit), "holdout": list(prepared.holdout)}
 
 
 def section_actuator(ctx: Context) -> None:

@@ -63,7 +63,7 @@ class ToolboxProblem:
 
 def log_step(run: Run) -> float:
     """The log's nominal sample period (its metadata), else its median step."""
-    rate = run.meta.get("sample_rate_hz")
+    rate = run.meta.sample_rate_hz
     return 1.0 / float(rate) if rate else float(np.median(np.diff(run.time)))
 
 

@@ -8,6 +8,7 @@ import sim2real.assets.collision as _sim2real_collision
 import sim2real.assets.robot_config as _sim2real_robot_config
 import sim2real.design_names as _sim2real_design_names
 import sim2real.excitation.config as _sim2real_excitation_config
+import sim2real.identification.model_config as _sim2real_model_config
 import sim2real.measurements.campaigns as _sim2real_campaigns
 import sim2real.files as _sim2real_files
 from sim2real.errors import InputError
@@ -387,13 +388,18 @@ def excitation_config(robot):
 
 
 @functools.cache
-def model_effects(robot):
-    """The effects of configs/{robot}/model.yaml ([] without one), validated against schemas/model.schema.yaml;
+def model_config(robot):
+    """configs/{robot}/model.yaml parsed and validated (sim2real.identification.model_config), None without one;
     read once per run."""
     if not has_model(robot):
-        return []
-    data = _sim2real_files.read_validated_yaml(model_ladder(robot), "model.schema.yaml")
-    return list((data or {}).get("effects") or [])
+        return None
+    return _sim2real_model_config.load_model_config(model_ladder(robot))
+
+
+def model_effects(robot):
+    """The effects of configs/{robot}/model.yaml in order ([] without one)."""
+    ladder = model_config(robot)
+    return list(ladder.effects) if ladder is not None else []
 
 
 def design_model_effects(wildcards):

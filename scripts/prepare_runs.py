@@ -4,5 +4,6 @@ from sim2real.cli import rule_entry
 from sim2real.measurements import prepare_for_model, write_prepared_runs
 
 with rule_entry(snakemake):
-    entries, prepared, settings = prepare_for_model(snakemake.input.measurements, snakemake.input.urdf)
-    write_prepared_runs(snakemake.output.prepared, entries, prepared, settings)
+    write_prepared_runs(
+        snakemake.output.prepared, prepare_for_model(snakemake.input.measurements, snakemake.input.urdf)
+    )

@@ -52,7 +52,7 @@ from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from sysid_lab import FAST_FIT, Lab  # noqa: E402
+from sysid_lab import FAST_FIT, Lab, model_config  # noqa: E402
 
 from sim2real.identification import sysid  # noqa: E402
 from sim2real.report.verdicts import worded  # noqa: E402
@@ -79,8 +79,8 @@ def demo_effects() -> list[str]:
 def loop_document(lab: Lab, workers: int) -> dict[str, Any]:
     """Both sides' ladder.json content for the demo's effects, with its words (BLAS on one thread, as run_sysid holds it)."""
     with threadpool_limits(limits=1, user_api="blas"):
-        document, _ = sysid.fit_model(demo_effects(), lab.nominal, lab.prepared(lab.measurement_list(SCENARIO)),
-                                      {"fit": FAST_FIT}, "panda", workers=workers)
+        document, _ = sysid.fit_model(model_config(demo_effects()), lab.nominal,
+                                      lab.prepared(lab.measurement_list(SCENARIO)), "panda", workers=workers)
     return json.loads(json.dumps(worded(document, "panda")))
 
 

@@ -22,6 +22,7 @@ from gap_fixtures import build_dev_panda, build_dev_ur5, short_lab_config
 from sim2real.identification import fitting
 from sim2real.identification import sides, sysid
 from sim2real.identification.fitting import FitContext
+from sim2real.identification.model_config import ModelConfig, parse_model_config
 from sim2real.report.verdicts import worded
 from sim2real.cache import FitCache
 from sim2real.lab import load_lab_config, run_lab_scenario_run, scenario_runs
@@ -86,9 +87,8 @@ class Lab:
 
     def prepared(self, measurement_list: Path) -> dict[str, list[Any]]:
         """Prepared runs of a measurement list, by role."""
-        entries, prepared, _ = load_prepared_runs(measurement_list, self.joints, "/")
-        return {role: [run for entry, run in zip(entries, prepared, strict=True) if entry.role == role]
-                for role in ("fit", "holdout")}
+        prepared = load_prepared_runs(measurement_list, self.joints, "/")
+        return {"fit": list(prepared.fit), "holdout": list(prepared.holdout)}
 
     def model(self, scenario: str, effects: list[str], with_sensor: bool = True,
               cache: FitCache | None = None, kept_on: dict[str, str] | None = None) -> dict[str, Any]:
@@ -100,10 +100,9 @@ class Lab:
                tuple(sorted((kept_on or {}).items())))
         if key not in self._documents:
             listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
-            settings = {"fit": FAST_FIT, **({"links": dict(kept_on)} if kept_on else {})}
             with threadpool_limits(limits=1, user_api="blas"):  # one BLAS thread per worker, as in run_sysid
-                document, _ = sysid.fit_model(effects, self.nominal, self.prepared(listing), settings, self.robot,
-                                              workers=WORKERS, cache=cache)
+                document, _ = sysid.fit_model(model_config(effects, kept_on=kept_on), self.nominal,
+                                              self.prepared(listing), self.robot, workers=WORKERS, cache=cache)
                 self._documents[key] = worded(document, self.robot)
         return copy.deepcopy(self._documents[key])
 
@@ -154,14 +153,11 @@ class Lab:
 
     def data(self, scenario: str) -> tuple[fitting.TorqueData, fitting.TorqueData]:
         if scenario not in self._data:
-            entries, prepared, _ = load_prepared_runs(self.measurement_list(scenario), self.joints, "/")
-            by_role: dict[str, list[dict[str, Any]]] = {"fit": [], "holdout": []}
-            for entry, run in zip(entries, prepared, strict=True):
-                by_role[entry.role].append(fitting.RunSamples.of(run, noise_floor_of(run)))
-            self._data[scenario] = (
-                fitting.stack_runs(by_role["fit"], self.joints, FAST_FIT["fit_rate_hz"]),
-                fitting.stack_runs(by_role["holdout"], self.joints, FAST_FIT["fit_rate_hz"]),
-            )
+            prepared = load_prepared_runs(self.measurement_list(scenario), self.joints, "/")
+            self._data[scenario] = tuple(
+                fitting.stack_runs([fitting.RunSamples.of(run, noise_floor_of(run)) for run in runs], self.joints,
+                                 FAST_FIT["fit_rate_hz"])
+                for runs in (prepared.fit, prepared.holdout))
         return self._data[scenario]
 
     def ladder(self, scenario: str, effects: list[str], diagnose: bool = True,
@@ -177,6 +173,15 @@ class Lab:
                 side = sysid.fit_ladder(effects, context, diagnosed=diagnose, candidates=candidates)
                 self._documents[key] = worded({"robot": self.robot, **side.as_document()}, self.robot)
         return copy.deepcopy(self._documents[key])
+
+
+def model_config(effects: Sequence[str], fit: dict[str, Any] | None = None,
+                 kept_on: dict[str, str] | None = None) -> ModelConfig:
+    """model.yaml's content as :func:`sim2real.identification.model_config.parse_model_config` reads it: the effects
+    (``kept_on``: drive lines kept on one side, ``- asymmetric_friction: actuator``) and the fit settings (the fast
+    ones by default)."""
+    lines = [{name: kept_on[name]} if kept_on and name in kept_on else name for name in effects]
+    return parse_model_config({"effects": lines, "fit": dict(FAST_FIT if fit is None else fit)}, "model.yaml")
 
 
 def side_ladder(effects: Sequence[str], nominal: Any, fit_data: Any, holdout_data: Any,

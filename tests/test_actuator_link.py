@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from sysid_lab import FAST_FIT, Lab, overall
+from sysid_lab import FAST_FIT, Lab, model_config, overall
 
 from sim2real.report.figures import FIGURES
 
@@ -210,8 +210,8 @@ def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
     from sim2real.lab import arm_spec
 
     runs = lab.prepared(lab.measurement_list("actuator_gain"))
-    document, results = sysid.fit_model(["actuator_gain", "actuation_delay", "command_bias"], lab.nominal, runs,
-                                        {"fit": FAST_FIT}, "panda")
+    document, results = sysid.fit_model(model_config(["actuator_gain", "actuation_delay", "command_bias"]),
+                                        lab.nominal, runs, "panda")
     params = sysid.params_document(results, lab.nominal, document["torque_source"], "panda")
     assert set(params["effects"]) == {"actuation_delay", "actuator_gain", "command_bias"}
     spec = arm_spec(lab.mjcf, lab.nominal.joint_names)  # the dev MJCF driven by joint torque motors
@@ -337,11 +337,11 @@ def test_a_drive_line_kept_on_the_actuator_link_stays_off_the_body_link(lab):
     from sim2real.identification.documents import params_document
     from sim2real.identification.sysid import fit_model
 
-    from sysid_lab import FAST_FIT, WORKERS
+    from sysid_lab import WORKERS
 
     effects = ["link_inertia", "asymmetric_friction"]
-    kept = {"fit": FAST_FIT, "links": {"asymmetric_friction": "actuator"}}
-    document, results = fit_model(effects, lab.nominal, lab.prepared(lab.measurement_list("link_side_sensor")), kept,
+    kept = model_config(effects, kept_on={"asymmetric_friction": "actuator"})
+    document, results = fit_model(kept, lab.nominal, lab.prepared(lab.measurement_list("link_side_sensor")),
                                   lab.robot, workers=WORKERS)
     assert document["ladder"][-1]["effects"] == ["link_inertia"]
     assert document["actuator"]["ladder"][-1]["effects"] == ["asymmetric_friction"]
@@ -356,9 +356,9 @@ def test_a_drive_line_kept_on_the_actuator_link_stays_off_the_body_link(lab):
     assert both["ladder"][-1]["effects"] == effects
 
     with pytest.raises(InputError, match=r"model\.yaml.*asymmetric_friction: actuator.*motor-side"):
-        fit_model(effects, lab.nominal, lab.prepared(lab.measurement_list("real_arm_like")), kept, lab.robot)
+        fit_model(kept, lab.nominal, lab.prepared(lab.measurement_list("real_arm_like")), lab.robot)
     with pytest.raises(InputError, match="fit one side only"):
-        fit_model(effects, lab.nominal, lab.prepared(lab.without_sensor("link_side_sensor")), kept, lab.robot)
+        fit_model(kept, lab.nominal, lab.prepared(lab.without_sensor("link_side_sensor")), lab.robot)
 
 
 def test_a_line_the_other_link_holds_in_a_kept_line_is_kept_on_the_link_that_names_it():

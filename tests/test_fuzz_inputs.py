@@ -140,12 +140,13 @@ def shipped(name: str) -> Any:
 @given(doc=broken(shipped("configs/panda/model.yaml"), st.sampled_from(["link_inertia", "payload", "magic"])))
 def test_model_yaml(tmp_path_factory: pytest.TempPathFactory, doc: Any) -> None:
     from sim2real.identification.effects import EFFECTS
-    from sim2real.identification.documents import load_model_config
+    from sim2real.identification.model_config import load_model_config
 
     path = dump(tmp_path_factory.mktemp("model") / "model.yaml", doc)
 
-    def valid(config: dict) -> None:
-        assert set(config["effects"]) <= set(EFFECTS) and len(set(config["effects"])) == len(config["effects"])
+    def valid(config: Any) -> None:
+        assert set(config.effects) <= set(EFFECTS) and len(set(config.effects)) == len(config.effects)
+        assert set(config.sides) <= set(config.effects) and set(config.sides.values()) <= {"body", "actuator"}
 
     holds(lambda: load_model_config(path), path, [path], valid=valid)
 

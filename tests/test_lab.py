@@ -49,7 +49,7 @@ def test_run_is_deterministic_inside_limits_and_in_measurement_format(dev):
     out = dev["dir"] / "demo" / "fit.parquet"
     run_lab_scenario_run(dev["mjcf"], dev["lab"], "panda", "demo", "fit", out)
     run = load_run(out, known_joints=PANDA_JOINTS)
-    assert run.joint_names == PANDA_JOINTS and run.meta["source"] == "synthetic"
+    assert run.joint_names == PANDA_JOINTS and run.meta.source == "synthetic"
     assert run.tau is not None and run.tau_cmd is not None and run.q_cmd is not None
     lower = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
     upper = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
@@ -597,9 +597,9 @@ def _last_rung_x_floor(lab, measurements: Path) -> tuple[list, np.ndarray]:
     from sim2real.measurements import load_prepared_runs, noise_floor_of
     from sysid_lab import FAST_FIT, side_ladder
 
-    entries, prepared, _ = load_prepared_runs(measurements, PANDA_JOINTS, "/")
-    data = [fitting.stack_runs([fitting.RunSamples.of(p, noise_floor_of(p)) for e, p in zip(entries, prepared)
-                              if e.role == role], PANDA_JOINTS, FAST_FIT["fit_rate_hz"]) for role in ("fit", "holdout")]
+    prepared = load_prepared_runs(measurements, PANDA_JOINTS, "/")
+    data = [fitting.stack_runs([fitting.RunSamples.of(p, noise_floor_of(p)) for p in runs], PANDA_JOINTS,
+                               FAST_FIT["fit_rate_hz"]) for runs in (prepared.fit, prepared.holdout)]
     document, _ = side_ladder(DEMO_EFFECTS, lab.nominal, *data, FAST_FIT, diagnosed=False)
     return prepared, np.array(list(document["ladder"][-1]["metrics"]["torque_x_floor"]["per_joint"].values()))
 
@@ -623,9 +623,9 @@ def test_a_logger_that_loses_samples_costs_the_loop_nothing(shared_lab):
         pd.testing.assert_frame_equal(same, kept_table)
 
     pieces, split = _last_rung_x_floor(lab, listing)
-    records = {p.filter["gaps"]["run"]: p.filter["gaps"] for p in pieces}
-    assert sorted(records) == ["fit", "holdout"] and all(len(r["pieces"]) == 4 for r in records.values())
-    kept = [piece["name"] for r in records.values() for piece in r["pieces"] if piece["kept"]]
+    records = {p.filter.gaps.run: p.filter.gaps for p in pieces}
+    assert sorted(records) == ["fit", "holdout"] and all(len(r.pieces) == 4 for r in records.values())
+    kept = [piece.name for r in records.values() for piece in r.pieces if piece.kept]
     assert [p.name for p in pieces] == kept and len(kept) >= 6  # a piece too short to prepare is left out
     assert np.all(split <= 1.5), split
     across = listing.with_name("across.yaml")
@@ -675,7 +675,7 @@ def test_lone_torque_glitches_cost_the_loop_nothing(shared_lab, monkeypatch):
             assert np.count_nonzero(moved) == count and np.allclose(np.abs(moved[moved != 0]), size), kind
         assert np.count_nonzero(difference.to_numpy()) == 30
     prepared, replaced = _last_rung_x_floor(lab, listing)
-    assert [{kind: sum(counts.values()) for kind, counts in p.filter["spikes"]["replaced"].items()} for p in prepared] \
+    assert [{kind: sum(counts.values()) for kind, counts in p.filter.spikes.replaced.items()} for p in prepared] \
         == [{"q": 10, "tau": 20}] * 2
     _, clean = _last_rung_x_floor(lab, lab.measurement_list("real_arm_like"))
     assert np.all(clean <= 1.5) and np.allclose(replaced, clean, rtol=0.02), (replaced, clean)
@@ -772,7 +772,7 @@ def test_a_torque_sensor_that_lags_is_named_and_the_loop_ends_at_its_floor(share
 
     from sim2real.identification import sysid
     from sim2real.identification.documents import params_document
-    from sysid_lab import FAST_FIT, WORKERS
+    from sysid_lab import FAST_FIT, WORKERS, model_config
 
     lab = shared_lab
     clean = yaml.safe_load(lab.measurement_list("real_arm_like").read_text())["runs"]
@@ -808,8 +808,8 @@ def test_a_torque_sensor_that_lags_is_named_and_the_loop_ends_at_its_floor(share
     assert max(actuator["metrics"]["torque_x_floor"]["per_joint"].values()) <= 1.5
     assert held in last["actuator"]["diagnosis"]["lag_note"]  # the actuator link's verdict says whose lag
     assert "lag_note" not in lab.follow("real_arm_like")[-1]["actuator"]["diagnosis"]
-    document, results = sysid.fit_model([*effects, "actuation_lag"], lab.nominal, lab.prepared(listing),
-                                        {"fit": FAST_FIT}, "panda", workers=WORKERS)
+    document, results = sysid.fit_model(model_config([*effects, "actuation_lag"]), lab.nominal, lab.prepared(listing),
+                                        "panda", workers=WORKERS)
     params = params_document(results, lab.nominal, document["torque_source"], "panda")
     assert params["effects"]["actuation_lag"]["time_constant"] < 0.001, params["effects"]["actuation_lag"]
     assert params["by_link"]["actuation_lag"]["actuator"]["time_constant"] > 0.003

@@ -16,12 +16,15 @@ from hypothesis import strategies as st
 from sim2real.measurements.bags import mcap_to_run
 from sim2real.errors import InputError
 from sim2real.measurements import (
+    IncompleteRows,
     noise_floor_of,
     load_measurement_list,
     load_prepared_runs,
     load_run,
     prepare_run,
     Run,
+    RunMeta,
+    SpikeRecord,
     write_run,
 )
 
@@ -61,7 +64,7 @@ def test_hand_written_csv_run_loads_and_prepares(tmp_path):
     _, qd, qdd = motion(prepared.time)
     assert np.max(np.abs(prepared.qd - qd)) < 1e-3
     assert np.max(np.abs(prepared.qdd - qdd)) < 0.03  # filter edges: ~1% of the peak
-    assert prepared.filter["cutoff_hz"] == 10.0 and "sosfiltfilt" in prepared.filter["type"]
+    assert prepared.filter.cutoff_hz == 10.0 and "sosfiltfilt" in prepared.filter.type
 
 
 def test_messy_real_log_irregular_stamps_repeats_no_commands_no_qd(tmp_path):
@@ -78,8 +81,8 @@ def test_messy_real_log_irregular_stamps_repeats_no_commands_no_qd(tmp_path):
     header = ["time"] + [f"q.{j}" for j in JOINTS] + [f"tau.{j}" for j in JOINTS]
     path = write_csv(tmp_path / "messy.csv", header, [[t[k], *q[k], *tau[k]] for k in range(t.size)])
     prepared = prepare_run(load_run(path), sample_rate_hz=1000.0)
-    assert prepared.filter["repeated_samples_dropped"] > 100
-    assert prepared.filter["raw_step_ms"]["max"] == pytest.approx(9.0, rel=1e-6)
+    assert prepared.filter.repeated_samples_dropped > 100
+    assert prepared.filter.raw_step_ms.max == pytest.approx(9.0, rel=1e-6)
     assert np.allclose(np.diff(prepared.time), 1e-3)
     _, qd_true, _ = motion(prepared.time)
     assert np.sqrt(np.mean((prepared.qd - qd_true) ** 2)) < 0.02
@@ -159,7 +162,7 @@ def test_the_actuator_links_noise_floor_is_prepared_with_the_run_and_read_back(t
     has that no filter of the command explains), through the prepared runs' file; one without it gets it computed."""
     from sim2real.measurements import command_floor_of
     from sim2real.measurements import (
-        MeasurementEntry, command_white_noise, read_prepared_runs, with_command_floor, write_prepared_runs,
+        MeasurementEntry, RunSet, command_white_noise, read_prepared_runs, with_command_floor, write_prepared_runs,
     )
 
     rng = np.random.default_rng(5)
@@ -172,8 +175,9 @@ def test_the_actuator_links_noise_floor_is_prepared_with_the_run_and_read_back(t
     expected = command_white_noise(run.tau, run.tau_cmd, run.dt)
     assert run.command_torque_sigma.shape == (len(JOINTS),) and np.array_equal(run.command_torque_sigma, expected)
     assert np.all((expected > 0.02) & (expected < 0.2))  # the sensor's noise (0.05 N*m, differenced and robust)
-    write_prepared_runs(tmp_path / "runs.npz", [MeasurementEntry("r", Path("r.parquet"), "fit")], [run], {})
-    back = read_prepared_runs(tmp_path / "runs.npz")[1][0]
+    write_prepared_runs(tmp_path / "runs.npz",
+                        RunSet((dataclasses.replace(run, entry=MeasurementEntry("r", Path("r.parquet"), "fit")),), {}))
+    back = read_prepared_runs(tmp_path / "runs.npz")[0]
     assert np.array_equal(command_floor_of(back), expected)
     assert np.array_equal(command_floor_of(dataclasses.replace(back, command_torque_sigma=np.zeros(0))), expected)
     only_commands = with_command_floor(prepare_run(dataclasses.replace(load_run(tmp_path / "r.parquet"), tau=None)))
@@ -245,9 +249,11 @@ def test_prepared_runs_follow_the_list_and_its_filter_and_share_joints(tmp_path)
     listing.write_text(yaml.safe_dump({"runs": [{"name": "one", "path": "a.csv", "role": "fit"},
                                                 {"name": "two", "path": "b.csv", "role": "holdout"}],
                                        "filter": {"cutoff_hz": 8.0}}))
-    entries, prepared, settings = load_prepared_runs(listing, JOINTS, root=tmp_path)
-    assert [e.name for e in entries] == [p.name for p in prepared] == ["one", "two"]
-    assert settings["cutoff_hz"] == 8.0 and all(p.filter["cutoff_hz"] == 8.0 for p in prepared)
+    prepared = load_prepared_runs(listing, JOINTS, root=tmp_path)
+    assert [e.name for e in prepared.entries] == [p.name for p in prepared] == ["one", "two"]
+    assert [p.name for p in prepared.fit] == ["one"] and [p.name for p in prepared.holdout] == ["two"]
+    assert [p.role for p in prepared] == ["fit", "holdout"]
+    assert prepared.settings["cutoff_hz"] == 8.0 and all(p.filter.cutoff_hz == 8.0 for p in prepared)
     # a run that logs other joints than the first one is named, with the joints to log
     write_csv(tmp_path / "b.csv", [h.replace("panda_joint2", "panda_joint3") for h in header], rows)
     with pytest.raises(InputError, match=r"b\.csv.*joints differ.*panda_joint1, panda_joint2"):
@@ -267,21 +273,22 @@ def test_a_log_with_lost_stretches_is_prepared_piece_by_piece_never_across_them(
     both sides, and the accelerations are as good as a log without loss; the pieces keep the run's entry."""
     header, rows = good_rows(n=9000)
     lost = [r for r in rows if not (2.0 <= r[0] < 2.3 or 5.5 <= r[0] < 5.8)]
-    entries, prepared, _ = load_prepared_runs(_listing(tmp_path, header, lost), JOINTS, root=tmp_path)
-    assert [p.name for p in prepared] == ["one#1", "one#2", "one#3"] and all(e.name == "one" for e in entries)
+    prepared = load_prepared_runs(_listing(tmp_path, header, lost), JOINTS, root=tmp_path)
+    assert [p.name for p in prepared] == ["one#1", "one#2", "one#3"] and all(e.name == "one" for e in prepared.entries)
+    assert prepared.fit == prepared.runs and not prepared.holdout  # each piece keeps the run's role
     for piece in prepared:
         assert not np.any((piece.time > 1.999) & (piece.time < 2.3)) and not np.any((piece.time > 5.499) & (piece.time < 5.8))
         _, qd, qdd = motion(piece.time)
         assert np.max(np.abs(piece.qdd - qdd)) < 0.03  # as a log without loss (the test above)
-        record = piece.filter["gaps"]
-        assert record["run"] == "one" and record["max_step_s"] == pytest.approx(0.02)
-        assert [round(g["after_s"], 3) for g in record["gaps"]] == [1.999, 5.499]
-        assert [g["lost_s"] for g in record["gaps"]] == pytest.approx([0.301, 0.301])
+        record = piece.filter.gaps
+        assert record.run == "one" and record.max_step_s == pytest.approx(0.02)
+        assert [round(g.after_s, 3) for g in record.gaps] == [1.999, 5.499]
+        assert [g.lost_s for g in record.gaps] == pytest.approx([0.301, 0.301])
     # The same log interpolated across its lost stretches (a threshold above them): the acceleration there is wrong.
-    _, across, _ = load_prepared_runs(_listing(tmp_path, header, lost, gaps={"max_step_s": 1.0}), JOINTS, root=tmp_path)
+    across = load_prepared_runs(_listing(tmp_path, header, lost, gaps={"max_step_s": 1.0}), JOINTS, root=tmp_path)
     (whole,) = across
     _, _, qdd = motion(whole.time)
-    assert whole.name == "one" and "gaps" not in whole.filter
+    assert whole.name == "one" and whole.filter.gaps is None
     assert np.max(np.abs(whole.qdd - qdd)) > 0.3
 
 
@@ -301,21 +308,23 @@ def test_rows_with_an_empty_cell_are_samples_the_logger_lost(tmp_path):
     path.with_suffix(".yaml").write_text(yaml.safe_dump(META))
     listing = tmp_path / "m.yaml"
     listing.write_text(yaml.safe_dump({"runs": [{"name": "one", "path": "a.csv", "role": "fit"}]}))
-    _, prepared, _ = load_prepared_runs(listing, JOINTS, root=tmp_path)
+    prepared = load_prepared_runs(listing, JOINTS, root=tmp_path)
     (tmp_path / "lost").mkdir()
-    _, expected, _ = load_prepared_runs(_listing(tmp_path / "lost", header, [r for k, r in enumerate(rows) if k not in blank]),
+    expected = load_prepared_runs(_listing(tmp_path / "lost", header, [r for k, r in enumerate(rows) if k not in blank]),
                                         JOINTS, root=tmp_path / "lost")
     assert [p.name for p in prepared] == [p.name for p in expected] == ["one#1", "one#2"]
     for got, want in zip(prepared, expected, strict=True):
         for signal in ("time", "q", "qd", "qdd", "tau"):
             assert np.array_equal(getattr(got, signal), getattr(want, signal)), signal
         first = min(blank)
-        assert got.filter["incomplete_rows"] == {"run": "one", "dropped": len(blank), "of": 9000,
-                                                 "first_row": f"row {first} (line {first + 2})"}
-        assert {k: v for k, v in got.filter.items() if k != "incomplete_rows"} == want.filter
+        assert got.filter.incomplete_rows == IncompleteRows(dropped=len(blank), of=9000,
+                                                            first_row=f"row {first} (line {first + 2})", run="one")
+        assert got.filter.as_document()["incomplete_rows"] == {"run": "one", "dropped": len(blank), "of": 9000,
+                                                               "first_row": f"row {first} (line {first + 2})"}
+        assert dataclasses.replace(got.filter, incomplete_rows=None) == want.filter
     from sim2real.report.markdown import _incomplete_lines
     assert f"- one: {len(blank)} of 9000 rows (3.8%), the first row {first}" in "\n".join(
-        _incomplete_lines([{"filter": p.filter} for p in prepared]))
+        _incomplete_lines([{"filter": p.filter.as_document()} for p in prepared]))
     # a position in degrees after the dropped rows: named at its row of the file
     header, rows = good_rows()
     rows[10][1] = float("nan")
@@ -328,9 +337,9 @@ def test_a_piece_too_short_is_left_out_and_said_and_a_log_of_only_such_pieces_is
     header, rows = good_rows(n=9000)
     # 0.4 s between two lost stretches: too short once 0.3 s are trimmed at each end
     lost = [r for r in rows if not (3.0 <= r[0] < 3.2 or 3.6 <= r[0] < 3.8)]
-    entries, prepared, _ = load_prepared_runs(_listing(tmp_path, header, lost), JOINTS, root=tmp_path)
+    prepared = load_prepared_runs(_listing(tmp_path, header, lost), JOINTS, root=tmp_path)
     assert [p.name for p in prepared] == ["one#1", "one#3"]
-    assert [(round(p["from_s"], 2), p["kept"]) for p in prepared[0].filter["gaps"]["pieces"]] == [
+    assert [(round(p.from_s, 2), p.kept) for p in prepared[0].filter.gaps.pieces] == [
         (0.0, True), (3.2, False), (3.8, True)]
     # Every stretch between losses too short: refused, naming the file, the column, the gaps and the fix.
     choppy = [r for r in rows if (r[0] % 0.5) < 0.4]
@@ -351,7 +360,7 @@ def test_split_at_gaps_keeps_every_row_once_in_order(cuts, threshold):
     for cut in sorted(cuts):
         t[cut:] += 0.05  # a lost stretch before row `cut`
     q = np.column_stack([t, -t])
-    run = Run("r", Path("r.csv"), JOINTS, t, q, None, q.copy(), None, None, {})
+    run = Run("r", Path("r.csv"), JOINTS, t, q, None, q.copy(), None, None, RunMeta("panda", "real", "torque"))
     pieces = split_at_gaps(run, threshold)
     assert np.array_equal(np.concatenate([p.time for p in pieces]), t)
     assert np.array_equal(np.concatenate([p.tau for p in pieces]), q)
@@ -403,11 +412,12 @@ def test_a_prepared_run_counts_the_spikes_it_replaced_in_positions_and_torques(t
     # q.panda_joint2: an encoder's glitch, which filtered and differentiated twice would kick the acceleration
     rows[1500][2] += 0.2
     prepared = prepare_run(load_run(write_csv(tmp_path / "log.csv", header, rows)))
-    assert prepared.filter["spikes"] == {"scales": 20.0, "replaced": {"q": {"panda_joint2": 1},
-                                                                      "tau": {"panda_joint1": 1}}}
+    assert prepared.filter.spikes == SpikeRecord(20.0, {"q": {"panda_joint2": 1}, "tau": {"panda_joint1": 1}})
+    assert prepared.filter.as_document()["spikes"] == {"scales": 20.0, "replaced": {"q": {"panda_joint2": 1},
+                                                                                    "tau": {"panda_joint1": 1}}}
     _, _, qdd = motion(prepared.time)
     assert np.max(np.abs(prepared.qdd - qdd)) < 0.03  # as the log without the glitch
-    assert "spikes" not in prepare_run(load_run(write_csv(tmp_path / "clean.csv", *good_rows()))).filter
+    assert "spikes" not in prepare_run(load_run(write_csv(tmp_path / "clean.csv", *good_rows()))).filter.as_document()
 
 
 def _two_logged_runs(tmp_path):
@@ -468,12 +478,12 @@ def test_prepared_runs_are_read_back_exactly_and_the_rules_read_no_run_file(tmp_
     from sim2real.identification.sysid import run_sysid
 
     urdf, mjcf, listing = _two_logged_runs(tmp_path)
-    entries, prepared, settings = prepare_for_model(listing, urdf, root=tmp_path)
-    write_prepared_runs(tmp_path / "runs.npz", entries, prepared, settings)
-    write_prepared_runs(tmp_path / "again.npz", entries, prepared, settings)
+    prepared = prepare_for_model(listing, urdf, root=tmp_path)
+    write_prepared_runs(tmp_path / "runs.npz", prepared)
+    write_prepared_runs(tmp_path / "again.npz", prepared)
     assert (tmp_path / "runs.npz").read_bytes() == (tmp_path / "again.npz").read_bytes()
-    back_entries, back, back_settings = read_prepared_runs(tmp_path / "runs.npz")
-    assert back_entries == entries and back_settings == settings
+    back = read_prepared_runs(tmp_path / "runs.npz")
+    assert back.entries == prepared.entries and back.settings == prepared.settings
     for run, read in zip(prepared, back, strict=True):
         for item in dataclasses.fields(run):
             a, b = getattr(run, item.name), getattr(read, item.name)
@@ -531,8 +541,8 @@ def test_mcap_bag_converts_to_run(tmp_path):
     out = mcap_to_run(bag, tmp_path / "arm.parquet", robot="panda", command_topic="/effort_controller/commands",
                       torque_sensor="link")
     run = load_run(out, known_joints=JOINTS)
-    assert run.meta["source"] == "real" and run.meta["control_mode"] == "torque"
-    assert run.meta["torque_sensor"] == "link"  # a Panda's effort is tau_J, measured after the gearbox
+    assert run.meta.source == "real" and run.meta.control_mode == "torque"
+    assert run.meta.torque_sensor == "link"  # a Panda's effort is tau_J, measured after the gearbox
     assert run.time[0] == 0.0 and run.time.size == t.size
     assert np.allclose(run.q, q) and np.allclose(run.tau_cmd, 2.0 * qdd) and np.allclose(run.tau, 2.0 * qdd + 0.1)
 

@@ -290,8 +290,10 @@ def test_a_drive_line_can_be_kept_on_one_link_and_only_a_drive_line(tmp_path):
     model = tmp_path / "model.yaml"
     model.write_text("effects:\n- link_inertia\n- asymmetric_friction: actuator\n- rotor_inertia\n")
     config = sysid.load_model_config(model)
-    assert config["effects"] == ["link_inertia", "asymmetric_friction", "rotor_inertia"]
-    assert config["links"] == {"asymmetric_friction": "actuator"}
+    assert config.effects == ("link_inertia", "asymmetric_friction", "rotor_inertia")
+    assert config.sides == {"asymmetric_friction": "actuator"}
+    assert config.as_settings() == {"effects": ["link_inertia", "asymmetric_friction", "rotor_inertia"],
+                                    "links": {"asymmetric_friction": "actuator"}, "fit": {}, "diagnosis": {}}
     refused = {"- link_inertia: actuator": r"effects/0.*fitted on one link only.*write '- link_inertia'",
                "- asymmetric_friction: motor": "effects",
                "- asymmetric_friction\n- asymmetric_friction: body": "listed twice"}

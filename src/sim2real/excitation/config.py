@@ -36,16 +36,15 @@ INERTIAL_EFFECTS = ("link_inertia", "payload")  # their columns are (combination
 DEFAULT_FRICTION = ("viscous_friction", "coulomb_friction")
 
 
-def identification_effects(model_effects: Sequence[str | Mapping[str, str]]) -> list[str]:
+def identification_effects(model_effects: Sequence[str]) -> list[str]:
     """The effects whose columns the design must make identifiable (model order, friction added if absent): the
     DAG passes these to a design as its param, so a line of model.yaml that adds no column (a payload, a delay)
     or none a design can aim at (a position ripple, whose period no design knows: :attr:`Effect.in_design`) reruns no
-    design. ``model_effects``: model.yaml's lines (a drive effect kept on one link, ``{name: link}``, is designed
-    for as any other)."""
+    design. ``model_effects``: model.yaml's effects (:attr:`sim2real.identification.model_config.ModelConfig.effects`;
+    a drive effect kept on one side is designed for as any other)."""
     from sim2real.identification.effects import EFFECTS
 
-    lines = [next(iter(line)) if isinstance(line, Mapping) else line for line in model_effects]
-    names = [e for e in lines if e in EFFECTS and e not in INERTIAL_EFFECTS and not EFFECTS[e].time_shift
+    names = [e for e in model_effects if e in EFFECTS and e not in INERTIAL_EFFECTS and not EFFECTS[e].time_shift
              and EFFECTS[e].in_design]
     if not any("friction" in e for e in names):
         names += [e for e in DEFAULT_FRICTION if e not in names]

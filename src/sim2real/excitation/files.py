@@ -208,15 +208,15 @@ def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path
     ``start``: the file of :func:`build_excitation_start` the design starts from (None: from a random series);
     ``design_spec``: the design as already read (:meth:`sim2real.excitation.config.Design.spec`, the DAG's param).
     """
-    from sim2real.identification.documents import checked_effects, load_model_config
+    from sim2real.identification.model_config import effect_lines, load_model_config
 
     pair = confounded_pair(name)
     design = _design(config, name, design_spec)
     robot_settings = read_robot_config(robot_config, robot_settings)
     if model_effects is not None:
-        effects = checked_effects(model_effects, model_config or "model.yaml")
+        effects = [line.name for line in effect_lines(model_effects, model_config or "model.yaml")]
     else:
-        effects = load_model_config(model_config)["effects"] if model_config and Path(model_config).exists() else []
+        effects = list(load_model_config(model_config).effects) if model_config and Path(model_config).exists() else []
     nominal = load_nominal(urdf, design.joints, robot_settings.get("armature"), robot_settings.get("flange"))
     separation = None
     if pair is not None:

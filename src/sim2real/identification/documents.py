@@ -1,4 +1,5 @@
-"""What the sysid rule reads and writes besides the ladder: model.yaml (:func:`load_model_config`), params.yaml
+"""What the sysid rule reads and writes besides the ladder: model.yaml (:func:`load_model_config`, parsed in
+:mod:`sim2real.identification.model_config`), params.yaml
 (:func:`params_document`, with the drive effects of two links merged by :func:`merge_link_values`) and the last rung's
 residuals (:func:`write_model_residuals`); :func:`round_floats` keeps every document's numbers stable and readable."""
 
@@ -10,7 +11,6 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.errors import InputError
 from sim2real.identification.effects import get_effect
 from sim2real.identification.effects.sensor_delay import actuation_beyond_sensor
 from sim2real.identification.fitting import FitResult, NominalModel
@@ -155,57 +155,3 @@ def write_model_residuals(path: str | Path, current: Mapping[str, Any]) -> None:
             ("time", data.time), ("q", data.q), ("qd", data.qd), ("qdd", data.qdd), ("tau", data.tau),
             ("residual", residual))]
     write_array_archive(path, members, header)
-
-
-def load_model_config(path: str | Path) -> dict[str, Any]:
-    """configs/{robot}/model.yaml, validated; ``effects`` as a list (empty = nominal model)."""
-    from sim2real.files import read_validated_yaml
-
-    data = read_validated_yaml(path, "model.schema.yaml") or {}
-    lines = data.get("effects") or []
-    return {"effects": checked_effects(lines, path), "links": effect_links(lines, path),
-            "fit": dict(data.get("fit") or {}), "diagnosis": dict(data.get("diagnosis") or {})}
-
-
-# The links a drive effect's line may keep it on (sim2real.identification.links).
-LINES_LINKS = ("body", "actuator")
-
-
-def _line_name(line: str | Mapping[str, Any]) -> Any:
-    """The effect of a line of model.yaml's ``effects``: a name, or ``{name: link}``."""
-    return next(iter(line)) if isinstance(line, Mapping) and len(line) == 1 else line
-
-
-def checked_effects(effects: Sequence[str | Mapping[str, str]], path: str | Path) -> list[str]:
-    """The effect names of model.yaml's ``effects`` (of the file ``path``, named in an error): each line a known
-    effect, or ``{effect: link}`` (:func:`effect_links`), each effect listed once."""
-    names = [_line_name(line) for line in effects]
-    seen = set()
-    for i, name in enumerate(names):
-        if not isinstance(name, str):
-            raise InputError(path, f"effects/{i}", f"'{effects[i]}' is no effect's line",
-                             "write '- <effect>', or '- <effect>: actuator' for a drive effect kept on one link")
-        get_effect(name, str(path))
-        if name in seen:
-            raise InputError(path, f"effects/{i}", f"'{name}' is listed twice", "list each effect once")
-        seen.add(name)
-    return names
-
-
-def effect_links(effects: Sequence[str | Mapping[str, str]], path: str | Path) -> dict[str, str]:
-    """The drive effects model.yaml keeps on one link (``- asymmetric_friction: actuator``): {effect: link}. Behind
-    a link-side sensor a drive's effect is fitted on both links; a user whose other link it leaves worse (the
-    verdict says so) keeps it on one."""
-    out = {}
-    for i, line in enumerate(effects):
-        if not isinstance(line, Mapping):
-            continue
-        name, link = next(iter(line.items()))
-        if link not in LINES_LINKS:
-            raise InputError(path, f"effects/{i}", f"'{name}: {link}' names no link",
-                             f"write '- {name}: actuator' or '- {name}: body'")
-        if not get_effect(name, str(path)).drive:
-            raise InputError(path, f"effects/{i}", f"'{name}' is fitted on one link only: there is no other link to "
-                             "keep it off", f"write '- {name}'")
-        out[name] = link
-    return out

@@ -29,13 +29,14 @@ from sim2real.forked import Forked
 from sim2real.identification import sides
 from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, Diagnosis, diagnose, model_free_ceiling
 from sim2real.identification.diagnosis.across import across_sides
-from sim2real.identification.documents import load_model_config, params_document, round_floats, write_model_residuals
+from sim2real.identification.documents import params_document, round_floats, write_model_residuals
 from sim2real.identification.effects import get_effect
 from sim2real.identification.fitting import (
     DEFAULT_SETTINGS, PRIOR_START_SETTING, FitContext, FitResult, NominalModel, Refinements, RunSamples, TorqueData,
     fit_on_the_previous, floor_units, holdout_metrics, load_nominal, predict, stack_runs,
 )
 from sim2real.identification.inertial.bands import InertiaBands
+from sim2real.identification.model_config import ModelConfig, load_model_config
 from sim2real.identification.records import Note, NoteKind, SensorPlacement, Side
 from sim2real.measurements import PreparedRun, noise_floor_of, torque_sensor_of
 from sim2real.stats import rmse
@@ -226,30 +227,23 @@ class _Sides:
         return None
 
 
-def _sides_of(runs: Mapping[str, Sequence[PreparedRun]], settings: Mapping[str, Any], robot: str) -> _Sides:
+def _sides_of(runs: Mapping[str, Sequence[PreparedRun]], model: ModelConfig, robot: str) -> _Sides:
     """The sides these runs judge; a line model.yaml keeps on a side they cannot keep it on is an input error."""
     every = [*runs["fit"], *runs["holdout"]]
     mode, sensor = sides.side_mode(every), torque_sensor_of(every)
-    kept_on = {name: Side(side) for name, side in (settings.get("links") or {}).items()}
-    for name, side in kept_on.items():
+    for name, side in model.sides.items():
         problem = sides.kept_on_problem(name, side, mode, sensor)
         if problem:
-            raise InputError(f"configs/{robot}/model.yaml", f"effects: '- {name}: {side}'", problem, f"write '- {name}'")
-    return _Sides(mode, sensor, kept_on)
+            raise InputError(model.path or f"configs/{robot}/model.yaml", f"effects: '- {name}: {side}'", problem,
+                             f"write '- {name}'")
+    return _Sides(mode, sensor, model.sides)
 
 
-def fit_model(
-    effect_names: Sequence[str],
-    nominal: NominalModel,
-    runs: Mapping[str, Sequence[PreparedRun]],
-    settings: Mapping[str, Any] | None = None,
-    robot: str = "{robot}",
-    workers: int = 1,
-    cache: FitCache | None = None,
-    release_runs: bool = False,
-    current_out: dict[str, Any] | None = None,
-) -> tuple[dict[str, Any], list[FitResult]]:
-    """Both sides of the model (:mod:`sim2real.identification.sides`) on prepared runs by role (``fit``, ``holdout``).
+def fit_model(model: ModelConfig, nominal: NominalModel, runs: Mapping[str, Sequence[PreparedRun]],
+              robot: str = "{robot}", *, workers: int = 1, cache: FitCache | None = None, release_runs: bool = False,
+              current_out: dict[str, Any] | None = None) -> tuple[dict[str, Any], list[FitResult]]:
+    """Both sides of ``model`` (model.yaml: :mod:`sim2real.identification.sides`) on prepared runs by role (``fit``,
+    ``holdout``).
 
     The body side's ladder and diagnosis are the document's ``ladder`` and ``diagnosis`` (on runs
     without a torque sensor: both sides together, judged on the command); with a sensor and commands the
@@ -260,9 +254,10 @@ def fit_model(
     holds no other reference: a 10-minute log's runs at 1 kHz are hundreds of MB the body side does not need);
     ``current_out``: filled with the body side's data and last rung's residual by role (:func:`model_residuals`).
     """
-    settings = dict(settings or {})
-    fit_settings = {**DEFAULT_SETTINGS, **settings.get("fit", {})}
-    split = _sides_of(runs, settings, robot)
+    settings = model.as_settings()
+    effect_names = list(model.effects)
+    fit_settings = {**DEFAULT_SETTINGS, **settings["fit"]}
+    split = _sides_of(runs, model, robot)
     body_effects = split.body_effects(effect_names)
     body_data = {role: stack_runs([RunSamples.of(run, noise_floor_of(run)) for run in runs[role]],
                                   nominal.joint_names, fit_settings["fit_rate_hz"]) for role in ("fit", "holdout")}
@@ -278,7 +273,7 @@ def fit_model(
     residuals: dict[str, np.ndarray] = {}
     body = fit_ladder(body_effects, FitContext.on_nominal(nominal, body_data["fit"], body_data["holdout"],
                                                           fit_settings, workers=workers),
-                      side=split.body, candidates=split.body_candidates(), limits=settings.get("diagnosis"),
+                      side=split.body, candidates=split.body_candidates(), limits=settings["diagnosis"],
                       cache=cache, residuals_out=residuals)
     if current_out is not None:
         current_out.update({"link": str(split.body), "effects": list(body_effects),
@@ -367,22 +362,20 @@ def run_sysid(
 
     model_config = load_model_config(model_config_path)
     robot_config = dict(robot_settings) if robot_settings is not None else (read_yaml(robot_config_path) or {})
-    entries, prepared, _ = runs_for_model(measurement_list, urdf_path, root, FIT_ARRAYS)
-    joints = prepared[0].joint_names
+    runs = runs_for_model(measurement_list, urdf_path, root, FIT_ARRAYS)
+    joints = runs[0].joint_names
     cache = FitCache(cache_dir)
     nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"), cache=cache,
                            inertia_bands=InertiaBands.of_robot(robot_config))
-    by_role: dict[str, list[PreparedRun]] = {"fit": [], "holdout": []}
-    for entry, run in zip(entries, prepared, strict=True):
-        by_role[entry.role].append(run)
-    del prepared, run  # by_role holds the runs alone: fit_model empties it once the links have what they need
+    by_role: dict[str, list[PreparedRun]] = {"fit": list(runs.fit), "holdout": list(runs.holdout)}
+    del runs  # by_role holds the runs alone: fit_model empties it once the links have what they need
     for role in ("fit", "holdout"):
         if not by_role[role]:
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
     current: dict[str, Any] = {}
-    document, results = fit_model(model_config["effects"], nominal, by_role, model_config, robot,
-                                  workers=threads, cache=cache, release_runs=True, current_out=current)
+    document, results = fit_model(model_config, nominal, by_role, robot, workers=threads, cache=cache,
+                                  release_runs=True, current_out=current)
     params = params_document(results, nominal, document["torque_source"], robot)
     write_json(ladder_json, document)
     write_yaml(params_yaml, params)

@@ -316,7 +316,7 @@ def run_lab_scenario_run(
     (:func:`~sim2real.lab.config.excitation_designs`); ``scenario_spec``: the scenario as
     :func:`~sim2real.lab.config.lab_scenario` reads it from ``lab_config`` (read here without one).
     """
-    from sim2real.measurements import write_run
+    from sim2real.measurements import RunMeta, write_run
 
     spec = scenario_spec if scenario_spec is not None else lab_scenario(lab_config, scenario)
     joints, settings = list(spec["joints"]), spec["settings"]
@@ -328,16 +328,14 @@ def run_lab_scenario_run(
         trajectory = read_excitation(excitation, joints, float(settings["sample_rate_hz"]),
                                      f"scenarios/{scenario}/runs/{run}/excitation", lab_config)
     time, signals, _ = simulate_run(mjcf_path, joints, settings, int(runs[run]["seed"]), lab_config, trajectory)
-    meta = {
-        "robot": robot,
-        "source": "synthetic",
-        "control_mode": "torque",
-        "sample_rate_hz": float(settings["sample_rate_hz"]) / log_every(settings),
-        **({"torque_sensor": _torque_sensor(settings, Path(lab_config))} if "tau" in signals else {}),
-        "notes": f"virtual lab scenario '{scenario}', run '{run}' (seed {runs[run]['seed']}"
-                 + (f", designed excitation '{runs[run]['excitation']}'" if excitation is not None else "") + "); "
-                 "hidden effects are in truth.yaml, which no comparison reads",
-    }
+    meta = RunMeta(
+        robot=robot, source="synthetic", control_mode="torque",
+        sample_rate_hz=float(settings["sample_rate_hz"]) / log_every(settings),
+        torque_sensor=_torque_sensor(settings, Path(lab_config)) if "tau" in signals else None,
+        notes=f"virtual lab scenario '{scenario}', run '{run}' (seed {runs[run]['seed']}"
+              + (f", designed excitation '{runs[run]['excitation']}'" if excitation is not None else "") + "); "
+              "hidden effects are in truth.yaml, which no comparison reads",
+    )
     write_run(output, time, joints, signals, meta)
 
 

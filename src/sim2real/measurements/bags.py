@@ -15,6 +15,7 @@ import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.files import read_validated_yaml
+from sim2real.measurements.records import RunMeta
 from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR, write_run
 
 DEFAULT_JOINT_TOPIC = "/joint_states"
@@ -45,13 +46,34 @@ def mcap_to_run(
     the effort is measured, written to the run's metadata (``link`` for a Panda's franka_ros2 joint
     states, whose effort is the link-side tau_J).
     """
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-
     bag_path = Path(bag_path)
     if not bag_path.exists():
         raise InputError(bag_path, None, "bag does not exist", "record it or correct the path")
-    states: list[tuple[float, dict[str, tuple[float, float | None, float | None]]]] = []
+    states, commands = _read_bag(bag_path, joint_topic, command_topic)
+    if not states:
+        raise InputError(bag_path, f"topic {joint_topic}", "no JointState messages", "check the joint_topic setting")
+    names, time, signals = _joint_signals(bag_path, joint_topic, states, joints)
+    if commands:
+        time, signals = _held_commands(bag_path, command_topic, commands, names, time, signals)
+    meta = RunMeta(robot=robot, source="real", control_mode="torque" if "tau_cmd" in signals else "position",
+                   torque_sensor=torque_sensor if "tau" in signals else None,
+                   notes=f"converted from ROS 2 bag {bag_path.name} (joint topic {joint_topic}, "
+                         f"command topic {command_topic or 'none'})")
+    write_run(output, time - time[0], names, signals, meta)
+    return Path(output)
+
+
+_State = tuple[float, dict[str, tuple[float, float | None, float | None]]]
+
+
+def _read_bag(bag_path: Path, joint_topic: str, command_topic: str | None,
+              ) -> tuple[list[_State], list[tuple[float, str, Any]]]:
+    """The bag's joint states ((stamp, {joint: (position, velocity, effort)})) and commands ((stamp, message type,
+    message)), in the bag's order."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    states: list[_State] = []
     commands: list[tuple[float, str, Any]] = []
     topics = [joint_topic] + ([command_topic] if command_topic else [])
     with bag_path.open("rb") as stream:
@@ -73,8 +95,13 @@ def mcap_to_run(
                 states.append((stamp, row))
             else:
                 commands.append((stamp, schema.name, decoded))
-    if not states:
-        raise InputError(bag_path, f"topic {joint_topic}", "no JointState messages", "check the joint_topic setting")
+    return states, commands
+
+
+def _joint_signals(bag_path: Path, joint_topic: str, states: list[_State], joints: Sequence[str] | None,
+                   ) -> tuple[list[str], np.ndarray, dict[str, np.ndarray]]:
+    """The joints (``joints``, else the first message's), the states' stamps in time order, and q, qd and tau where
+    every message has them."""
     states.sort(key=lambda s: s[0])
     names = list(joints) if joints is not None else list(states[0][1].keys())
     for k, (_, row) in enumerate(states):
@@ -93,38 +120,40 @@ def mcap_to_run(
         signals["qd"] = qd
     if tau is not None:
         signals["tau"] = tau
-    if commands:
-        commands.sort(key=lambda c: c[0])
-        c_time = np.array([c[0] for c in commands])
-        tau_cmd_rows, q_cmd_rows = [], []
-        for stamp, kind, msg in commands:
-            if kind == "sensor_msgs/msg/JointState":
-                index = {n: i for i, n in enumerate(msg.name)}
-                tau_cmd_rows.append([msg.effort[index[j]] if len(msg.effort) else np.nan for j in names])
-                q_cmd_rows.append([msg.position[index[j]] if len(msg.position) else np.nan for j in names])
-            elif kind == "std_msgs/msg/Float64MultiArray":
-                if len(msg.data) != len(names):
-                    raise InputError(bag_path, f"topic {command_topic}", f"{len(msg.data)} values for {len(names)} joints",
-                                     "publish one command per joint, in JointState order")
-                tau_cmd_rows.append(list(msg.data))
-                q_cmd_rows.append([np.nan] * len(names))
-            else:
-                raise InputError(bag_path, f"topic {command_topic}", f"unsupported type {kind}",
-                                 "use sensor_msgs/msg/JointState or std_msgs/msg/Float64MultiArray")
-        idx = np.searchsorted(c_time, time, side="right") - 1
-        valid = idx >= 0
-        time, idx = time[valid], idx[valid]
-        signals = {k: v[valid] for k, v in signals.items()}
-        tau_cmd = np.asarray(tau_cmd_rows, dtype=float)[idx]
-        q_cmd = np.asarray(q_cmd_rows, dtype=float)[idx]
-        if np.all(np.isfinite(tau_cmd)):
-            signals["tau_cmd"] = tau_cmd
-        if np.all(np.isfinite(q_cmd)):
-            signals["q_cmd"] = q_cmd
-    time = time - time[0]
-    meta = {"robot": robot, "source": "real", "control_mode": "torque" if "tau_cmd" in signals else "position",
-            **({"torque_sensor": torque_sensor} if "tau" in signals else {}),
-            "notes": f"converted from ROS 2 bag {bag_path.name} (joint topic {joint_topic}, "
-                     f"command topic {command_topic or 'none'})"}
-    write_run(output, time, names, signals, meta)
-    return Path(output)
+    return names, time, signals
+
+
+def _held_commands(
+    bag_path: Path, command_topic: str | None, commands: list[tuple[float, str, Any]], names: Sequence[str],
+    time: np.ndarray, signals: dict[str, np.ndarray],
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The states from the first command on, with the last command at or before each (zero-order hold): tau_cmd
+    and q_cmd where every command has them."""
+    commands.sort(key=lambda c: c[0])
+    c_time = np.array([c[0] for c in commands])
+    tau_cmd_rows, q_cmd_rows = [], []
+    for _, kind, msg in commands:
+        if kind == "sensor_msgs/msg/JointState":
+            index = {n: i for i, n in enumerate(msg.name)}
+            tau_cmd_rows.append([msg.effort[index[j]] if len(msg.effort) else np.nan for j in names])
+            q_cmd_rows.append([msg.position[index[j]] if len(msg.position) else np.nan for j in names])
+        elif kind == "std_msgs/msg/Float64MultiArray":
+            if len(msg.data) != len(names):
+                raise InputError(bag_path, f"topic {command_topic}", f"{len(msg.data)} values for {len(names)} joints",
+                                 "publish one command per joint, in JointState order")
+            tau_cmd_rows.append(list(msg.data))
+            q_cmd_rows.append([np.nan] * len(names))
+        else:
+            raise InputError(bag_path, f"topic {command_topic}", f"unsupported type {kind}",
+                             "use sensor_msgs/msg/JointState or std_msgs/msg/Float64MultiArray")
+    idx = np.searchsorted(c_time, time, side="right") - 1
+    valid = idx >= 0
+    time, idx = time[valid], idx[valid]
+    signals = {k: v[valid] for k, v in signals.items()}
+    tau_cmd = np.asarray(tau_cmd_rows, dtype=float)[idx]
+    q_cmd = np.asarray(q_cmd_rows, dtype=float)[idx]
+    if np.all(np.isfinite(tau_cmd)):
+        signals["tau_cmd"] = tau_cmd
+    if np.all(np.isfinite(q_cmd)):
+        signals["q_cmd"] = q_cmd
+    return time, signals

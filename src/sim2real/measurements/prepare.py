@@ -4,7 +4,7 @@
    can bridge) and each piece prepared on its own: interpolated across a lost stretch, the positions would be a
    straight line whose second derivative is no acceleration the arm made, and the torque one it never measured.
    A lone sample of a position or a torque far from both its neighbours (:func:`lone_spikes`: an encoder's or a
-   bus's error, a flipped bit) is replaced by the median of the three; the run's ``filter["spikes"]`` counts them.
+   bus's error, a flipped bit) is replaced by the median of the three; the run's ``filter.spikes`` counts them.
 1. Consecutive samples with identical positions (a logger faster than the state) are dropped:
    they carry a stale state, and keeping them would put steps into the differentiated signals.
 2. Everything is linearly interpolated onto a uniform grid (median time step, or ``sample_rate_hz``).
@@ -32,9 +32,10 @@ import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.measurements.noise import command_white_noise, white_noise_sigma
+from sim2real.measurements.records import FilterSettings, GapPiece, GapRecord, LoggingGap, SpikeRecord, StepRange
 from sim2real.measurements.runs import (
-    DEFAULT_CUTOFF_HZ, DEFAULT_FILTER_ORDER, DEFAULT_TORQUE_SENSOR, MAX_GRID_PER_SAMPLE, MIN_SAMPLES, MeasurementEntry,
-    PreparedRun, Run, check_run, file_row, read_runs,
+    DEFAULT_CUTOFF_HZ, DEFAULT_FILTER_ORDER, DEFAULT_TORQUE_SENSOR, MAX_GRID_PER_SAMPLE, MIN_SAMPLES, PreparedRun, Run,
+    RunSet, check_run, file_row, read_runs,
 )
 
 # A step between two stamps is a logging gap above the longer of these: GAP_MEDIAN_STEPS median steps (a
@@ -115,7 +116,47 @@ def prepare_run(
     use_measured_qd: bool = False,
 ) -> PreparedRun:
     """Dedup, resample to a uniform grid, zero-phase filter q, differentiate: see the module docstring."""
-    from scipy import signal
+    run, spikes = _replace_spikes(run)
+    # 1. drop stale repeats: a row whose positions equal the previous row's
+    keep = np.concatenate([[True], ~np.all(run.q[1:] == run.q[:-1], axis=1)])
+    raw_steps = np.diff(run.time)
+    # 2. uniform grid
+    rate = sample_rate_hz or run.meta.sample_rate_hz or 1.0 / float(np.median(raw_steps))
+    dt = 1.0 / float(rate)
+    grid = _uniform_grid(run, rate, dt, raw_steps)
+    # 3. filtered positions, their derivatives
+    q_f, qd_f, qdd_f, velocity_source = _filtered_motion(run, grid, keep, rate, cutoff_hz, order, use_measured_qd)
+    # 4. trim the filter's transient at both ends (a few time constants of the cutoff)
+    trim = _trim_samples(cutoff_hz, dt)
+    n = grid.size
+    if n - 2 * trim < MIN_SAMPLES:
+        raise InputError(run.path, "column 'time'", "run too short once the filter's edges are trimmed",
+                         f"log a longer run (at least {2 * trim * dt + MIN_SAMPLES * dt:.2f} s)")
+    sl = slice(trim, n - trim)
+    # 5. the torques, the commands and the contacts on the grid, unfiltered
+    torques = _unfiltered_signals(run, grid, sl)
+    record = FilterSettings(
+        order=int(order), cutoff_hz=float(cutoff_hz), velocity=velocity_source, resampled_to_hz=float(rate),
+        raw_step_ms=StepRange(min=float(raw_steps.min() * 1e3), median=float(np.median(raw_steps) * 1e3),
+                              max=float(raw_steps.max() * 1e3)),
+        repeated_samples_dropped=int(np.count_nonzero(~keep)), trimmed_s_each_end=float(trim * dt),
+        spikes=SpikeRecord(SPIKE_SCALES, spikes) if spikes else None, incomplete_rows=run.incomplete,
+    )
+    raw_torque = run.tau if run.tau is not None else run.tau_cmd
+    assert raw_torque is not None
+    keep_raw = np.concatenate([[True], np.any(raw_torque[1:] != raw_torque[:-1], axis=1)])
+    return PreparedRun(
+        name=run.name, joint_names=list(run.joint_names), time=grid[sl], dt=dt, q=q_f[sl], qd=qd_f[sl],
+        qdd=qdd_f[sl], torque_source="tau" if run.tau is not None else "tau_cmd", filter=record,
+        raw_torque_sigma=white_noise_sigma(raw_torque[keep_raw]),
+        torque_sensor=(run.meta.torque_sensor or DEFAULT_TORQUE_SENSOR) if run.tau is not None
+        else DEFAULT_TORQUE_SENSOR,
+        entry=run.entry, **torques,
+    )
+
+
+def _replace_spikes(run: Run) -> tuple[Run, dict[str, dict[str, int]]]:
+    """``run`` with its lone spikes (:func:`lone_spikes`) replaced, and how many per signal kind and joint."""
     spikes = {}
     for kind in SPIKE_SIGNALS:
         raw = getattr(run, kind)
@@ -124,16 +165,12 @@ def prepare_run(
             if flags.any():
                 run = dataclasses.replace(run, **{kind: without_spikes(raw, flags)})
                 spikes[kind] = {j: int(c) for j, c in zip(run.joint_names, flags.sum(axis=0), strict=True) if c}
-    # 1. drop stale repeats: a row whose positions equal the previous row's
-    same = np.all(run.q[1:] == run.q[:-1], axis=1)
-    keep = np.concatenate([[True], ~same])
-    n_repeats = int(np.count_nonzero(~keep))
-    t_raw = run.time[keep]
-    raw_steps = np.diff(run.time)
+    return run, spikes
 
-    # 2. uniform grid
-    rate = sample_rate_hz or run.meta.get("sample_rate_hz") or 1.0 / float(np.median(raw_steps))
-    dt = 1.0 / float(rate)
+
+def _uniform_grid(run: Run, rate: float, dt: float, raw_steps: np.ndarray) -> np.ndarray:
+    """The stamps of the uniform grid at ``rate`` (step ``dt``) over ``run``; a grid far denser than the log's
+    samples (:data:`MAX_GRID_PER_SAMPLE`: a gap, a stamp in other units, a wrong sample rate) is refused."""
     n_float = np.floor((run.time[-1] - run.time[0]) / dt) + 1
     if not n_float <= MAX_GRID_PER_SAMPLE * run.time.size:  # NaN too: a rate or span no grid can hold
         gap = int(np.argmax(raw_steps)) + 1
@@ -143,16 +180,28 @@ def prepare_run(
             f"{float(rate):.6g} Hz (largest gap {float(raw_steps[gap - 1]):.6g} s here)",
             "log time in seconds, without gaps, and give sample_rate_hz in Hz (or leave it out)",
         )
-    n = int(n_float)
-    grid = run.time[0] + dt * np.arange(n)
+    return run.time[0] + dt * np.arange(int(n_float))
 
-    def resample(x: np.ndarray | None, t_src: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray | None:
-        if x is None:
-            return None
-        x = x if rows is None else x[rows]
-        return np.column_stack([np.interp(grid, t_src, x[:, j]) for j in range(x.shape[1])])
 
-    q_grid = resample(run.q, t_raw, keep)
+def _resample(grid: np.ndarray, x: np.ndarray | None, t_src: np.ndarray, rows: np.ndarray | None = None,
+              ) -> np.ndarray | None:
+    """``x`` (sampled at ``t_src``, or at its ``rows`` only) linearly interpolated onto ``grid``."""
+    if x is None:
+        return None
+    x = x if rows is None else x[rows]
+    return np.column_stack([np.interp(grid, t_src, x[:, j]) for j in range(x.shape[1])])
+
+
+def _filtered_motion(
+    run: Run, grid: np.ndarray, keep: np.ndarray, rate: float, cutoff_hz: float, order: int, use_measured_qd: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """The positions on the grid (step ``1 / rate``, from the samples ``keep``), low-pass filtered, their velocity and
+    acceleration, and where the velocity came from."""
+    from scipy import signal
+
+    dt = 1.0 / float(rate)
+
+    q_grid = _resample(grid, run.q, run.time[keep], keep)
     nyquist = 0.5 * rate
     if cutoff_hz >= nyquist:
         raise InputError(run.path, "filter cutoff", f"{cutoff_hz} Hz is not below the Nyquist frequency {nyquist} Hz",
@@ -160,60 +209,31 @@ def prepare_run(
     sos = signal.butter(order, cutoff_hz, btype="low", fs=rate, output="sos")
     q_f = signal.sosfiltfilt(sos, q_grid, axis=0)
     if use_measured_qd and run.qd is not None:
-        qd_f = signal.sosfiltfilt(sos, resample(run.qd, run.time), axis=0)
+        qd_f = signal.sosfiltfilt(sos, _resample(grid, run.qd, run.time), axis=0)
         velocity_source = "logged qd, filtered"
     else:
         qd_f = np.gradient(q_f, dt, axis=0)
         velocity_source = "central differences of filtered q"
-    qdd_f = np.gradient(qd_f, dt, axis=0)
+    return q_f, qd_f, np.gradient(qd_f, dt, axis=0), velocity_source
 
-    # 4. trim the filter's transient at both ends (a few time constants of the cutoff)
-    trim = _trim_samples(cutoff_hz, dt)
-    if n - 2 * trim < MIN_SAMPLES:
-        raise InputError(run.path, "column 'time'", "run too short once the filter's edges are trimmed",
-                         f"log a longer run (at least {2 * trim * dt + MIN_SAMPLES * dt:.2f} s)")
-    sl = slice(trim, n - trim)
 
-    torque_source = "tau" if run.tau is not None else "tau_cmd"
+def _unfiltered_signals(run: Run, grid: np.ndarray, sl: slice) -> dict[str, np.ndarray | None]:
+    """The judged torque (``tau``, else ``tau_cmd``), the commands, the logged velocity and the contacts on the
+    grid, unfiltered, within ``sl``."""
     raw_torque = run.tau if run.tau is not None else run.tau_cmd
-    assert raw_torque is not None
-    tau = resample(raw_torque, run.time)
-    tau_cmd = tau.copy() if run.tau is None else resample(run.tau_cmd, run.time)  # judged on the command: resampled once
-    q_cmd = resample(run.q_cmd, run.time)
-    qd_measured = resample(run.qd, run.time)
+    tau = _resample(grid, raw_torque, run.time)
+    assert tau is not None
+    # judged on the command: resampled once
+    tau_cmd = tau.copy() if run.tau is None else _resample(grid, run.tau_cmd, run.time)
+    q_cmd = _resample(grid, run.q_cmd, run.time)
+    qd_measured = _resample(grid, run.qd, run.time)
     contact = None
     if run.contact is not None:
         idx = np.clip(np.searchsorted(run.time, grid, side="right") - 1, 0, run.time.size - 1)
         contact = run.contact[idx][sl]
-
-    filter_info: dict[str, Any] = {
-        "type": "butterworth low-pass, zero-phase (scipy.signal.sosfiltfilt)",
-        "order": int(order),
-        "cutoff_hz": float(cutoff_hz),
-        "applied_to": "q (torque is not filtered)",
-        "velocity": velocity_source,
-        "acceleration": "central differences of the velocity",
-        "resampled_to_hz": float(rate),
-        "resampling": "linear interpolation onto a uniform grid",
-        "raw_step_ms": {"min": float(raw_steps.min() * 1e3), "median": float(np.median(raw_steps) * 1e3),
-                        "max": float(raw_steps.max() * 1e3)},
-        "repeated_samples_dropped": n_repeats,
-        "trimmed_s_each_end": float(trim * dt),
-    }
-    if spikes:
-        filter_info["spikes"] = {"scales": SPIKE_SCALES, "replaced": spikes}
-    if run.incomplete is not None:
-        filter_info["incomplete_rows"] = dict(run.incomplete)
-    keep_raw = np.concatenate([[True], np.any(raw_torque[1:] != raw_torque[:-1], axis=1)])
-    return PreparedRun(
-        name=run.name, joint_names=list(run.joint_names), time=grid[sl], dt=dt, q=q_f[sl], qd=qd_f[sl],
-        qdd=qdd_f[sl], tau=tau[sl], torque_source=torque_source,
-        tau_cmd=None if tau_cmd is None else tau_cmd[sl], q_cmd=None if q_cmd is None else q_cmd[sl],
-        filter=filter_info, qd_measured=None if qd_measured is None else qd_measured[sl], contact=contact,
-        raw_torque_sigma=white_noise_sigma(raw_torque[keep_raw]),
-        torque_sensor=(str(run.meta.get("torque_sensor", DEFAULT_TORQUE_SENSOR)) if run.tau is not None
-                       else DEFAULT_TORQUE_SENSOR),
-    )
+    return {"tau": tau[sl], "tau_cmd": None if tau_cmd is None else tau_cmd[sl],
+            "q_cmd": None if q_cmd is None else q_cmd[sl],
+            "qd_measured": None if qd_measured is None else qd_measured[sl], "contact": contact}
 
 
 def _trim_samples(cutoff_hz: float, dt: float) -> int:
@@ -230,46 +250,48 @@ def with_command_floor(run: PreparedRun) -> PreparedRun:
 
 
 def prepare_runs(
-    runs: Sequence[Run], settings: Mapping[str, Any], known_joints: Sequence[str] | None = None,
+    runs: RunSet[Run], known_joints: Sequence[str] | None = None,
     limits: Mapping[str, tuple[float, float]] | None = None,
-) -> list[list[PreparedRun]]:
+) -> RunSet[PreparedRun]:
     """Runs of :func:`read_runs` checked against the model (:func:`check_run`), then prepared with the
-    list's filter settings: each run's pieces (:func:`prepare_pieces`; one, the run, when it has no gap)."""
+    list's filter settings: each run's pieces (:func:`prepare_pieces`; one, the run, when it has no gap), each with
+    the run's line of the list: a run split at its gaps counts as several runs of its role."""
     for run in runs:
         check_run(run, known_joints, limits)
-    return [prepare_pieces(run, settings) for run in runs]
+    return RunSet(tuple(piece for run in runs for piece in prepare_pieces(run, runs.settings)), runs.settings)
 
 
 def prepare_pieces(run: Run, settings: Mapping[str, Any]) -> list[PreparedRun]:
     """``run`` split at its logging gaps (:func:`split_at_gaps`, :func:`gap_threshold_s`) and each piece prepared
     (:func:`prepare_run`) on the run's own grid rate. A piece too short to prepare once the filter's edges are
-    trimmed is left out; every piece kept records the gaps and what was left out (its ``filter["gaps"]``). A run
+    trimmed is left out; every piece kept records the gaps and what was left out (its ``filter.gaps``). A run
     with no piece long enough is refused, naming its largest piece and its gaps."""
     cutoff = float(settings["cutoff_hz"])
     threshold = gap_threshold_s(run.time, cutoff, settings.get("max_step_s"))
     pieces = split_at_gaps(run, threshold)
     if len(pieces) == 1:
         return [_named_incomplete(prepare_run(run, cutoff_hz=cutoff, order=settings["order"]), run.name)]
-    rate = float(run.meta.get("sample_rate_hz") or 1.0 / float(np.median(np.diff(run.time))))
+    rate = float(run.meta.sample_rate_hz or 1.0 / float(np.median(np.diff(run.time))))
     trim = _trim_samples(cutoff, 1.0 / rate)
     # A piece's grid holds floor(span * rate) + 1 points; MIN_SAMPLES must remain once both edges are trimmed.
     long_enough = [np.floor((p.time[-1] - p.time[0]) * rate) + 1 - 2 * trim >= MIN_SAMPLES for p in pieces]
     steps = np.diff(run.time)
-    gaps = [{"after_s": float(run.time[k - 1]), "lost_s": float(steps[k - 1])}
-            for k in np.flatnonzero(steps > threshold) + 1]
-    record = {
-        "max_step_s": threshold,
-        "gaps": gaps,
-        "pieces": [{"name": p.name, "from_s": float(p.time[0]), "to_s": float(p.time[-1]), "kept": bool(keep)}
-                   for p, keep in zip(pieces, long_enough, strict=True)],
-    }
+    record = GapRecord(
+        max_step_s=threshold,
+        gaps=tuple(LoggingGap(after_s=float(run.time[k - 1]), lost_s=float(steps[k - 1]))
+                   for k in np.flatnonzero(steps > threshold) + 1),
+        pieces=tuple(GapPiece(name=p.name, from_s=float(p.time[0]), to_s=float(p.time[-1]), kept=bool(keep))
+                     for p, keep in zip(pieces, long_enough, strict=True)),
+        run=run.name,
+    )
     if not any(long_enough):
         longest = max(pieces, key=lambda p: float(p.time[-1] - p.time[0]))
         raise InputError(
             run.path, "column 'time'",
-            f"the log has {len(gaps)} gap(s) longer than {threshold:.3g} s (the first after {gaps[0]['after_s']:.6g} s, "
-            f"{gaps[0]['lost_s']:.3g} s lost), and no stretch between them is long enough to prepare (the longest, "
-            f"{float(longest.time[-1] - longest.time[0]):.3g} s, needs {(2 * trim + MIN_SAMPLES) / rate:.3g} s)",
+            f"the log has {len(record.gaps)} gap(s) longer than {threshold:.3g} s (the first after "
+            f"{record.gaps[0].after_s:.6g} s, {record.gaps[0].lost_s:.3g} s lost), and no stretch between them is long "
+            f"enough to prepare (the longest, {float(longest.time[-1] - longest.time[0]):.3g} s, needs "
+            f"{(2 * trim + MIN_SAMPLES) / rate:.3g} s)",
             "log without dropouts, or set gaps.max_step_s in the measurement list above the longest lost stretch "
             "(it is then interpolated across)")
     prepared = []
@@ -277,50 +299,43 @@ def prepare_pieces(run: Run, settings: Mapping[str, Any]) -> list[PreparedRun]:
         if keep:
             done = prepare_run(piece, cutoff_hz=cutoff, order=settings["order"], sample_rate_hz=rate)
             prepared.append(_named_incomplete(
-                dataclasses.replace(done, filter={**done.filter, "gaps": {**record, "run": run.name}}), run.name))
+                dataclasses.replace(done, filter=dataclasses.replace(done.filter, gaps=record)), run.name))
     return prepared
 
 
 def _named_incomplete(prepared: PreparedRun, name: str) -> PreparedRun:
     """The record of the rows dropped for an empty cell (sim2real.measurements.runs.read_run) named after the run of
     the measurement list, as its gaps are, whichever piece of it this is."""
-    if "incomplete_rows" not in prepared.filter:
+    rows = prepared.filter.incomplete_rows if prepared.filter is not None else None
+    if rows is None:
         return prepared
-    return dataclasses.replace(prepared, filter={**prepared.filter,
-                                                 "incomplete_rows": {"run": name, **prepared.filter["incomplete_rows"]}})
+    return dataclasses.replace(prepared, filter=dataclasses.replace(
+        prepared.filter, incomplete_rows=dataclasses.replace(rows, run=name)))
 
 
 def load_prepared_runs(
     measurement_list: str | Path, known_joints: Sequence[str] | None = None, root: str | Path = ".",
     limits: Mapping[str, tuple[float, float]] | None = None,
-) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
+) -> RunSet[PreparedRun]:
     """:func:`read_runs` then :func:`prepare_runs`, when the model's joints are known beforehand.
 
-    Returns (entries, prepared runs, settings of :func:`measurement_settings`): each prepared run with its entry,
-    a run split at its logging gaps (:func:`prepare_pieces`) as several pieces of the same entry.
+    Returns the prepared runs with the settings of :func:`measurement_settings`, each with its line of the list,
+    a run split at its logging gaps (:func:`prepare_pieces`) as several pieces of the same line.
     """
-    entries, runs, settings = read_runs(measurement_list, root)
-    return _by_piece(entries, prepare_runs(runs, settings, known_joints, limits), settings)
-
-
-def _by_piece(entries: Sequence[MeasurementEntry], pieces: Sequence[Sequence[PreparedRun]], settings: dict[str, Any],
-              ) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
-    """(each piece's entry, the pieces, settings): a run split at its gaps counts as several runs of its role."""
-    return ([entry for entry, own in zip(entries, pieces, strict=True) for _ in own],
-            [piece for own in pieces for piece in own], settings)
+    return prepare_runs(read_runs(measurement_list, root), known_joints, limits)
 
 
 def prepare_for_model(
     measurement_list: str | Path, urdf_path: str | Path, root: str | Path = ".",
-) -> tuple[list[MeasurementEntry], list[PreparedRun], dict[str, Any]]:
+) -> RunSet[PreparedRun]:
     """Every run of a measurement list read, checked against the URDF's joints and limits, and prepared.
 
     A run column naming a joint the URDF lacks is refused in the run's own terms (the file to edit is the
-    run). Returns (entries, prepared runs, settings of :func:`measurement_settings`), as :func:`load_prepared_runs`.
+    run). Returns the prepared runs, as :func:`load_prepared_runs`.
     """
     from sim2real.assets.dynamics import RigidBodyModel
 
-    entries, runs, settings = read_runs(measurement_list, root)
+    runs = read_runs(measurement_list, root)
     probe = RigidBodyModel(urdf_path)
     for run in runs:
         unknown = [j for j in run.joint_names if j not in probe.joint_names]
@@ -329,6 +344,5 @@ def prepare_for_model(
                              f"name the columns after the URDF's joints ({', '.join(probe.joint_names)})")
     probe = RigidBodyModel(urdf_path, runs[0].joint_names)
     limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(probe.joint_names, probe.lower, probe.upper, strict=True)}
-    pieces = [[with_command_floor(piece) for piece in own]
-              for own in prepare_runs(runs, settings, probe.joint_names, limits)]
-    return _by_piece(entries, pieces, settings)
+    prepared = prepare_runs(runs, probe.joint_names, limits)
+    return dataclasses.replace(prepared, runs=tuple(with_command_floor(piece) for piece in prepared))

@@ -16,24 +16,21 @@ builds its model from the runs' joints and prepares them (:mod:`sim2real.measure
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Generic, Literal, Protocol, TypeVar
 
 import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.files import read_validated_yaml
+from sim2real.measurements.records import FilterSettings, IncompleteRows, RunMeta, TorqueSensor
 
 if TYPE_CHECKING:
     import pandas as pd
 
 SIGNAL_KINDS = ("q", "qd", "tau", "tau_cmd", "q_cmd")
-# Where a run's measured torque ``tau`` is taken (metadata ``torque_sensor``): at the motor's output, before the
-# joint's rotor inertia and friction (a motor-current estimate, the default), or after the gearbox (link-side:
-# the Panda's tau_J, a KUKA iiwa's sensors).
-TorqueSensor = Literal["motor", "link"]
 TORQUE_SENSORS: tuple[TorqueSensor, ...] = ("motor", "link")
 DEFAULT_TORQUE_SENSOR: TorqueSensor = "motor"
 MIN_DURATION_S = 1.0
@@ -49,6 +46,16 @@ DEGREES_THRESHOLD_RAD = 2 * np.pi + 0.5
 MAX_INCOMPLETE_FRACTION = 0.2
 DEFAULT_CUTOFF_HZ = 10.0
 DEFAULT_FILTER_ORDER = 4
+Role = Literal["fit", "holdout"]
+
+
+@dataclass(frozen=True)
+class MeasurementEntry:
+    """A run of the measurement list: its name there, its file, and its role (``fit`` or ``holdout``)."""
+
+    name: str
+    path: Path
+    role: str  # "fit" | "holdout"
 
 
 @dataclass(frozen=True)
@@ -64,12 +71,18 @@ class Run:
     tau: np.ndarray | None
     tau_cmd: np.ndarray | None
     q_cmd: np.ndarray | None
-    meta: dict
+    meta: RunMeta
     contact: np.ndarray | None = None  # (N,) bool contact flag when the log has a `contact` column
     # where rows with an empty cell were dropped (:data:`MAX_INCOMPLETE_FRACTION`): the file's data row of each
-    # sample, and what was dropped ({"dropped", "of", "first_row"}); None when every row was whole
+    # sample, and what was dropped; None when every row was whole
     rows: np.ndarray | None = None
-    incomplete: dict | None = None
+    incomplete: IncompleteRows | None = None
+    entry: MeasurementEntry | None = None  # the run's line of the measurement list (None: read on its own)
+
+    @property
+    def role(self) -> str | None:
+        """``fit`` or ``holdout``, as the measurement list says (None: the run was read on its own)."""
+        return None if self.entry is None else self.entry.role
 
 
 def file_row(run: Run, index: int) -> str:
@@ -92,7 +105,8 @@ class PreparedRun:
     torque_source: str
     tau_cmd: np.ndarray | None
     q_cmd: np.ndarray | None
-    filter: dict
+    # what the preparation did (None: a run not prepared here, e.g. the residuals read back at the fit's rate)
+    filter: FilterSettings | None
     torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR  # where tau is measured (metadata `torque_sensor`)
     qd_measured: np.ndarray | None = None  # logged velocity on the grid (unfiltered), if any
     contact: np.ndarray | None = None
@@ -100,13 +114,62 @@ class PreparedRun:
     # per joint, the RMS of tau that no actuator model can explain from tau_cmd (with_command_floor); empty
     # until computed, and unless the run logs both
     command_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # the line of the measurement list the run (or this piece of it, split at a logging gap) was prepared from
+    entry: MeasurementEntry | None = None
+
+    @property
+    def role(self) -> str | None:
+        """``fit`` or ``holdout``, as the measurement list says (None: the run was prepared on its own)."""
+        return None if self.entry is None else self.entry.role
+
+
+class _HasEntry(Protocol):
+    @property
+    def entry(self) -> MeasurementEntry | None: ...
+
+    @property
+    def role(self) -> str | None: ...
+
+
+R = TypeVar("R", bound=_HasEntry)
 
 
 @dataclass(frozen=True)
-class MeasurementEntry:
-    name: str
-    path: Path
-    role: str  # "fit" | "holdout"
+class RunSet(Generic[R]):
+    """The runs of a measurement list, in its order, each with its line of the list (its role, its file), and the
+    list's preparation settings (:func:`measurement_settings`). A run split at its logging gaps is there as its
+    pieces, each with the run's line."""
+
+    runs: tuple[R, ...]
+    settings: dict[str, Any]
+
+    def __iter__(self) -> Iterator[R]:
+        return iter(self.runs)
+
+    def __len__(self) -> int:
+        return len(self.runs)
+
+    def __getitem__(self, index: int) -> R:
+        return self.runs[index]
+
+    def of_role(self, role: Role) -> tuple[R, ...]:
+        """The runs of ``role``, in the list's order."""
+        return tuple(run for run in self.runs if run.role == role)
+
+    @property
+    def fit(self) -> tuple[R, ...]:
+        """The runs the model is fitted on."""
+        return self.of_role("fit")
+
+    @property
+    def holdout(self) -> tuple[R, ...]:
+        """The runs the model is judged on."""
+        return self.of_role("holdout")
+
+    @property
+    def entries(self) -> tuple[MeasurementEntry | None, ...]:
+        """Each run's line of the measurement list (its name there, its file, its role)."""
+        return tuple(run.entry for run in self.runs)
 
 
 class _HasTorqueSensor(Protocol):
@@ -169,27 +232,61 @@ def read_run(path: str | Path) -> Run:
     ``InputError`` (file, column, row) on bad input. :func:`check_run` checks the joints and their
     limits once the model is known; :func:`load_run` does both.
     """
-    import pandas as pd
     path = Path(path)
+    meta = _read_meta(path)
+    table = _read_table(path)
+    columns = [str(c) for c in table.columns]
+    by_kind, has_contact = _columns_by_kind(path, columns)
+    joints = by_kind["q"]
+    numbers, incomplete = _numeric_columns(path, table, [c for c in columns if c != "contact"])
+    kept = np.flatnonzero(~incomplete)
+    if incomplete.any():
+        _check_incomplete(path, incomplete)
+        table = table.iloc[kept]
+        numbers = {col: column[kept] for col, column in numbers.items()}
+    _check_torques_move(path, numbers)
+    time = _checked_time(path, numbers["time"].copy(), kept)  # a copy: not a view that keeps the whole table alive
+
+    def block(kind: str) -> np.ndarray | None:
+        if not by_kind[kind]:
+            return None
+        return np.column_stack([numbers[f"{kind}.{j}"] for j in joints])
+
+    q = block("q")
+    assert q is not None
+    for i, joint in enumerate(joints):
+        worst = int(np.argmax(np.abs(q[:, i])))
+        if abs(q[worst, i]) > DEGREES_THRESHOLD_RAD:
+            _raise_degrees(path, joint, q[:, i], worst, int(kept[worst]))
+    contact = table["contact"].astype(bool).to_numpy() if has_contact else None
+    return Run(
+        name=path.stem, path=path, joint_names=list(joints), time=time, q=q, qd=block("qd"),
+        tau=block("tau"), tau_cmd=block("tau_cmd"), q_cmd=block("q_cmd"), meta=meta, contact=contact,
+        **({"rows": kept, "incomplete": IncompleteRows(
+            dropped=int(incomplete.sum()), of=int(incomplete.size),
+            first_row=_row_label(path, int(np.flatnonzero(incomplete)[0])))} if incomplete.any() else {}),
+    )
+
+
+def _read_meta(path: Path) -> RunMeta:
+    """The metadata beside the run ``path`` (``<stem>.yaml``), validated."""
     meta_path = path.with_suffix(".yaml")
     if not meta_path.exists():
         raise InputError(
             meta_path, None, "metadata file beside the run does not exist",
             "write <stem>.yaml with robot, source (real|synthetic) and control_mode (torque|position)",
         )
-    meta = read_validated_yaml(meta_path, "measurement.schema.yaml")
-    table = _read_table(path)
-    columns = [str(c) for c in table.columns]
+    return RunMeta.from_document(read_validated_yaml(meta_path, "measurement.schema.yaml"))
+
+
+def _columns_by_kind(path: Path, columns: Sequence[str]) -> tuple[dict[str, list[str]], bool]:
+    """The table's columns by signal kind ({kind: joints}, in the table's order) and whether it has ``contact``:
+    every column one of the format's, ``q`` for some joints, every other kind for all of them or none, a torque."""
     if "time" not in columns:
         raise InputError(path, "column 'time'", "is missing", "add a column 'time' in seconds")
-
     by_kind: dict[str, list[str]] = {kind: [] for kind in SIGNAL_KINDS}
-    has_contact = False
     for col in columns:
-        if col == "time":
-            continue
-        if col == "contact":
-            has_contact = True
+        if col in ("time", "contact"):
             continue
         kind, _, joint = col.rpartition(".")
         if kind not in by_kind or not joint:
@@ -198,7 +295,6 @@ def read_run(path: str | Path) -> Run:
                 "name columns time, q.<joint>, qd.<joint>, tau.<joint>, tau_cmd.<joint>, q_cmd.<joint> (or contact)",
             )
         by_kind[kind].append(joint)
-
     joints = by_kind["q"]
     if not joints:
         raise InputError(path, "columns q.<joint>", "no joint positions", "add one column q.<joint> per joint")
@@ -218,12 +314,18 @@ def read_run(path: str | Path) -> Run:
             path, "columns tau.<joint> / tau_cmd.<joint>", "no torque at all",
             "log the measured joint torque (tau.<joint>) or the commanded torque (tau_cmd.<joint>)",
         )
+    return by_kind, "contact" in columns
 
-    numeric_cols = [c for c in columns if c != "contact"]
-    values = table[numeric_cols]
+
+def _numeric_columns(path: Path, table: pd.DataFrame, names: Sequence[str]) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The columns ``names`` as float arrays (empty cells NaN), and the rows with an empty cell; a cell that is no
+    number, an infinite value or a column mostly empty is refused."""
+    import pandas as pd
+
+    values = table[list(names)]
     numbers = {}
     incomplete = np.zeros(len(table), dtype=bool)
-    for col in numeric_cols:
+    for col in names:
         try:
             column = pd.to_numeric(values[col], errors="raise").to_numpy(dtype=float)
         except (ValueError, TypeError) as exc:
@@ -248,18 +350,22 @@ def read_run(path: str | Path) -> Run:
             )
         numbers[col] = column
         incomplete |= empty
-    kept = np.flatnonzero(~incomplete)
-    if incomplete.any():
-        first = int(np.flatnonzero(incomplete)[0])
-        if incomplete.sum() > MAX_INCOMPLETE_FRACTION * incomplete.size:
-            raise InputError(
-                path, f"{_row_label(path, first)} and {int(incomplete.sum()) - 1} more",
-                f"{int(incomplete.sum())} of {incomplete.size} rows have an empty cell in some column: more than a "
-                "logger loses",
-                "signals logged on different clocks are put on one before loading (e.g. pandas.merge_asof on time)",
-            )
-        table = table.iloc[kept]
-        numbers = {col: column[kept] for col, column in numbers.items()}
+    return numbers, incomplete
+
+
+def _check_incomplete(path: Path, incomplete: np.ndarray) -> None:
+    """Rows with an empty cell are samples the logger lost, up to :data:`MAX_INCOMPLETE_FRACTION` of the table."""
+    first = int(np.flatnonzero(incomplete)[0])
+    if incomplete.sum() > MAX_INCOMPLETE_FRACTION * incomplete.size:
+        raise InputError(
+            path, f"{_row_label(path, first)} and {int(incomplete.sum()) - 1} more",
+            f"{int(incomplete.sum())} of {incomplete.size} rows have an empty cell in some column: more than a "
+            "logger loses",
+            "signals logged on different clocks are put on one before loading (e.g. pandas.merge_asof on time)",
+        )
+
+
+def _check_torques_move(path: Path, numbers: Mapping[str, np.ndarray]) -> None:
     for col, column in numbers.items():
         if col.split(".", 1)[0] in ("tau", "tau_cmd") and column.size > 1 and np.all(column == column[0]):
             # A torque that never moves while the arm does measured nothing: judged, it would be a residual
@@ -270,7 +376,9 @@ def read_run(path: str | Path) -> Run:
                 "log the joint's torque; to judge the commanded torque instead, leave out every tau.<joint> column",
             )
 
-    time = numbers["time"].copy()  # not a view that keeps the whole table alive
+
+def _checked_time(path: Path, time: np.ndarray, kept: np.ndarray) -> np.ndarray:
+    """``time``, increasing and long enough to judge; ``kept``: the file's data row of each sample."""
     steps = np.diff(time)
     bad = np.flatnonzero(steps <= 0)
     if bad.size:
@@ -287,29 +395,7 @@ def read_run(path: str | Path) -> Run:
             f"run too short to judge ({time.size} samples over {span:.3f} s)",
             f"log at least {MIN_DURATION_S:g} s and {MIN_SAMPLES} samples of motion",
         )
-
-    def block(kind: str) -> np.ndarray | None:
-        if not by_kind[kind]:
-            return None
-        return np.column_stack([numbers[f"{kind}.{j}"] for j in joints])
-
-    q = block("q")
-    assert q is not None
-    for i, joint in enumerate(joints):
-        worst = int(np.argmax(np.abs(q[:, i])))
-        if abs(q[worst, i]) > DEGREES_THRESHOLD_RAD:
-            _raise_degrees(path, joint, q[:, i], worst, int(kept[worst]))
-
-    contact = None
-    if has_contact:
-        contact = table["contact"].astype(bool).to_numpy()
-    return Run(
-        name=path.stem, path=path, joint_names=list(joints), time=time, q=q, qd=block("qd"),
-        tau=block("tau"), tau_cmd=block("tau_cmd"), q_cmd=block("q_cmd"), meta=dict(meta), contact=contact,
-        **({"rows": kept, "incomplete": {"dropped": int(incomplete.sum()), "of": int(incomplete.size),
-                                         "first_row": _row_label(path, int(np.flatnonzero(incomplete)[0]))}}
-           if incomplete.any() else {}),
-    )
+    return time
 
 
 def _raise_degrees(path: Path, joint: str, col: np.ndarray, row: int, file_row_index: int | None = None) -> None:
@@ -393,32 +479,31 @@ def _settings(data: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def read_runs(
-    measurement_list: str | Path, root: str | Path = ".",
-) -> tuple[list[MeasurementEntry], list[Run], dict[str, Any]]:
-    """Every run of a measurement list read once (:func:`read_run`), named as in the list.
+def read_runs(measurement_list: str | Path, root: str | Path = ".") -> RunSet[Run]:
+    """Every run of a measurement list read once (:func:`read_run`), named as in the list, each with its line of it.
 
-    Returns (entries, runs in the same order, settings of :func:`measurement_settings`). Every run must
+    Returns the runs in the list's order with the settings of :func:`measurement_settings`. Every run must
     log the same joints; the caller builds its model from ``runs[0].joint_names`` and hands it to
     :func:`prepare_runs`.
     """
     path = Path(measurement_list)
     data = read_validated_yaml(path, "measurements.schema.yaml")
     entries = _entries(path, data)
-    runs = [dataclasses.replace(read_run(Path(root) / e.path), name=e.name) for e in entries]
+    runs = [dataclasses.replace(read_run(Path(root) / e.path), name=e.name, entry=e) for e in entries]
     joints = runs[0].joint_names
     for run in runs:
         if run.joint_names != joints:
             raise InputError(run.path, "columns q.<joint>", "joints differ from the first run's",
                              f"log the same joints in every run: {', '.join(joints)}")
-    return entries, runs, _settings(data)
+    return RunSet(tuple(runs), _settings(data))
 
 
 def write_run(
     path: str | Path, time: np.ndarray, joint_names: Sequence[str], signals: Mapping[str, np.ndarray],
-    meta: Mapping[str, Any],
+    meta: RunMeta | Mapping[str, Any],
 ) -> None:
-    """Write a run (CSV or Parquet by extension) plus its metadata YAML, atomically and deterministically."""
+    """Write a run (CSV or Parquet by extension) plus its metadata YAML, atomically and deterministically.
+    ``meta``: the run's metadata, or its document (the ``.yaml``'s content, written as given)."""
     import pandas as pd
     from sim2real.files import atomic_path, validate, write_yaml
 
@@ -429,10 +514,11 @@ def write_run(
             for i, joint in enumerate(joint_names):
                 columns[f"{kind}.{joint}"] = np.asarray(signals[kind], dtype=float)[:, i]
     frame = pd.DataFrame(columns)
-    validate(dict(meta), "measurement.schema.yaml", path.with_suffix(".yaml"))
+    document = meta.as_document() if isinstance(meta, RunMeta) else dict(meta)
+    validate(document, "measurement.schema.yaml", path.with_suffix(".yaml"))
     with atomic_path(path) as tmp:
         if path.suffix.lower() == ".parquet":
             frame.to_parquet(tmp, index=False)
         else:
             frame.to_csv(tmp, index=False, float_format="%.9g")
-    write_yaml(path.with_suffix(".yaml"), dict(meta))
+    write_yaml(path.with_suffix(".yaml"), document)

@@ -61,7 +61,7 @@ def read_model_residuals(path: str | Path, model: RigidBodyModel) -> list[Torque
             dt = float(np.median(np.diff(part["time"]))) if part["time"].size > 1 else 0.0
             prepared = PreparedRun(name=run["name"], joint_names=joints, time=part["time"], dt=dt, q=part["q"],
                                    qd=part["qd"], qdd=part["qdd"], tau=part["tau"], torque_source=header["torque_source"],
-                                   tau_cmd=None, q_cmd=None, filter={}, torque_sensor=header["torque_sensor"])
+                                   tau_cmd=None, q_cmd=None, filter=None, torque_sensor=header["torque_sensor"])
             out.append(TorqueComparison(run=prepared, role="holdout", model_tau=part["tau"] - part["residual"],
                                         residual=part["residual"], gravity=model.gravity(part["q"])))
     except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
@@ -100,7 +100,8 @@ def compute_gap(
     runs, as the ladder judges) and ``where`` are its, and the returned comparisons too; the nominal URDF's
     (every run, at the log's rate) move under ``nominal``, for reference."""
     # joints come from the first run, the model locks everything else
-    entries, prepared, settings = runs_for_model(measurement_list, urdf_path, root)
+    prepared = runs_for_model(measurement_list, urdf_path, root)
+    settings = prepared.settings
     models = ReplayModels(mjcf_path, cache) if mjcf_path is not None else None
     armature = model_armature(mjcf_path, prepared[0].joint_names, models) if mjcf_path is not None else None
     model = RigidBodyModel(urdf_path, prepared[0].joint_names, armature=armature)
@@ -121,24 +122,24 @@ def compute_gap(
         progress(gap, None)
 
     comparisons = []
-    for e, p in zip(entries, prepared):
+    for p in prepared:
         model_tau = model.inverse_dynamics(p.q, p.qd, p.qdd)
         if measured_after_drive(p.torque_source, p.torque_sensor):  # the links alone: no drive terms
             model_tau = model_tau - model.drive_torque(p.qd, p.qdd)
-        comparisons.append(TorqueComparison(run=p, role=e.role, model_tau=model_tau, residual=p.tau - model_tau,
+        comparisons.append(TorqueComparison(run=p, role=p.role, model_tau=model_tau, residual=p.tau - model_tau,
                                             gravity=model.gravity(p.q)))
     measured = np.concatenate([c.run.tau for c in comparisons])
     residual = np.concatenate([c.residual for c in comparisons])
     metrics = torque_metrics(measured, residual, joints)
 
     runs_out = []
-    for e, c in zip(entries, comparisons):
+    for c in comparisons:
         p = c.run
         per_run = torque_metrics(p.tau, c.residual, joints)
         runs_out.append({
-            "name": p.name, "path": Path(e.path).as_posix(), "role": e.role, "torque_source": p.torque_source,
+            "name": p.name, "path": Path(p.entry.path).as_posix(), "role": p.role, "torque_source": p.torque_source,
             "samples": int(p.time.size), "duration_s": float(p.time[-1] - p.time[0]),
-            "has_commands": p.tau_cmd is not None, "filter": p.filter,
+            "has_commands": p.tau_cmd is not None, "filter": p.filter.as_document(),
             "torque_rmse": per_run["torque_rmse"],
             "noise_floor": per_joint_dict(noise_floor_of(p), joints,
                                            float(np.sqrt(np.mean(noise_floor_of(p) ** 2)))),

@@ -1,0 +1,133 @@
+"""``configs/{robot}/model.yaml``, the model ladder, parsed and validated once (:func:`load_model_config`): the rules
+(``rules/common.smk``), the identification and the excitation design all read it through here.
+
+The file (``schemas/model.schema.yaml``): ``effects``, the ladder's lines in order, each an effect's name or, for a
+drive effect kept on one side of the comparison, ``{name: side}`` (``- asymmetric_friction: actuator``); ``fit``, the
+fit settings; ``diagnosis``, when the diagnosis names an effect. A setting left out is None here: its default
+applies (``sim2real.identification.fitting.DEFAULT_SETTINGS``, ``sim2real.identification.diagnosis.DEFAULT_DIAGNOSIS``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from sim2real.identification.records import Side
+from sim2real.errors import InputError
+
+# The sides a drive effect's line may keep it on (sim2real.identification.links), as model.yaml writes them (the
+# values of the sides' enum once the identification names them: body, and the drive's "actuator").
+# The sides a drive line may be kept on (the documents' words, ``- asymmetric_friction: actuator``).
+LINE_SIDES: tuple[Side, ...] = (Side.BODY, Side.DRIVE)
+
+
+@dataclass(frozen=True)
+class EffectLine:
+    """A line of model.yaml's ``effects``: the effect, and the side it is kept on (None: every side it belongs to)."""
+
+    name: str
+    side: Side | None = None
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """model.yaml's ``fit`` (the schema describes each); None: not given, the default applies."""
+
+    fit_rate_hz: float | None = None
+    refine_max_samples: int | None = None
+    refine_windows_s: float | None = None
+    bootstrap_replicates: int | None = None
+    bootstrap_block_s: float | None = None
+    confidence: float | None = None
+    seed: int | None = None
+    inertia_regularization: float | Literal["held_out"] | None = None
+    joint_weighting: Literal["noise_floor", "none"] | None = None
+
+
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    """model.yaml's ``diagnosis`` (the schema describes each); None: not given, the default applies."""
+
+    min_explained: float | None = None
+    joint_min_explained: float | None = None
+    noise_floor_factor: float | None = None
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """model.yaml, validated: the ladder's lines, the fit and diagnosis settings, and the file they came from."""
+
+    lines: tuple[EffectLine, ...] = ()
+    fit: FitSettings = field(default_factory=FitSettings)
+    diagnosis: DiagnosisSettings = field(default_factory=DiagnosisSettings)
+    path: Path | None = field(default=None, compare=False)
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        """The ladder's effects in order (empty: the nominal model only)."""
+        return tuple(line.name for line in self.lines)
+
+    @property
+    def sides(self) -> dict[str, Side]:
+        """The effects kept on one side: {effect: side}."""
+        return {line.name: line.side for line in self.lines if line.side is not None}
+
+    def as_settings(self) -> dict[str, Any]:
+        """The settings mapping :func:`sim2real.identification.sysid.fit_model` reads: ``effects``, ``links`` (the
+        effects kept on one side), and the ``fit`` and ``diagnosis`` settings given."""
+        return {"effects": list(self.effects), "links": {k: str(v) for k, v in self.sides.items()}, "fit": _given(self.fit),
+                "diagnosis": _given(self.diagnosis)}
+
+
+def _given(section: FitSettings | DiagnosisSettings) -> dict[str, Any]:
+    values = {f.name: getattr(section, f.name) for f in dataclasses.fields(section)}
+    return {name: value for name, value in values.items() if value is not None}
+
+
+def load_model_config(path: str | Path) -> ModelConfig:
+    """configs/{robot}/model.yaml read and validated (:func:`parse_model_config`); ``InputError`` names the file, the
+    line and the fix."""
+    from sim2real.files import read_validated_yaml
+
+    return parse_model_config(read_validated_yaml(path, "model.schema.yaml"), path)
+
+
+def parse_model_config(data: Mapping[str, Any] | None, path: str | Path) -> ModelConfig:
+    """model.yaml's content (``data``, valid against its schema; None: an empty file) of the file ``path``."""
+    data = data or {}
+    return ModelConfig(effect_lines(data.get("effects") or [], path), FitSettings(**(data.get("fit") or {})),
+                       DiagnosisSettings(**(data.get("diagnosis") or {})), Path(path))
+
+
+def effect_lines(lines: Sequence[str | Mapping[str, str]], path: str | Path) -> tuple[EffectLine, ...]:
+    """The lines of model.yaml's ``effects`` (of the file ``path``, named in an error): each a known effect, listed
+    once, or ``{effect: side}``, a drive effect kept on one side (behind a link-side sensor a drive's effect is
+    fitted on both sides; a user whose other side it leaves worse, as the verdict says, keeps it on one)."""
+    from sim2real.identification.effects import get_effect
+
+    names = [next(iter(line)) if isinstance(line, Mapping) and len(line) == 1 else line for line in lines]
+    seen = set()
+    for i, name in enumerate(names):
+        if not isinstance(name, str):
+            raise InputError(path, f"effects/{i}", f"'{lines[i]}' is no effect's line",
+                             "write '- <effect>', or '- <effect>: actuator' for a drive effect kept on one link")
+        get_effect(name, str(path))
+        if name in seen:
+            raise InputError(path, f"effects/{i}", f"'{name}' is listed twice", "list each effect once")
+        seen.add(name)
+    sides: dict[int, Side] = {}
+    for i, line in enumerate(lines):
+        if not isinstance(line, Mapping):
+            continue
+        name, side = next(iter(line.items()))
+        if side not in LINE_SIDES:
+            raise InputError(path, f"effects/{i}", f"'{name}: {side}' names no link",
+                             f"write '- {name}: actuator' or '- {name}: body'")
+        if not get_effect(name, str(path)).drive:
+            raise InputError(path, f"effects/{i}", f"'{name}' is fitted on one link only: there is no other link to "
+                             "keep it off", f"write '- {name}'")
+        sides[i] = Side(side)
+    return tuple(EffectLine(name, sides.get(i)) for i, name in enumerate(names))
