@@ -4,7 +4,7 @@
   q, qd, qdd against the prepared torque (measured ``tau``, else ``tau_cmd``): RMSE per joint and
   overall, RMSE relative to the torque's RMS, R^2.
 * State domain, where commands exist: the commanded torques are replayed in MuJoCo (the built MJCF
-  driven by joint torques, see ``sim2real.lab.arm.arm_spec``) with multiple shooting: every ``horizon_s``
+  driven by joint torques, see ``sim2real.assets.arm.arm_spec``) with multiple shooting: every ``horizon_s``
   the simulation restarts from the measured state (``mujoco.rollout``, one segment per batch row).
   Position/velocity RMSE, correlation, spectral divergence and the reality-gap metric of the source
   chapter (P02.5): score = 0.3 min(pos/0.1,1) + 0.2 min(vel/1,1) + 0.15 min(tau/5,1) + 0.15 (1-corr)
