@@ -93,7 +93,7 @@ def test_the_fitting_core_depends_on_nothing_above_it():
 
 # The stages of rules/ as packages, and which may import which (issue 31): a stage imports only the stages
 # below it, never one above; the shared modules import no stage.
-SHARED = {"errors", "files", "cli", "cache", "blas", "forked", "stats", "filters", "design_names", "resources"}
+SHARED = {"errors", "files", "cli", "cache", "blas", "forked", "stats", "filters", "design_names"}
 MAY_IMPORT = {
     "shared": set(),
     "assets": {"shared"},
