@@ -91,6 +91,20 @@ def test_the_fitting_core_depends_on_nothing_above_it():
     assert not any(m.startswith("sim2real.report") for m in loaded)
 
 
+def test_the_packages_export_public_names_only():
+    """A package's ``__init__`` re-exports public names; a private one is imported from the module that defines it."""
+    private = []
+    for path in sorted(PACKAGE.rglob("__init__.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        names = [alias.asname or alias.name for node in tree.body if isinstance(node, ast.ImportFrom)
+                 for alias in node.names]
+        for node in tree.body:
+            if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets):
+                names += [e.value for e in getattr(node.value, "elts", []) if isinstance(e, ast.Constant)]
+        private += [f"{module_name(path)}: {name}" for name in names if name.startswith("_") and not name.startswith("__")]
+    assert not private, "private names exported:\n" + "\n".join(private)
+
+
 # The stages of rules/ as packages, and which may import which (issue 31): a stage imports only the stages
 # below it, never one above; the shared modules import no stage.
 SHARED = {"errors", "files", "cli", "cache", "blas", "forked", "stats", "filters", "design_names"}
