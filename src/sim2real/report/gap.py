@@ -12,7 +12,7 @@
   the contact term is not applicable and the other weights are renormalised to sum to 1 (an arm in
   free space would otherwise be charged 0.1 for contacts that do not exist).
 * Where it fails: per joint and regime (slow motion and velocity reversals, hard accelerations,
-  gravity-loaded poses, near the limits; defined in ``sim2real.regimes``), and the worst time windows
+  gravity-loaded poses, near the limits; defined in ``sim2real.report.regimes``), and the worst time windows
   with their stamps.
 * The noise floor: the torque RMS that no model can explain (``noise_floor_of``).
 
@@ -201,7 +201,7 @@ def build_gap_report(
     precomputed_path: str | Path | None = None, root: str | Path = ".", threads: int = 1,
     cache_dir: str | Path | None = None, residuals_path: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Write gap.json, gap.md and the figures (keys: :data:`sim2real.report.FIGURES`); the figures
+    """Write gap.json, gap.md and the figures (keys: :data:`sim2real.report.figures.FIGURES`); the figures
     are drawn on up to ``threads`` processes. ``cache_dir``: where the replays and figures are kept for the
     next report (:class:`sim2real.cache.FitCache`; None: not kept): a round of the loop that adds a
     rung replays that rung and redraws what shows the ladder, and reads the rest back, the same bytes."""
