@@ -14,8 +14,7 @@ import sys
 from pathlib import Path
 
 from harness import ROOT
-
-from sim2real.resources import declared_resources, exceeded, measured_resources, resource_table, undeclared  # noqa: E402
+from resources import declared_resources, exceeded, measured_resources, resource_table, undeclared
 
 
 def main() -> int:

@@ -75,10 +75,11 @@ import toolbox  # noqa: E402  (mujoco.sysid at its best: the other method)
 from gap_fixtures import PANDA_JOINTS, build_dev_panda  # noqa: E402
 from toolbox import HAVE_TOOLBOX, log_step, ms  # noqa: E402
 
+from sim2real.assets.arm import arm_spec  # noqa: E402
 from sim2real.identification import sysid  # noqa: E402
 from sim2real.identification.fitting import subset_signals  # noqa: E402
 from sim2real.lab import (  # noqa: E402
-    arm_spec, load_lab_config, run_lab_scenario_run, scenario_runs, simulate_run, write_truth,
+    load_lab_config, run_lab_scenario_run, scenario_runs, simulate_run, write_truth,
 )
 from sim2real.measurements import Run, noise_floor_of, load_run, prepare_run, write_run  # noqa: E402
 

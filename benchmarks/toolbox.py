@@ -38,7 +38,7 @@ import mujoco
 import numpy as np
 from scipy import stats
 
-from sim2real.lab import arm_spec
+from sim2real.assets.arm import arm_spec
 from sim2real.measurements import Run
 
 try:

@@ -90,7 +90,7 @@ rule gap_report:
         "results/{robot}/logs/{campaign}gap_report.log",
     benchmark:
         "results/{robot}/benchmarks/{campaign}gap_report.tsv"
-    # the figures are drawn in worker processes while the replays run (sim2real.report.GapFigures)
+    # the figures are drawn in worker processes while the replays run (sim2real.report.figures.GapFigures)
     priority: CHAIN_PRIORITY
     threads: round_threads(2, gap_kept)
     resources:

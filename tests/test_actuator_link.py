@@ -207,7 +207,7 @@ def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added
 def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
     from sim2real.identification import sysid
     from sim2real.identification.effects import apply_to_spec
-    from sim2real.lab import arm_spec
+    from sim2real.assets.arm import arm_spec
 
     runs = lab.prepared(lab.measurement_list("actuator_gain"))
     document, results = sysid.fit_model(model_config(["actuator_gain", "actuation_delay", "command_bias"]),

@@ -98,7 +98,7 @@ def test_actuator_effects_are_not_offered_against_the_motion_when_a_sensor_measu
 def test_a_trial_that_does_not_solve_is_reported_not_ranked_as_explaining_nothing(lab, monkeypatch):
     """A candidate extends the model, so its fit matches the fit runs at least as well: one far worse there is a
     failed solve (a solver's fallback can end so), and the verdict says so instead of ranking it "explains nothing"."""
-    original = fitting._fit_way
+    original = fitting.fit_way
 
     def failing_link_inertia(way, effect_names, **inputs):
         result, residual = original(way, effect_names=effect_names, **inputs)
@@ -110,7 +110,7 @@ def test_a_trial_that_does_not_solve_is_reported_not_ranked_as_explaining_nothin
         broken = dataclasses.replace(broken, fit_rmse=rmse(fit_residual, data.joint_names))
         return broken, fitting.holdout_metrics(broken, nominal, inputs["holdout_data"], inputs["holdout_signals"])[1]
 
-    monkeypatch.setattr(fitting, "_fit_way", failing_link_inertia)
+    monkeypatch.setattr(fitting, "fit_way", failing_link_inertia)
     fit_data, holdout_data = lab.data("payload")
     with threadpool_limits(limits=1, user_api="blas"):
         document, _ = side_ladder([], lab.nominal, fit_data, holdout_data, FAST_FIT, workers=WORKERS)

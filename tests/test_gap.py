@@ -134,8 +134,8 @@ def test_replay_models_drop_only_meshes_that_change_nothing(lab):
     """The replay's models leave out the mesh geoms of bodies with explicit inertias: same motion, to the bit."""
     import mujoco
 
+    from sim2real.assets.arm import arm_spec, compile_arm
     from sim2real.report.replay import ReplayModels
-    from sim2real.lab import arm_spec, compile_arm
 
     full, qadr, dadr = compile_arm(arm_spec(lab["mjcf"], PANDA_JOINTS), PANDA_JOINTS)
     models = ReplayModels(lab["mjcf"])

@@ -91,9 +91,23 @@ def test_the_fitting_core_depends_on_nothing_above_it():
     assert not any(m.startswith("sim2real.report") for m in loaded)
 
 
+def test_the_packages_export_public_names_only():
+    """A package's ``__init__`` re-exports public names; a private one is imported from the module that defines it."""
+    private = []
+    for path in sorted(PACKAGE.rglob("__init__.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        names = [alias.asname or alias.name for node in tree.body if isinstance(node, ast.ImportFrom)
+                 for alias in node.names]
+        for node in tree.body:
+            if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets):
+                names += [e.value for e in getattr(node.value, "elts", []) if isinstance(e, ast.Constant)]
+        private += [f"{module_name(path)}: {name}" for name in names if name.startswith("_") and not name.startswith("__")]
+    assert not private, "private names exported:\n" + "\n".join(private)
+
+
 # The stages of rules/ as packages, and which may import which (issue 31): a stage imports only the stages
 # below it, never one above; the shared modules import no stage.
-SHARED = {"errors", "files", "cli", "cache", "blas", "forked", "stats", "filters", "design_names", "resources"}
+SHARED = {"errors", "files", "cli", "cache", "blas", "forked", "stats", "filters", "design_names"}
 MAY_IMPORT = {
     "shared": set(),
     "assets": {"shared"},
@@ -102,7 +116,7 @@ MAY_IMPORT = {
     "identification": {"shared", "assets", "measurements"},
     "excitation": {"shared", "assets", "measurements", "identification"},
     "dr": {"shared", "assets", "measurements", "identification"},
-    "report": {"shared", "assets", "measurements", "lab", "identification"},
+    "report": {"shared", "assets", "measurements", "identification"},
 }
 
 
@@ -120,6 +134,16 @@ def test_each_stage_imports_only_the_stages_below_it():
     upward = [f"{a} -> {b}" for a, targets in sorted(graph.items()) for b in sorted(targets)
               if stage(a) != stage(b) and stage(b) not in MAY_IMPORT[stage(a)]]
     assert not upward, "imports running back up the stages:\n" + "\n".join(upward)
+
+
+def test_the_report_imports_no_module_of_the_lab():
+    """The gap report replays the measured commands on the torque-driven arm the lab drives too; it takes that arm
+    from the stage below both (``sim2real.assets.arm``), never from the virtual lab it is judged against."""
+    graph = import_graph()
+    assert "sim2real.assets.arm" in graph["sim2real.report.replay"], "the replay's arm is seen"
+    into_lab = [f"{a} -> {b}" for a, targets in sorted(graph.items()) if stage(a) == "report"
+                for b in sorted(targets) if stage(b) == "lab"]
+    assert not into_lab, "the report imports the lab:\n" + "\n".join(into_lab)
 
 
 def test_the_layering_check_sees_an_import_running_back_up():

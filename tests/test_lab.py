@@ -67,7 +67,7 @@ def test_runs_without_the_inert_meshes_are_the_same_to_the_bit(dev, monkeypatch)
     a run with a link-side sensor (three arms: nominal, real, link side), a payload, changed inertias,
     friction and noise, against the same run with every mesh kept."""
     import sim2real.lab.simulate as simulate
-    from sim2real.lab import compile_arm
+    from sim2real.assets.arm import compile_arm
 
     config = load_lab_config(dev["lab"])
     scenario = {**config["scenarios"]["link_side_sensor"], "duration_s": 0.5}
@@ -237,7 +237,8 @@ def test_link_side_sensor_is_applied_torque_minus_the_drive_terms(dev, case):
     """Noise-free link-side tau against the real arm's forward dynamics at the logged true state: the applied
     torque minus rotor inertia * qacc, plus the joint's damping, frictionloss and Gaz torques (all negative
     work on the rotor), which the full model's forward dynamics computes independently of the lab's link model."""
-    from sim2real.lab.arm import _apply_spec_effects, arm_spec, compile_arm
+    from sim2real.assets.arm import arm_spec, compile_arm
+    from sim2real.lab.spec_effects import _apply_spec_effects
 
     config = load_lab_config(dev["lab"])
     joints = config["joints"]
@@ -344,7 +345,7 @@ def _exact(scenario: dict, where: str, seconds: float = 1.0, **effects) -> dict:
 def _rigid_body_torque(mjcf, joints, effects, signals) -> np.ndarray:
     """The real arm's link-side inverse dynamics at the logged (exact) states, its acceleration from the full
     model's forward dynamics: built here, from the spec, without the lab's link-side model."""
-    from sim2real.lab import arm_spec, compile_arm
+    from sim2real.assets.arm import arm_spec, compile_arm
 
     real, qadr, dadr = compile_arm(_with_effects(arm_spec(mjcf, joints), joints, effects), joints)
     links_spec = _with_effects(arm_spec(mjcf, joints), joints, effects)
@@ -369,7 +370,7 @@ def _rigid_body_torque(mjcf, joints, effects, signals) -> np.ndarray:
 
 
 def _with_effects(spec, joints, effects):
-    from sim2real.lab.arm import _apply_spec_effects
+    from sim2real.lab.spec_effects import _apply_spec_effects
 
     _apply_spec_effects(spec, joints, effects, None)
     return spec
@@ -423,7 +424,7 @@ def test_stribeck_hump_is_a_passive_torque_against_the_motion(dev):
     assert truth["coulomb_friction"]["stribeck"]["peak"]["panda_joint2"] == 0.25
     assert truth["coulomb_friction"]["stribeck"]["peak"]["panda_joint1"] == 0.0
 
-    from sim2real.lab import arm_spec, compile_arm
+    from sim2real.assets.arm import arm_spec, compile_arm
 
     real, qadr, dadr = compile_arm(arm_spec(dev["mjcf"], joints), joints)
     real.opt.timestep = 1.0 / clean["sample_rate_hz"]
@@ -582,7 +583,7 @@ def test_a_designed_excitation_is_played_by_the_runs_that_name_it_and_those_that
 def test_reading_the_lab_config_does_not_load_the_simulator() -> None:
     """Snakemake's input functions read lab.yaml at every start; MuJoCo is loaded only by what simulates."""
     code = ("import sys; from sim2real.lab import excitation_designs, load_lab_config; "
-            "assert 'mujoco' not in sys.modules; from sim2real.lab import compile_arm; assert 'mujoco' in sys.modules")
+            "assert 'mujoco' not in sys.modules; from sim2real.lab import simulate_run; assert 'mujoco' in sys.modules")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
 

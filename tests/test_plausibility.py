@@ -21,6 +21,7 @@ from sim2real.identification import fitting
 from sim2real.identification.effects.link_inertia import (
     LinkInertia, body_changes, correction_anchors, hull_distance, plausibility, point_mass, to_mass_com_inertia,
 )
+from sim2real.identification.fitting.bootstrap import _intervals
 from sim2real.identification.inertial.bands import InertiaBands, body_bounds
 
 HULL_TOLERANCE_M = InertiaBands().hull_tolerance_m
@@ -107,7 +108,7 @@ def test_a_doubled_mass_is_flagged_on_its_body(info):
     # Written as plain lists; the bootstrap's intervals survive replicates that flag different numbers.
     assert json.loads(json.dumps(values["bodies"]))["panda_link3"]["implausible"] == reasons
     assert yaml.safe_load(yaml.safe_dump(values["bodies"]))["panda_link3"]["implausible"] == reasons
-    intervals = fitting._intervals([values, link_values(info, np.zeros(70))], 0.9)
+    intervals = _intervals([values, link_values(info, np.zeros(70))], 0.9)
     assert intervals["bodies"]["panda_link3"]["implausible"] is None
 
 

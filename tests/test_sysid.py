@@ -105,7 +105,9 @@ def test_intervals_from_stacked_replicates_are_each_replicates_own_values(seed, 
     """Every effect that takes its replicates stacked (values_stacked) gives the intervals that its values of
     each replicate alone give, to the bit, beside a torque gain that rescales them too."""
     from sim2real.identification.effects import EFFECTS, Signals
-    from sim2real.identification.fitting import _intervals, _values, replicate_intervals
+    from sim2real.identification.fitting import replicate_intervals
+    from sim2real.identification.fitting.bootstrap import _intervals
+    from sim2real.identification.fitting.problem import _values
 
     rng = np.random.default_rng(seed)
     joints = ["a", "b", "c"]

@@ -81,9 +81,10 @@ The excitation is a finite Fourier series (Swevers et al.): 5 harmonics of base 
 default, scaled to stay inside the position and velocity limits.
 
 Its modules: :mod:`~sim2real.lab.config` (lab.yaml, its scenarios and runs, a designed excitation),
-:mod:`~sim2real.lab.arm` (the torque-driven arm the gap report's replay shares, the hidden effects that live in
-the model), :mod:`~sim2real.lab.hidden` (the hidden effects that act as torques or on the sensor: friction laws,
-Dahl's memory, cogging, drift) and :mod:`~sim2real.lab.simulate` (the controller, the sensors and the loop).
+:mod:`~sim2real.lab.spec_effects` (the hidden effects that live in the model, written into the torque-driven arm of
+:mod:`sim2real.assets.arm`, which the gap report's replay shares), :mod:`~sim2real.lab.hidden` (the hidden effects
+that act as torques or on the sensor: friction laws, Dahl's memory, cogging, drift) and
+:mod:`~sim2real.lab.simulate` (the controller, the sensors and the loop).
 """
 
 from __future__ import annotations
@@ -92,9 +93,8 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 # The package's names, each imported from its module when first asked for: Snakemake's input functions read
-# lab.yaml (config) at every start, which need not load MuJoCo (arm, simulate) with it.
+# lab.yaml (config) at every start, which need not load MuJoCo (simulate) with it.
 _MODULE_OF = {
-    **dict.fromkeys(["arm_spec", "compile_arm", "drop_inert_meshes", "meshes_inert"], "arm"),
     **dict.fromkeys(["EFFECTS", "excitation_designs", "lab_scenario", "load_lab_config", "read_excitation",
                      "scenario_runs"], "config"),
     **dict.fromkeys(["cogging_torque", "dahl_step", "gaz_friction", "load_friction_level", "passive_friction",
@@ -104,7 +104,6 @@ _MODULE_OF = {
 __all__ = sorted(_MODULE_OF)
 
 if TYPE_CHECKING:
-    from sim2real.lab.arm import arm_spec, compile_arm, drop_inert_meshes, meshes_inert
     from sim2real.lab.config import (EFFECTS, excitation_designs, lab_scenario, load_lab_config, read_excitation,
                                      scenario_runs)
     from sim2real.lab.hidden import (cogging_torque, dahl_step, gaz_friction, load_friction_level, passive_friction,

@@ -10,15 +10,16 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from sim2real.assets.arm import arm_spec, compile_arm, drop_inert_meshes
 from sim2real.errors import InputError
 from sim2real.files import write_yaml
 from sim2real.filters import first_order_lag
-from sim2real.lab.arm import _apply_spec_effects, _gains_and_biases, arm_spec, compile_arm, drop_inert_meshes
 from sim2real.lab.config import EFFECTS, _per_joint, lab_scenario, read_excitation
 from sim2real.lab.hidden import (
     _cable_spring, _cogging, _hysteretic_friction, _joint_friction, _load_friction, _torque_drift, cable_spring_torque,
     cogging_torque, dahl_step, load_friction_level, passive_friction,
 )
+from sim2real.lab.spec_effects import _apply_spec_effects, _gains_and_biases
 
 
 def fourier_excitation(

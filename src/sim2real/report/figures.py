@@ -236,7 +236,7 @@ def _draw_all(names: Sequence[str], gap: Mapping[str, Any], comparisons: Sequenc
 
 
 class GapFigures:
-    """The four figures of a gap report (:data:`FIGURES`), each drawn as soon as what it shows is known
+    """The figures of a gap report (:data:`FIGURES`), each drawn as soon as what it shows is known
     (:meth:`show`): the ladder's from the ladder and the noise floor, the others from the torque domain, all
     before the replays. On ``workers`` > 1 they are drawn by forked processes while the report goes on;
     :meth:`finish` waits for them. ``cache``: a :class:`sim2real.cache.FitCache` holding the figures of an

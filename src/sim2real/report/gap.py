@@ -4,7 +4,7 @@
   q, qd, qdd against the prepared torque (measured ``tau``, else ``tau_cmd``): RMSE per joint and
   overall, RMSE relative to the torque's RMS, R^2.
 * State domain, where commands exist: the commanded torques are replayed in MuJoCo (the built MJCF
-  driven by joint torques, see ``sim2real.lab.arm.arm_spec``) with multiple shooting: every ``horizon_s``
+  driven by joint torques, see ``sim2real.assets.arm.arm_spec``) with multiple shooting: every ``horizon_s``
   the simulation restarts from the measured state (``mujoco.rollout``, one segment per batch row).
   Position/velocity RMSE, correlation, spectral divergence and the reality-gap metric of the source
   chapter (P02.5): score = 0.3 min(pos/0.1,1) + 0.2 min(vel/1,1) + 0.15 min(tau/5,1) + 0.15 (1-corr)
@@ -12,7 +12,7 @@
   the contact term is not applicable and the other weights are renormalised to sum to 1 (an arm in
   free space would otherwise be charged 0.1 for contacts that do not exist).
 * Where it fails: per joint and regime (slow motion and velocity reversals, hard accelerations,
-  gravity-loaded poses, near the limits; defined in ``sim2real.regimes``), and the worst time windows
+  gravity-loaded poses, near the limits; defined in ``sim2real.report.regimes``), and the worst time windows
   with their stamps.
 * The noise floor: the torque RMS that no model can explain (``noise_floor_of``).
 
@@ -204,7 +204,7 @@ def build_gap_report(
     precomputed_path: str | Path | None = None, root: str | Path = ".", threads: int = 1,
     cache_dir: str | Path | None = None, residuals_path: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Write gap.json, gap.md and the figures (keys: :data:`sim2real.report.FIGURES`); the figures
+    """Write gap.json, gap.md and the figures (keys: :data:`sim2real.report.figures.FIGURES`); the figures
     are drawn on up to ``threads`` processes. ``cache_dir``: where the replays and figures are kept for the
     next report (:class:`sim2real.cache.FitCache`; None: not kept): a round of the loop that adds a
     rung replays that rung and redraws what shows the ladder, and reads the rest back, the same bytes."""

@@ -1,4 +1,4 @@
-"""The commands replayed in MuJoCo: the built MJCF driven by joint torques (:func:`sim2real.lab.arm.arm_spec`)
+"""The commands replayed in MuJoCo: the built MJCF driven by joint torques (:func:`sim2real.assets.arm.arm_spec`)
 with multiple shooting, every ``horizon_s`` restarted from the measured state (``mujoco.rollout``, one segment per
 batch row); the state domain's metrics, and each rung of the ladder replayed with its fitted effects.
 """
@@ -39,7 +39,7 @@ class ReplayModels:
 
     def _spec(self, joints: Sequence[str], identified: Mapping[str, Any] | None, strip: bool) -> mujoco.MjSpec:
         from sim2real.identification.effects import apply_to_spec
-        from sim2real.lab import arm_spec, drop_inert_meshes
+        from sim2real.assets.arm import arm_spec, drop_inert_meshes
 
         if not strip:
             spec = arm_spec(self.mjcf_path, joints)
@@ -56,7 +56,7 @@ class ReplayModels:
     def get(self, joints: Sequence[str], identified: Mapping[str, Any] | None = None,
             ) -> tuple[mujoco.MjModel, np.ndarray, np.ndarray]:
         """(model, qpos addresses, dof addresses) of the arm with ``identified`` written in (None: as built)."""
-        from sim2real.lab import compile_arm, meshes_inert
+        from sim2real.assets.arm import compile_arm, meshes_inert
 
         key = (tuple(joints), json.dumps(identified or None, sort_keys=True))
         if key not in self._models:

@@ -239,7 +239,7 @@ def _trial_way(item: tuple[str, Mapping[str, Any]], model_effects: Sequence[str]
     # the held or starting nonlinear parameters of the lines the candidate replaces have no place in its model
     way = {key: ({e: v for e, v in value.items() if e not in replaced} if isinstance(value, Mapping) else value)
            for key, value in way.items()}
-    return fitting._fit_way(way, effect_names=trial_effects(model_effects, name), **inputs)
+    return fitting.fit_way(way, effect_names=trial_effects(model_effects, name), **inputs)
 
 
 def trial_fits(names: Sequence[str], model_effects: Sequence[str], context: fitting.FitContext,

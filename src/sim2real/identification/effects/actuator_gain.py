@@ -3,7 +3,8 @@
 A motor constant or current-loop gain other than the controller assumes. On the actuator link the
 column is the command and the coefficient g - 1 (:attr:`Signals.forward`). On runs without a torque
 sensor the command is judged against the nominal model's torque: ``tau_cmd = k * tau_applied`` with
-k = 1/g, and the other joint-local effects are divided by k afterwards (``sim2real.identification.fitting._values``).
+k = 1/g, and the other joint-local effects are divided by k afterwards
+(``sim2real.identification.fitting.problem._values``).
 MJCF holds it as the actuator's ``gainprm[0]`` (scaled by g, with a servo's feedback terms
 ``biasprm[1:3]``), which domain randomization's ``kp`` channel randomizes.
 """

@@ -257,7 +257,7 @@ class LinkInertia(Effect):
 
     def values(self, theta, nonlinear, signals, state):
         delta = state["basis"] @ theta + state["null_offset"]
-        # The reasons as tuples: the bootstrap's intervals (fitting._intervals) walk lists item by item, and
+        # The reasons as tuples: the bootstrap's intervals (fitting.bootstrap._intervals) walk lists item by item, and
         # replicates flag different numbers of reasons and bodies. JSON and YAML write them as lists.
         bodies_changed = {link: {**body, "implausible": tuple(body["implausible"]), "binding": tuple(body["binding"])}
                           for link, body in body_changes(delta, signals.nominal).items()}

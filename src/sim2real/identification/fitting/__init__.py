@@ -37,12 +37,12 @@ package; it imports neither. Its modules, each importing only those above it:
 * :mod:`sim2real.cache` (beside the package, which the gap report uses without importing the fit): fits kept
   between rounds of the loop, by the digest of their inputs.
 
-Every name is importable from ``sim2real.identification.fitting`` as before the split (private ones too: the tests and
-the effects' documentation reach ``_intervals`` and ``_values``).
+The package exports its public names; a private one (``_Problem``, ``_values``, ``_intervals``) is imported from its
+module.
 """
 
 from sim2real.identification.fitting.bootstrap import (  # noqa: F401  (re-exported: the package's names)
-    DELAY_STEP_S, _block_bootstrap, _intervals, _prune, replicate_intervals, small_sample_stretch,
+    DELAY_STEP_S, replicate_intervals, small_sample_stretch,
 )
 from sim2real.identification.fitting.data import (  # noqa: F401  (re-exported: the package's names)
     RunSamples, TorqueData, kept_segments, link_side, stack_runs,
@@ -51,18 +51,12 @@ from sim2real.identification.fitting.scoring import (  # noqa: F401  (re-exporte
     MIN_FLOOR_FRACTION, floor_units, holdout_metrics, joint_weights, judged_floors, lag_score, predict,
 )
 from sim2real.identification.fitting.nominal import (  # noqa: F401  (re-exported: the package's names)
-    NominalModel, body_ellipsoids, body_hulls, _body_points, _collision_points, load_nominal, make_signals,
-    resolve_armature, _urdf_link_parameters,
+    NominalModel, body_ellipsoids, body_hulls, load_nominal, make_signals, resolve_armature,
 )
-from sim2real.identification.fitting.linear import _linear_fit, _solve_blocks  # noqa: F401
-from sim2real.identification.fitting.problem import (  # noqa: F401  (re-exported: the package's names)
-    FitResult, _Problem, _flatten_theta, _split_theta, subset_signals, _values,
-)
-from sim2real.identification.fitting.refine import Refinements, _refine_nonlinear, refinement_rows  # noqa: F401
+from sim2real.identification.fitting.problem import FitResult, subset_signals  # noqa: F401
+from sim2real.identification.fitting.refine import Refinements, refinement_rows  # noqa: F401
 from sim2real.identification.fitting.rung import (  # noqa: F401  (re-exported: the package's names)
-    DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, PRIOR_START_SETTING, _consistent_fit, better_way, fit, fit_on_the_previous,
-    _fit_way, _physical,
+    DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, PRIOR_START_SETTING, better_way, fit, fit_on_the_previous, fit_way,
     previous_nonlinear, previous_ways,
-    _violations,
 )
 from sim2real.identification.fitting.context import FitContext  # noqa: F401

@@ -150,7 +150,7 @@ def fit_on_the_previous(
     ways = previous_ways(previous, uncertainty)
     if workers > 1 and len(ways) > 1:
         import_solver()
-    fits = map_forked(_fit_way, ways, workers, {
+    fits = map_forked(fit_way, ways, workers, {
         "effect_names": effect_names, "nominal": nominal, "data": fit_data, "settings": settings, "signals": fit_signals,
         "holdout_data": holdout_data, "holdout_signals": holdout_signals, "refinements": refinements})
     return better_way(fits, effect_names, nominal, fit_data, holdout_data, previous, settings,
@@ -184,7 +184,7 @@ def better_way(
     holdout_signals: Signals,
     uncertainty: bool,
 ) -> tuple[FitResult, np.ndarray, str]:
-    """Of the fits of :func:`previous_ways`, each with its holdout residual (:func:`_fit_way`), the one whose
+    """Of the fits of :func:`previous_ways`, each with its holdout residual (:func:`fit_way`), the one whose
     residual is smaller, each joint in units of its own floor (:func:`fit_on_the_previous`); held and asked for
     ``uncertainty``, it is fitted again with it."""
     weights = joint_weights(holdout_data.noise_floor, str({**DEFAULT_SETTINGS, **(settings or {})}["joint_weighting"]))
@@ -205,8 +205,8 @@ def better_way(
     return held, held_residual, "held"
 
 
-def _fit_way(way: Mapping[str, Any], holdout_data: TorqueData, holdout_signals: Signals | None,
-             **inputs: Any) -> tuple[FitResult, np.ndarray]:
+def fit_way(way: Mapping[str, Any], holdout_data: TorqueData, holdout_signals: Signals | None,
+            **inputs: Any) -> tuple[FitResult, np.ndarray]:
     """:func:`fit` with one way of carrying the previous nonlinear parameters (:func:`fit_on_the_previous`), and
     its holdout residual."""
     result = fit(**inputs, **way)

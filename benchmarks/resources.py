@@ -2,7 +2,8 @@
 
 Every rule of rules/*.smk declares ``threads`` and ``resources: mem_mb, runtime`` (runtime in
 minutes, as Snakemake and its SLURM and Kubernetes executors read it); the figures come from the
-``benchmark:`` files of a full build (``benchmarks/bench_resources.py`` prints them side by side).
+``benchmark:`` files of a full build (``benchmarks/bench_resources.py`` prints them side by side,
+``tests/test_scaleout.py`` checks the declarations with the same functions).
 """
 
 from __future__ import annotations
