@@ -2,7 +2,7 @@
 the effect it lacks (the rule ``sysid``, ``rules/sysid.smk``).
 
 * :mod:`~sim2real.identification.sysid`: the rule's entry: every rung fitted and judged, the diagnosis, the files;
-* :mod:`~sim2real.identification.links`: the two links of the model (actuator and body), what the runs tell apart;
+* :mod:`~sim2real.identification.sides`: the two sides of the model (actuator and body), what the runs tell apart;
 * :mod:`~sim2real.identification.effects`: the library of physical effects (columns, MJCF, calibration, evidence);
 * :mod:`~sim2real.identification.fitting`: one rung's fit (nonlinear refinement, consistent fit, bootstrap);
 * :mod:`~sim2real.identification.inertial`: physically consistent inertias (the semidefinite program, the prior);

@@ -1,6 +1,6 @@
 """What the sysid rule reads and writes besides the ladder: model.yaml (:func:`load_model_config`, parsed in
 :mod:`sim2real.identification.model_config`), params.yaml
-(:func:`params_document`, with the drive effects of two links merged by :func:`merge_link_values`) and the last rung's
+(:func:`params_document`, with the drive effects of two sides merged by :func:`merge_side_values`) and the last rung's
 residuals (:func:`write_model_residuals`); :func:`round_floats` keeps every document's numbers stable and readable."""
 
 from __future__ import annotations
@@ -32,13 +32,13 @@ def round_floats(tree: Any, digits: int = 6) -> Any:
     return tree
 
 
-def merge_link_values(results: Sequence[FitResult], nominal: NominalModel) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Each effect's values for the assets, and the drive effects fitted on two links apart.
+def merge_side_values(results: Sequence[FitResult], nominal: NominalModel) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Each effect's values for the assets, and the drive effects fitted on two sides apart.
 
-    Behind a link-side sensor a drive effect may be fitted on the body link (its part after the sensor,
-    from zero) and on the actuator link (its part before it, from the URDF's value): the joint holds both,
-    so the calibrated value is their sum. Found on the body link alone, it adds to the URDF's value.
-    ``results``: the body link's last rung first (:func:`fit_model`).
+    Behind a link-side sensor a drive effect may be fitted on the body side (its part after the sensor,
+    from zero) and on the drive side (its part before it, from the URDF's value): the joint holds both,
+    so the calibrated value is their sum. Found on the body side alone, it adds to the URDF's value.
+    ``results``: the body side's last rung first (:func:`fit_model`).
     """
     effects: dict[str, Any] = {}
     by_link: dict[str, Any] = {}
@@ -56,12 +56,12 @@ def merge_link_values(results: Sequence[FitResult], nominal: NominalModel) -> tu
         merged = dict(effects.get(name) or values)
         merged[key] = {j: float(base.get(j, 0.0)) + float(v) for j, v in values[key].items()}
         by_link[name] = {"body": values, **({"actuator": effects[name]} if name in effects else {}),
-                         "why": "the body link's value acts after the link-side sensor; the joint holds the sum"}
+                         "why": "the body side's value acts after the link-side sensor; the joint holds the sum"}
         effects[name] = merged
     sensor = {n: v for n, v in body.values.items() if get_effect(n).time_shift and get_effect(n).sensor_side}
     actuation = [n for n in (results[1].values if len(results) > 1 else {}) if _actuator_lag(n)]
     if sensor and actuation:
-        # The actuator link judges the sensor's reading against the command: its lag holds the sensor's too.
+        # The drive side judges the sensor's reading against the command: its lag holds the sensor's too.
         names = ", ".join(sensor)
         for name, taken in zip(actuation, _sensor_shares(results[1].values, actuation, sensor), strict=True):
             key = _lag_key(name)
@@ -71,7 +71,7 @@ def merge_link_values(results: Sequence[FitResult], nominal: NominalModel) -> tu
                 "actuator": {key: lag}, "body": {n: v[_lag_key(n)] for n, v in sensor.items()},
                 "why": f"the measured torque lags the command by the actuation's {'delay' if key == 'delay' else 'lag'} "
                        f"plus the sensor's own ({names}, "
-                       "found on the body link): the actuators hold what is left of it",
+                       "found on the body side): the actuators hold what is left of it",
             }
     order = [name for result in results for name in result.effects]
     return {name: effects[name] for name in dict.fromkeys(order) if name in effects}, by_link
@@ -88,7 +88,7 @@ def _lag_key(name: str) -> str:
 
 def _sensor_shares(values: Mapping[str, Any], actuation: Sequence[str], sensor: Mapping[str, Any]) -> list[float]:
     """The sensor's lag (its delay and time constant: at a motion's frequencies lags add) as it is taken out of each
-    of the actuator link's lags in turn: what is left of it when each is reached."""
+    of the drive side's lags in turn: what is left of it when each is reached."""
     left = sum(float(v[_lag_key(n)]) for n, v in sensor.items())
     shares = []
     for name in actuation:
@@ -113,11 +113,11 @@ def _intervals_of(results: Sequence[FitResult], by_link: Mapping[str, Any]) -> d
 def params_document(
     results: Sequence[FitResult], nominal: NominalModel, torque_source: str, robot: str
 ) -> dict[str, Any]:
-    """params.yaml: the last rung's fitted values of every link (:func:`fit_model`), with their intervals.
+    """params.yaml: the last rung's fitted values of every side (:func:`fit_model`), with their intervals.
 
-    ``torque_source``: the body link's judged torque (``tau`` or ``tau_cmd``; ladder.json's ``torque_source``).
+    ``torque_source``: the body side's judged torque (``tau`` or ``tau_cmd``; ladder.json's ``torque_source``).
     """
-    effects, by_link = merge_link_values(results, nominal)
+    effects, by_link = merge_side_values(results, nominal)
     return round_floats({
         "robot": robot,
         "effects": effects,
@@ -136,7 +136,7 @@ def params_document(
 
 
 def write_model_residuals(path: str | Path, current: Mapping[str, Any]) -> None:
-    """The body link's last rung on every run, at the fit's rate (:func:`fit_model`'s ``current_out``): time,
+    """The body side's last rung on every run, at the fit's rate (:func:`fit_model`'s ``current_out``): time,
     motion, judged torque and residual by role and run, what the gap report judges the current model by
     (:func:`sim2real.report.gap.read_model_residuals`)."""
     from sim2real.files import write_array_archive

@@ -18,7 +18,7 @@ from typing import Any, Literal
 from sim2real.identification.records import Side
 from sim2real.errors import InputError
 
-# The sides a drive effect's line may keep it on (sim2real.identification.links), as model.yaml writes them (the
+# The sides a drive effect's line may keep it on (sim2real.identification.sides), as model.yaml writes them (the
 # values of the sides' enum once the identification names them: body, and the drive's "actuator").
 # The sides a drive line may be kept on (the documents' words, ``- asymmetric_friction: actuator``).
 LINE_SIDES: tuple[Side, ...] = (Side.BODY, Side.DRIVE)
@@ -113,7 +113,7 @@ def effect_lines(lines: Sequence[str | Mapping[str, str]], path: str | Path) -> 
     for i, name in enumerate(names):
         if not isinstance(name, str):
             raise InputError(path, f"effects/{i}", f"'{lines[i]}' is no effect's line",
-                             "write '- <effect>', or '- <effect>: actuator' for a drive effect kept on one link")
+                             "write '- <effect>', or '- <effect>: actuator' for a drive effect kept on one side")
         get_effect(name, str(path))
         if name in seen:
             raise InputError(path, f"effects/{i}", f"'{name}' is listed twice", "list each effect once")
@@ -124,10 +124,10 @@ def effect_lines(lines: Sequence[str | Mapping[str, str]], path: str | Path) -> 
             continue
         name, side = next(iter(line.items()))
         if side not in LINE_SIDES:
-            raise InputError(path, f"effects/{i}", f"'{name}: {side}' names no link",
+            raise InputError(path, f"effects/{i}", f"'{name}: {side}' names no side",
                              f"write '- {name}: actuator' or '- {name}: body'")
         if not get_effect(name, str(path)).drive:
-            raise InputError(path, f"effects/{i}", f"'{name}' is fitted on one link only: there is no other link to "
+            raise InputError(path, f"effects/{i}", f"'{name}' is fitted on one side only: there is no other side to "
                              "keep it off", f"write '- {name}'")
         sides[i] = Side(side)
     return tuple(EffectLine(name, sides.get(i)) for i, name in enumerate(names))

@@ -368,7 +368,7 @@ def run_sysid(
     nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"), cache=cache,
                            inertia_bands=InertiaBands.of_robot(robot_config))
     by_role: dict[str, list[PreparedRun]] = {"fit": list(runs.fit), "holdout": list(runs.holdout)}
-    del runs  # by_role holds the runs alone: fit_model empties it once the links have what they need
+    del runs  # by_role holds the runs alone: fit_model empties it once the sides have what they need
     for role in ("fit", "holdout"):
         if not by_role[role]:
             raise InputError(measurement_list, "runs", f"no run with role '{role}'",

@@ -48,7 +48,7 @@ def command_white_noise(tau: np.ndarray, tau_cmd: np.ndarray, dt: float) -> np.n
     lag up to the longest delay the fit allows (a short FIR filter, per joint); what is left is the
     sensor's white noise, measured robustly as :func:`white_noise_sigma` does. The differences remove
     biases and slow motion; the lags hold any delay and gain, so the floor is the same with or without the
-    effects it is meant to expose (:mod:`sim2real.identification.links`'s noise floor).
+    effects it is meant to expose (:mod:`sim2real.identification.sides`'s noise floor).
     """
     chunk = blas.CHUNK_ROWS
     lags = int(round(MAX_COMMAND_DELAY_S / dt)) + 1

@@ -123,8 +123,8 @@ def tied(a: np.ndarray, b: np.ndarray) -> tuple[bool, float, float]:
 
 
 def _bodies(result: fitting.FitResult | None) -> dict[str, Any]:
-    link = ((result.values if result is not None else None) or {}).get("link_inertia") or {}
-    return link.get("bodies") or {}
+    inertia = ((result.values if result is not None else None) or {}).get("link_inertia") or {}
+    return inertia.get("bodies") or {}
 
 
 def implausible_bodies(result: fitting.FitResult, current: fitting.FitResult | None = None) -> list[str]:

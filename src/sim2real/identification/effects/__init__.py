@@ -94,7 +94,7 @@ def _mjcf_context(spec: Any, params: dict[str, Any]) -> dict[str, Any]:
 def apply_to_spec(spec: Any, params: dict[str, Any], include_urdf_effects: bool = False) -> Any:
     """Write the fitted effects of ``params`` (the content of params.yaml) into ``spec``; returns it.
 
-    By default only the effects the URDF cannot hold (armature, the actuator link's delay, gain and bias):
+    By default only the effects the URDF cannot hold (armature, the drive side's delay, gain and bias):
     the calibrated MJCF is built from the calibrated URDF, which already carries friction, payload
     and link inertias. ``include_urdf_effects=True`` writes everything (to calibrate a nominal MJCF).
     """

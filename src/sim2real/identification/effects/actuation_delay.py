@@ -1,8 +1,8 @@
 """Actuation delay: the torque applied at t is the one commanded at t - d (one global d).
 
-An effect of the actuator link. Against the motion it is only observable when the judged torque is
+An effect of the drive side. Against the motion it is only observable when the judged torque is
 the command (``tau_cmd``): a joint torque sensor measures the applied torque, which the rigid-body
-model explains without any delay; with both logged, the actuator link sees it directly (the measured
+model explains without any delay; with both logged, the drive side sees it directly (the measured
 torque at t is the command at t - d, :attr:`Signals.forward`). Against the motion, the prediction
 of the command at t is the model torque at t + d. d is refined by a bounded scalar search around
 the linear fit (variable projection), started from a grid at the sampling step.
@@ -37,7 +37,7 @@ class ActuationDelay(TimeShift):
             "per_joint": per_joint_dict(signals.joint_names, correlation_per_joint(residual, rate), 3),
         }
         if signals.tau is not None:
-            # The command leads: it is the judged torque, or (forward, the actuator link) the prediction.
+            # The command leads: it is the judged torque, or (forward, the drive side) the prediction.
             leading, lagging = (signals.tau_nominal, signals.tau) if signals.forward else (signals.tau, signals.tau_nominal)
             out["lag_s"] = per_joint_dict(signals.joint_names, best_lag(leading, lagging, signals.time), 4)
         return out

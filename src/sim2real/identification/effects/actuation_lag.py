@@ -3,7 +3,7 @@ global T): a drive's current loop, whose bandwidth is finite.
 
 actuation_delay's lag with a filter's shape (:mod:`sim2real.identification.effects.timing`): the same lag at a motion's
 frequencies, and unlike a delay it attenuates what the command changes within T (a controller's noise at 1 kHz), which
-is where the actuator link (the measured torque against the command) tells the two apart. Against the motion, with
+is where the drive side (the measured torque against the command) tells the two apart. Against the motion, with
 commands alone, the command predicted is what the low-pass turns into the model's torque (its inverse). MJCF holds it
 exactly: actuator ``dyntype="filterexact"``, ``dynprm`` T, ``actearly`` (the force follows the filtered command of the
 same step, as a drive's does), on the identified joints' actuators, each keyframe's filter settled at its control. On
@@ -26,7 +26,7 @@ class ActuationLag(ActuationDelay):
                  "its fast changes are not applied")
     nonlinear = (ParameterSpec("time_constant", "s", 0.0, MAX_DELAY, False, "time constant of the drive's low-pass"),)
     lowpass = True
-    # fitted only where a lag could matter: beside the delay, which every diagnosis of its link tries, where the
+    # fitted only where a lag could matter: beside the delay, which every diagnosis of its side tries, where the
     # delay's trial removes enough (sim2real.identification.diagnosis.candidates)
     lag_screened = True
 

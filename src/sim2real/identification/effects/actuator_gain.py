@@ -1,6 +1,6 @@
-"""Motor gain error per joint, on the actuator link: applied torque = g * commanded torque.
+"""Motor gain error per joint, on the drive side: applied torque = g * commanded torque.
 
-A motor constant or current-loop gain other than the controller assumes. On the actuator link the
+A motor constant or current-loop gain other than the controller assumes. On the drive side the
 column is the command and the coefficient g - 1 (:attr:`Signals.forward`). On runs without a torque
 sensor the command is judged against the nominal model's torque: ``tau_cmd = k * tau_applied`` with
 k = 1/g, and the other joint-local effects are divided by k afterwards

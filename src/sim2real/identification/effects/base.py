@@ -58,7 +58,7 @@ class Signals:
     ``segments`` are the run boundaries (a time shift never crosses them).
     ``regressor`` is Pinocchio's joint-torque regressor (N, n, 10*bodies), computed on demand.
     ``forward``: the judged torque is predicted forward in time from the command that caused it (the
-    actuator link: measured from commanded torque, ``tau_nominal`` holds the command); otherwise it is
+    drive side: measured from commanded torque, ``tau_nominal`` holds the command); otherwise it is
     predicted from the motion through the model (the judged torque is then the cause of the motion).
     """
 

@@ -1,10 +1,10 @@
-"""Offset between the commanded and the applied torque per joint, on the actuator link: applied = cmd + b.
+"""Offset between the commanded and the applied torque per joint, on the drive side: applied = cmd + b.
 
 A current-sensor offset in the motor drive, or a gravity compensation the drive adds on its own.
 Unlike :mod:`sim2real.identification.effects.torque_bias` (the torque SENSOR's offset, which the simulation never
 sees) it changes the motion, so the calibrated MJCF carries it: the actuator's affine bias
 ``biasprm[0]`` (divided by the actuator's gear, since MuJoCo applies gear * (gain * ctrl + bias)).
-On the actuator link (:attr:`Signals.forward`) the coefficient of its constant column is b itself. On
+On the drive side (:attr:`Signals.forward`) the coefficient of its constant column is b itself. On
 runs without a torque sensor the command is judged: ``tau_cmd = k * (tau_applied - b)``, the coefficient
 is ``-k * b``, and with a gain k in the model the joint-local coefficients are divided by k afterwards.
 """

@@ -3,9 +3,9 @@
     tau_f = (F_0 + mu * |tau_T|) * tanh(qd / v_s)
 
 as harmonic drives show it (the tooth and wave-generator bearing loads grow with the transmitted torque). ``tau_T``
-is the nominal model's prediction of the judged torque (``Signals.tau_nominal``): on the body link the inverse
+is the nominal model's prediction of the judged torque (``Signals.tau_nominal``): on the body side the inverse
 dynamics of the URDF along the measured motion (behind a motor-side sensor with the URDF's drive terms, behind a
-link-side one without), on the actuator link the command. It is the nominal model's, not the current rung's: the
+link-side one without), on the drive side the command. It is the nominal model's, not the current rung's: the
 columns of an effect see the nominal model only, and a fitted link inertia moves ``|tau_T|`` by a few percent, which
 changes the load part by a few percent of its few percent. Linear in ``F_0`` (the unloaded level, ``>= 0`` in total)
 and ``mu`` (``>= 0``) for that fixed torque; the smoothing velocity ``v_s`` is refined as coulomb_friction's is.

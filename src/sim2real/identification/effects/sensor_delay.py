@@ -7,9 +7,9 @@ such a lag of T at frequencies well below 1/T, where an identification motion li
 sensor, like its gain and bias: tried where a sensor's torque is judged against the motion, never on
 commands. It is removed from the judged torque and moves nothing of the simulated motion: the calibrated MJCF reads
 each actuated joint's torque through a ``jointactuatorfrc`` sensor (``<joint>_torque``) delayed by it (MuJoCo's
-sensor ``delay``), as the real sensor reads the applied torque, so a policy observes it as late. On the actuator link the
+sensor ``delay``), as the real sensor reads the applied torque, so a policy observes it as late. On the drive side the
 measured torque lags the command by the sensor's delay plus the actuation's, so the calibrated model's
-actuation delay is what the actuator link finds beyond this one (:func:`actuation_beyond_sensor`).
+actuation delay is what the drive side finds beyond this one (:func:`actuation_beyond_sensor`).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from sim2real.identification.effects.base import (ParameterSpec, correlation_per
 
 def actuation_beyond_sensor(actuator_lag: float, sensor_delay: float) -> float:
     """The actuation's own delay (s): the measured torque lags the command by ``actuator_lag`` (the actuator
-    link's actuation_delay), of which ``sensor_delay`` is the sensor's lag behind what was applied."""
+    side's actuation_delay), of which ``sensor_delay`` is the sensor's lag behind what was applied."""
     return max(0.0, float(actuator_lag) - float(sensor_delay))
 
 

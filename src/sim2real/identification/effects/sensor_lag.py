@@ -5,7 +5,7 @@ torque changes slowly against T, and unlike a delay it attenuates what changes w
 two are a tie; they part where the judged torque holds fast changes. An error of the sensor: tried where a
 sensor's torque is judged against the motion, never on commands. The calibrated MJCF reads each identified joint's
 torque through a ``jointactuatorfrc`` sensor delayed by T (MuJoCo's sensors have a delay and no filter: the same lag
-at a motion's frequencies), and the calibrated actuation lag is what the actuator link finds beyond it.
+at a motion's frequencies), and the calibrated actuation lag is what the drive side finds beyond it.
 """
 
 from __future__ import annotations

@@ -76,8 +76,8 @@ class RunSamples:
 
     @classmethod
     def of(cls, prepared: PreparedRun, noise_floor: np.ndarray, tau: np.ndarray | None = None) -> RunSamples:
-        """A prepared run with the floor its link is judged against; ``tau``: another judged torque (the
-        actuator link's command), the measured one by default."""
+        """A prepared run with the floor its side is judged against; ``tau``: another judged torque (the
+        drive side's command), the measured one by default."""
         return cls(prepared.name, prepared.time, prepared.q, prepared.qd, prepared.qdd,
                    prepared.tau if tau is None else tau, prepared.torque_source, prepared.tau_cmd is not None,
                    noise_floor, prepared.torque_sensor)
@@ -126,7 +126,7 @@ def stack_runs(runs: Sequence[RunSamples], joint_names: Sequence[str], fit_rate_
 
 def _stacked(parts: list[np.ndarray]) -> np.ndarray:
     """The runs' arrays one after the other; one run's own array when it is already contiguous (the actuator
-    link takes a 10-minute run at 1 kHz as it is, not a copy of it: the same values and layout)."""
+    side takes a 10-minute run at 1 kHz as it is, not a copy of it: the same values and layout)."""
     return np.ascontiguousarray(parts[0]) if len(parts) == 1 else np.concatenate(parts)
 
 

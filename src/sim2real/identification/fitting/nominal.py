@@ -1,6 +1,6 @@
 """The nominal model the fit starts from: the URDF's rigid bodies with the MJCF armature, what the effects
 need to know of it (bodies, flange, CAD inertials, collision-mesh ellipsoids and hulls), and the body
-link's signals (:func:`make_signals`)."""
+side's signals (:func:`make_signals`)."""
 
 from __future__ import annotations
 
@@ -260,10 +260,10 @@ def load_nominal(
 
 
 def make_signals(nominal: NominalModel, data: TorqueData) -> Signals:
-    """The body link's signals: the judged torque predicted from the motion by the nominal model.
+    """The body side's signals: the judged torque predicted from the motion by the nominal model.
 
     A link-side sensor measures what the links need, without the drive's rotor inertia, damping and
-    friction (those lie on the actuator link, :func:`sim2real.identification.links.actuator_signals`).
+    friction (those lie on the drive side, :func:`sim2real.identification.sides.drive_signals`).
     """
     dynamics = nominal.dynamics
     tau_nominal = dynamics.inverse_dynamics(data.q, data.qd, data.qdd)

@@ -39,7 +39,7 @@ class FitResult:
     notes: list[str] = field(default_factory=list)
     consistency: dict[str, Any] = field(default_factory=dict)
     unconstrained: FitResult | None = None  # the same rung without the physical constraints
-    after_sensor: bool = False  # the body link behind a link-side sensor: drive effects are the part after it
+    after_sensor: bool = False  # the body side behind a link-side sensor: drive effects are the part after it
 
 
 class _Problem:
@@ -118,14 +118,14 @@ class _Problem:
         return cols
 
     def held_in_time(self, effect: Effect) -> bool:
-        """Whether the lags leave ``effect``'s columns where they are: a drive's on the actuator link (:meth:`shift`)."""
+        """Whether the lags leave ``effect``'s columns where they are: a drive's on the drive side (:meth:`shift`)."""
         return bool(self.signals.forward and effect.drive)
 
     def shift(self, columns: np.ndarray, effects: Sequence[Effect], sizes: Sequence[int],
               nonlinear: dict[str, np.ndarray]) -> np.ndarray:
         """Columns as they enter the prediction: moved by the lags (:meth:`retime`), except a drive's on the
-        actuator link (the command is delayed; the rotor inertia and friction act on the motion as it is). Only the
-        columns that move are retimed: on the actuator link most are a drive's (each column is retimed on its own,
+        drive side (the command is delayed; the rotor inertia and friction act on the motion as it is). Only the
+        columns that move are retimed: on the drive side most are a drive's (each column is retimed on its own,
         so the bits are those of retiming them all)."""
         if not self.retimed(nonlinear) or not self.signals.forward:
             return self.retime(columns, nonlinear)

@@ -24,12 +24,12 @@ REFINE_SETTINGS = ("refine_max_samples", "refine_windows_s", "joint_weighting")
 
 @dataclass
 class Refinements:
-    """The nonlinear refinements of one link's data, kept between rounds of the loop (:class:`sim2real.cache.FitCache`).
+    """The nonlinear refinements of one side's data, kept between rounds of the loop (:class:`sim2real.cache.FitCache`).
 
     A diagnosis's trial of a candidate refines exactly what that candidate's rung refines in the next round, once
     the user adds it: the same data, effects, start and held parameters (the prior's weight, the one difference
     between a trial and its rung, does not enter the refinement). The rung reads it back, the same bits.
-    ``inputs``: the digest of the link's data and nominal model (:func:`sim2real.identification.sysid.fit_ladder`'s)."""
+    ``inputs``: the digest of the side's data and nominal model (:func:`sim2real.identification.sysid.fit_ladder`'s)."""
 
     cache: Any
     inputs: str
@@ -84,7 +84,7 @@ def _refine_nonlinear(
     free = ~held
     # While the delay stays put, so do the columns of the effects without nonlinear parameters (the link
     # inertias, a rotor inertia): their part of the Gram matrix is computed once. While it moves, only those the
-    # lags leave where they are (a drive's on the actuator link) stay put.
+    # lags leave where they are (a drive's on the drive side) stay put.
     delay_moves = any(e.time_shift and e.name not in fixed for e in problem.effects)
     stays_put = any(e.name in problem.static_columns and problem.held_in_time(e) for e in problem.effects)
     cache = (_GramCache(time_moves=True) if stays_put else None) if delay_moves else _GramCache()
@@ -268,7 +268,7 @@ def refinement_rows(signals: Signals, max_samples: int, window_s: float | None =
 
     Up to ``max_samples``, all of them. Beyond: every k-th sample of whole runs (the time grid stays uniform,
     k times coarser); or, with ``window_s``, windows of that length spread evenly over the runs, each its own
-    segment (a time shift never crosses them), so the sampling step stays the log's: the actuator link
+    segment (a time shift never crosses them), so the sampling step stays the log's: the drive side
     refines a delay of a few samples. Its memory then stays put however long the log (the refinement's
     Jacobian is samples x joints x parameters)."""
     count = len(signals.time)

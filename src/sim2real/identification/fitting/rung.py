@@ -71,12 +71,12 @@ def fit(
     ``nonlinear_start``: where the refinement starts (the ladder passes the previous rung's and refines
     every nonlinear parameter again, so a rung delivers at least the fall its candidate promised);
     ``signals``: what the judged torque is predicted from (default: the nominal model on ``data``;
-    the actuator link passes its own and no nominal model); ``refinements``: where the nonlinear refinement is
+    the drive side passes its own and no nominal model); ``refinements``: where the nonlinear refinement is
     read back from, or kept for the next round (:class:`sim2real.identification.fitting.refine.Refinements`).
     """
     settings = {**DEFAULT_SETTINGS, **(settings or {})}
     if signals is None:
-        assert nominal is not None, "give the nominal model or the signals (the actuator link has no nominal model)"
+        assert nominal is not None, "give the nominal model or the signals (the drive side has no nominal model)"
         signals = make_signals(nominal, data)
     effects = [get_effect(name) for name in effect_names]
     notes = []

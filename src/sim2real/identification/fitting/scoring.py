@@ -60,7 +60,7 @@ def predict(
 ) -> np.ndarray:
     """Judged torque the fitted model predicts on ``data`` (e.g. the holdout runs).
 
-    ``nominal`` may be None when ``signals`` are given (the actuator link, :mod:`sim2real.identification.links`)."""
+    ``nominal`` may be None when ``signals`` are given (the drive side, :mod:`sim2real.identification.sides`)."""
     if signals is None:
         assert nominal is not None
         signals = make_signals(nominal, data)
