@@ -6,7 +6,7 @@ import os
 
 import sim2real.assets.collision as _sim2real_collision
 import sim2real.assets.robot_config as _sim2real_robot_config
-import sim2real.design_names as _sim2real_design_names
+import sim2real.excitation.names as _sim2real_design_names
 import sim2real.excitation.config as _sim2real_excitation_config
 import sim2real.identification.model_config as _sim2real_model_config
 import sim2real.measurements.campaigns as _sim2real_campaigns

@@ -22,7 +22,7 @@ from sim2real.identification.diagnosis.caveats import (
     bound_changes, caveat_notes, implausible_bodies, nested_pair, recommend, tied,
 )
 from sim2real.report.verdicts import NOTE_TEXT
-from sim2real.design_names import separation_name
+from sim2real.excitation.names import separation_name
 
 def caveats(best: dict, group: list) -> str:
     """The words the report gives a named candidate's caveats (sim2real.report.verdicts)."""
@@ -97,7 +97,7 @@ def test_a_candidate_is_judged_on_what_it_changes_never_on_the_state_it_inherits
     current = _fit({"panda_link2": (["mass_upper"], []), "panda_link3": ([], ["mass changed by +80%"])})
     same = _fit({"panda_link2": (["mass_upper"], []), "panda_link3": ([], ["mass changed by +80%"])})
     assert implausible_bodies(same, current) == [] and bound_changes(same, current) == {"pushes": {}, "releases": {}}
-    assert implausible_bodies(same) == ["panda_link3 (mass changed by +80%)"], "judged alone, the state is there"
+    assert implausible_bodies(same) == [{"body": "panda_link3", "reasons": ["mass changed by +80%"]}], "judged alone, the state is there"
 
     keeps = _candidate("rotor_inertia", same, current, 1.2)
     released = _fit({"panda_link3": ([], ["mass changed by +80%"])})

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from sim2real.identification.diagnosis import model_free_ceiling as ceiling_data
-from sim2real.report.verdicts import ceiling_text
+from sim2real.report.verdicts import ceiling_section
 from sim2real.identification.diagnosis.ceiling import since_reversal
 from sim2real.identification.fitting import TorqueData
 
@@ -41,8 +41,7 @@ def motion(seed: int, duration: float = 20.0, trend: float = 0.0) -> tuple[np.nd
 
 def model_free_ceiling(*args, **options) -> dict:
     """The ceiling's document with the words the report gives it (``text``)."""
-    result = ceiling_data(*args, **options)
-    return {**result, "text": ceiling_text(result, "{robot}")}
+    return ceiling_section(ceiling_data(*args, **options), "{robot}")
 
 
 def data(name: str, seed: int, residual_of, trend: float = 0.0) -> tuple[TorqueData, np.ndarray]:

@@ -21,7 +21,7 @@ from sim2real.excitation.config import design_from_spec, load_design  # noqa: E4
 from sim2real.excitation.design import DesignResult, design_start, design_trajectory  # noqa: E402
 from sim2real.identification.fitting import load_nominal  # noqa: E402
 from sim2real.errors import InputError  # noqa: E402
-from sim2real.design_names import confounded_pair  # noqa: E402
+from sim2real.excitation.names import confounded_pair  # noqa: E402
 from sim2real.excitation.separation import Separation, fitted_candidates  # noqa: E402
 from sim2real.files import (  # noqa: E402
     atomic_path, dump_yaml, read_array_archive, write_array_archive, write_json, write_text,

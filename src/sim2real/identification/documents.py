@@ -32,6 +32,15 @@ def round_floats(tree: Any, digits: int = 6) -> Any:
     return tree
 
 
+# Why the drive side's lag is split in params.yaml's by_link (the delay's key, or the time constant's).
+LAG_WHY = {
+    "delay": "the measured torque lags the command by the actuation's delay plus the sensor's own (found on the body "
+    "side): the actuators hold what is left of it",
+    "time_constant": "the measured torque lags the command by the actuation's lag plus the sensor's own (found on the "
+    "body side): the actuators hold what is left of it",
+}
+
+
 def merge_side_values(results: Sequence[FitResult], nominal: NominalModel) -> tuple[dict[str, Any], dict[str, Any]]:
     """Each effect's values for the assets, and the drive effects fitted on two sides apart.
 
@@ -41,7 +50,7 @@ def merge_side_values(results: Sequence[FitResult], nominal: NominalModel) -> tu
     ``results``: the body side's last rung first (:func:`fit_model`).
     """
     effects: dict[str, Any] = {}
-    by_link: dict[str, Any] = {}
+    by_side: dict[str, Any] = {}
     body = results[0]
     for result in results[1:]:
         effects.update(result.values)
@@ -55,26 +64,23 @@ def merge_side_values(results: Sequence[FitResult], nominal: NominalModel) -> tu
         base = effects.get(name, {}).get(key) or dict(zip(nominal.joint_names, map(float, nominal.info.get(key, [])), strict=False))
         merged = dict(effects.get(name) or values)
         merged[key] = {j: float(base.get(j, 0.0)) + float(v) for j, v in values[key].items()}
-        by_link[name] = {"body": values, **({"actuator": effects[name]} if name in effects else {}),
+        by_side[name] = {"body": values, **({"actuator": effects[name]} if name in effects else {}),
                          "why": "the body side's value acts after the link-side sensor; the joint holds the sum"}
         effects[name] = merged
     sensor = {n: v for n, v in body.values.items() if get_effect(n).time_shift and get_effect(n).sensor_side}
     actuation = [n for n in (results[1].values if len(results) > 1 else {}) if _actuator_lag(n)]
     if sensor and actuation:
         # The drive side judges the sensor's reading against the command: its lag holds the sensor's too.
-        names = ", ".join(sensor)
         for name, taken in zip(actuation, _sensor_shares(results[1].values, actuation, sensor), strict=True):
             key = _lag_key(name)
             lag = float(effects[name][key])
             effects[name] = {**effects[name], key: actuation_beyond_sensor(lag, taken)}
-            by_link[name] = {
+            by_side[name] = {
                 "actuator": {key: lag}, "body": {n: v[_lag_key(n)] for n, v in sensor.items()},
-                "why": f"the measured torque lags the command by the actuation's {'delay' if key == 'delay' else 'lag'} "
-                       f"plus the sensor's own ({names}, "
-                       "found on the body side): the actuators hold what is left of it",
+                "why": LAG_WHY[key], "sensor": list(sensor),
             }
     order = [name for result in results for name in result.effects]
-    return {name: effects[name] for name in dict.fromkeys(order) if name in effects}, by_link
+    return {name: effects[name] for name in dict.fromkeys(order) if name in effects}, by_side
 
 
 def _actuator_lag(name: str) -> bool:
@@ -97,12 +103,12 @@ def _sensor_shares(values: Mapping[str, Any], actuation: Sequence[str], sensor: 
     return shares
 
 
-def _intervals_of(results: Sequence[FitResult], by_link: Mapping[str, Any]) -> dict[str, Any]:
+def _intervals_of(results: Sequence[FitResult], by_side: Mapping[str, Any]) -> dict[str, Any]:
     """Each effect's intervals; an actuation lag's moved with its value, the sensor's lag taken out."""
     intervals = {name: values for result in results for name, values in result.intervals.items()}
-    actuation = [n for n in (results[1].values if len(results) > 1 else {}) if _actuator_lag(n) and n in by_link]
+    actuation = [n for n in (results[1].values if len(results) > 1 else {}) if _actuator_lag(n) and n in by_side]
     if actuation:
-        sensor = {n: {_lag_key(n): v} for n, v in by_link[actuation[0]]["body"].items()}
+        sensor = {n: {_lag_key(n): v} for n, v in by_side[actuation[0]]["body"].items()}
         for name, taken in zip(actuation, _sensor_shares(results[1].values, actuation, sensor), strict=True):
             if name in intervals:
                 key = _lag_key(name)
@@ -117,12 +123,12 @@ def params_document(
 
     ``torque_source``: the body side's judged torque (``tau`` or ``tau_cmd``; ladder.json's ``torque_source``).
     """
-    effects, by_link = merge_side_values(results, nominal)
+    effects, by_side = merge_side_values(results, nominal)
     return round_floats({
         "robot": robot,
         "effects": effects,
-        **({"by_link": by_link} if by_link else {}),
-        "intervals": _intervals_of(results, by_link),
+        **({"by_link": by_side} if by_side else {}),
+        "intervals": _intervals_of(results, by_side),
         "order": list(dict.fromkeys(name for result in results for name in result.effects)),
         "joints": nominal.joint_names,
         "torque_source": torque_source,

@@ -38,10 +38,12 @@ command explains (:func:`sim2real.measurements.command_floor_of`): a controller'
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from sim2real.errors import InputError
 from sim2real.identification.effects import EFFECTS, Signals, get_effect
 from sim2real.identification.fitting import NominalModel, RunSamples, TorqueData, link_side, stack_runs
 from sim2real.identification.records import SensorPlacement, Side
@@ -89,17 +91,18 @@ def effects_of_side(effect_names: Sequence[str], side: Side, torque_sensor: Torq
                 or get_effect(name).every_side) and kept_on.get(name, side) == side]
 
 
-def kept_on_problem(name: str, side: Side, mode: str, torque_sensor: TorqueSensor) -> str | None:
-    """Why model.yaml cannot keep the drive effect ``name`` on ``side`` alone with these runs (None: it can): the runs
-    fit one side only, or that side does not fit it (behind a motor-side sensor the drive side fits no drive
-    effect). The words of an input error."""
+def check_kept_on(name: str, side: Side, mode: str, torque_sensor: TorqueSensor, path: str | Path) -> None:
+    """Refuse a line of model.yaml (the file ``path``) that keeps the drive effect ``name`` on ``side`` alone where
+    these runs cannot: they fit one side only, or that side does not fit it (behind a motor-side sensor the drive side
+    fits no drive effect)."""
     if mode != "separate":
-        return ("these runs fit one side only (they do not log both the measured torque tau and the command tau_cmd), "
-                "so there is no other side to keep it off")
+        raise InputError(path, f"effects: '- {name}: {side}'", "these runs fit one side only (they do not log both "
+                         "the measured torque tau and the command tau_cmd), so there is no other side to keep it off",
+                         f"write '- {name}'")
     if name not in effects_of_side([name], side, torque_sensor):
-        return (f"behind a {torque_sensor}-side torque sensor (the runs' torque_sensor) the {side} side does not fit "
-                f"{name}: kept there, it would be fitted nowhere")
-    return None
+        raise InputError(path, f"effects: '- {name}: {side}'", f"behind a {torque_sensor}-side torque sensor (the "
+                         f"runs' torque_sensor) the {side} side does not fit {name}: kept there, it would be fitted "
+                         "nowhere", f"write '- {name}'")
 
 
 def candidates_of_side(side: Side, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR,

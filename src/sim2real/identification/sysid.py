@@ -232,10 +232,7 @@ def _sides_of(runs: Mapping[str, Sequence[PreparedRun]], model: ModelConfig, rob
     every = [*runs["fit"], *runs["holdout"]]
     mode, sensor = sides.side_mode(every), torque_sensor_of(every)
     for name, side in model.sides.items():
-        problem = sides.kept_on_problem(name, side, mode, sensor)
-        if problem:
-            raise InputError(model.path or f"configs/{robot}/model.yaml", f"effects: '- {name}: {side}'", problem,
-                             f"write '- {name}'")
+        sides.check_kept_on(name, side, mode, sensor, model.path or f"configs/{robot}/model.yaml")
     return _Sides(mode, sensor, model.sides)
 
 

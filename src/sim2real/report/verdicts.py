@@ -13,7 +13,7 @@ import copy
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from sim2real.design_names import separation_name
+from sim2real.excitation.names import separation_name
 from sim2real.identification.diagnosis import Diagnosis
 from sim2real.identification.diagnosis.caveats import troubles
 from sim2real.identification.diagnosis.ceiling import CLOSE_TO_RUNG, DRIFT_EFFECT, imitated_joints, offset_joints
@@ -115,11 +115,16 @@ HEADLINE: dict[Status, Callable[[Diagnosis, str], str]] = {
 
 # --- the notes ------------------------------------------------------------------------------------------------------
 
+def implausible_text(body: Mapping[str, Any] | str) -> str:
+    """A body a fit leaves beyond plausible (:func:`sim2real.identification.diagnosis.caveats.implausible_bodies`)."""
+    return body if isinstance(body, str) else f"{body['body']} ({', '.join(body['reasons'])})"
+
+
 def trouble_text(trouble: Mapping[str, Any]) -> str:
     """Why a candidate would leave the model less trustworthy (:func:`sim2real.identification.diagnosis.caveats.
     troubles`), in words."""
     if trouble["kind"] == "implausible":
-        return f"it leaves link inertias implausible ({'; '.join(trouble['bodies'])})"
+        return f"it leaves link inertias implausible ({'; '.join(map(implausible_text, trouble['bodies']))})"
     if trouble["kind"] == "bounds":
         return f"it pushes link inertias to their bounds ({bounds_text(trouble['bodies'])})"
     return (f"it trades places with {trouble['effect']} already in the model (the fit moves that effect's term against "
@@ -325,8 +330,28 @@ DECLARE_ADVICE = ("; or, for these runs, add the line '- {effect}' under 'effect
                   "the holdout runs included, and never written into the assets.")
 
 
+FEATURE_TEXT = {
+    "position": "position of {joint}", "velocity": "velocity of {joint}", "acceleration": "acceleration of {joint}",
+    "predicted_torque": "the torque the model predicts for {joint}", "velocity_sign": "the sign of velocity of {joint}",
+    "speed": "the speed of {joint}", "gravity_torque": "the gravity torque of {joint}",
+    "torque_times_sign": "the torque the model predicts for {joint} times the sign of its velocity",
+    "abs_torque_times_sign": "|the torque the model predicts for {joint}| times the sign of its velocity",
+}
+
+
+def feature_text(feature: Mapping[str, Any] | str) -> str:
+    """A learner's feature (:func:`sim2real.identification.diagnosis.ceiling.feature`) in words."""
+    if isinstance(feature, str):
+        return feature
+    if feature["feature"] == "periodic_position":
+        every = f", every {feature['period']:.3g} rad" if "period" in feature else ""
+        return f"position of {feature['joint']} (periodic{every})"
+    return FEATURE_TEXT[feature["feature"]].format(joint=feature["joint"])
+
+
 def _learned(j: str, r: Mapping[str, Any]) -> str:
-    follows = f", mostly as a function of {' and '.join(r['gains_most_with'])}" if r["gains_most_with"] else ""
+    with_ = [feature_text(f) for f in r["gains_most_with"]]
+    follows = f", mostly as a function of {' and '.join(with_)}" if with_ else ""
     if r.get("gains_most_in"):
         follows += f", most in {GAIN_REGIME_TEXT[r['gains_most_in']]}"
     return f"{j} {floor_multiple(r['rung_x_floor'])} -> {floor_multiple(r['ceiling_x_floor'])} its floor{follows}"
@@ -382,6 +407,16 @@ def ceiling_text(ceiling: Mapping[str, Any], robot: str) -> str:
         sentences.append(OFFSET_ADVICE.format(joints=", ".join(offsets)) + (
             "." if not ceiling.get("declare") else DECLARE_ADVICE.format(effect=DRIFT_EFFECT, robot=robot)))
     return " ".join(sentences)
+
+
+def ceiling_section(ceiling: Mapping[str, Any], robot: str) -> dict[str, Any]:
+    """gap.json's ``model_free``: the ceiling's document with its words (``text``, the features in words)."""
+    out = copy.deepcopy(dict(ceiling))
+    for row in out["per_joint"].values():
+        if "gains_most_with" in row:
+            row["gains_most_with"] = [feature_text(f) for f in row["gains_most_with"]]
+    out["text"] = ceiling_text(ceiling, robot)
+    return out
 
 
 # --- what the sides can tell apart -----------------------------------------------------------------------------------
@@ -453,9 +488,13 @@ def diagnosis_section(document: Mapping[str, Any], robot: str) -> dict[str, Any]
     d = Diagnosis.from_document(document)
     out = {key: copy.deepcopy(value) for key, value in document.items() if key not in DATA_ONLY}
     out["verdict"] = verdict(d, robot)
+    for candidate in out["candidates"]:
+        evidence = candidate["evidence"]
+        if "implausible_bodies" in evidence:
+            evidence["implausible_bodies"] = [implausible_text(b) for b in evidence["implausible_bodies"]]
     out["skipped"] = [{"effect": n.effect, "reason": skip_reason(n)} for n in d.skipped]
     if d.model_free is not None:
-        out["model_free"]["text"] = ceiling_text(d.model_free, robot)
+        out["model_free"] = ceiling_section(d.model_free, robot)
     for note in d.notes:
         if note.kind in NOTE_KEYS:
             out[NOTE_KEYS[note.kind]] = NOTE_TEXT[note.kind](note, robot).strip()

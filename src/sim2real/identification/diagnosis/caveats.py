@@ -127,13 +127,14 @@ def _bodies(result: fitting.FitResult | None) -> dict[str, Any]:
     return inertia.get("bodies") or {}
 
 
-def implausible_bodies(result: fitting.FitResult, current: fitting.FitResult | None = None) -> list[str]:
-    """The bodies a fit leaves beyond plausible (:mod:`sim2real.identification.effects.link_inertia`), each with why;
-    with ``current`` (the model the fit adds to), only those the current model does not already leave so: a candidate
-    is judged on what it changes, never on a state it inherits. A consistent fit holds every body inside its bands
-    (:mod:`sim2real.identification.inertial.bands`): only an unconstrained one can leave any."""
+def implausible_bodies(result: fitting.FitResult, current: fitting.FitResult | None = None) -> list[dict[str, Any]]:
+    """The bodies a fit leaves beyond plausible (:mod:`sim2real.identification.effects.link_inertia`), each with why
+    (``{"body", "reasons"}``); with ``current`` (the model the fit adds to), only those the current model does not
+    already leave so: a candidate is judged on what it changes, never on a state it inherits. A consistent fit holds
+    every body inside its bands (:mod:`sim2real.identification.inertial.bands`): only an unconstrained one can leave
+    any."""
     inherited = {name for name, body in _bodies(current).items() if body.get("implausible")}
-    return [f"{name} ({', '.join(body['implausible'])})" for name, body in _bodies(result).items()
+    return [{"body": name, "reasons": list(body["implausible"])} for name, body in _bodies(result).items()
             if body.get("implausible") and name not in inherited]
 
 

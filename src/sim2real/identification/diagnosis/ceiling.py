@@ -98,11 +98,18 @@ def _harmonic_learner() -> Any:
     return RidgeCV(alphas=np.logspace(-3, 3, 13))
 
 
-def motion_features(data: Any) -> tuple[np.ndarray, list[str]]:
-    """(N, 3n) q, qd, qdd of every joint, and their names."""
+def motion_features(data: Any) -> tuple[np.ndarray, list[dict[str, str]]]:
+    """(N, 3n) q, qd, qdd of every joint, and each column's feature (:func:`feature`)."""
     joints = list(data.joint_names)
-    names = [f"{kind} of {joint}" for kind in ("position", "velocity", "acceleration") for joint in joints]
+    names = [feature(kind, joint) for kind in ("position", "velocity", "acceleration") for joint in joints]
     return np.hstack([data.q, data.qd, data.qdd]), names
+
+
+def feature(kind: str, joint: str, **figures: float) -> dict[str, Any]:
+    """A learner's feature as data (the report words it): its ``kind`` (``position``, ``velocity``, ``acceleration``,
+    ``predicted_torque``, ``velocity_sign``, ``speed``, ``gravity_torque``, ``torque_times_sign``,
+    ``abs_torque_times_sign``, ``periodic_position``), the joint it is of, and its figures (a ripple's ``period``)."""
+    return {"feature": kind, "joint": joint, **figures}
 
 
 def dynamics_features(data: Any, residual: np.ndarray, gravity: np.ndarray | None) -> np.ndarray:
@@ -114,10 +121,9 @@ def dynamics_features(data: Any, residual: np.ndarray, gravity: np.ndarray | Non
     return np.stack(features, axis=2)
 
 
-def dynamics_names(joint: str, k: int) -> list[str]:
-    """The names of :func:`dynamics_features`' ``k`` columns of ``joint``."""
-    return [f"the torque the model predicts for {joint}", f"the sign of velocity of {joint}", f"the speed of {joint}",
-            f"the gravity torque of {joint}"][:k]
+def dynamics_names(joint: str, k: int) -> list[dict[str, Any]]:
+    """The features of :func:`dynamics_features`' ``k`` columns of ``joint``."""
+    return [feature(kind, joint) for kind in ("predicted_torque", "velocity_sign", "speed", "gravity_torque")][:k]
 
 
 def signed_products(features: np.ndarray) -> np.ndarray:
@@ -129,11 +135,9 @@ def signed_products(features: np.ndarray) -> np.ndarray:
     return np.column_stack([sign, features[:, 0] * sign, np.abs(features[:, 0]) * sign])
 
 
-def signed_names(joint: str) -> list[str]:
-    """The names of :func:`signed_products`' columns of ``joint``."""
-    torque = f"the torque the model predicts for {joint}"
-    return [f"the sign of velocity of {joint}", f"{torque} times the sign of its velocity",
-            f"|{torque}| times the sign of its velocity"]
+def signed_names(joint: str) -> list[dict[str, Any]]:
+    """The features of :func:`signed_products`' columns of ``joint``."""
+    return [feature(kind, joint) for kind in ("velocity_sign", "torque_times_sign", "abs_torque_times_sign")]
 
 
 def _dynamics_learner() -> Any:
@@ -220,7 +224,8 @@ def _named(shares: dict[str, float]) -> str | None:
     return None
 
 
-def _gains_most(learner: Any, features: np.ndarray, target: np.ndarray, names: Sequence[str]) -> list[str]:
+def _gains_most(learner: Any, features: np.ndarray, target: np.ndarray,
+                names: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """The motion the learner's gain follows: the features whose permutation on the holdout costs it most (the
     rise of its squared error when that feature's column is shuffled, one seeded shuffle each)."""
     base = float(np.mean((target - learner.predict(features)) ** 2))
@@ -338,7 +343,7 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
         row["learner"] = chosen
         if ceiling < CLOSE_TO_RUNG * rung:
             row["kind"] = "motion"
-            every = f", every {period:.3g} rad" if chosen == "a ripple of the searched period" else ""
+            ripple = {"period": period} if chosen == "a ripple of the searched period" else {}
             x_holdout, names = motion_features(holdout_data)
             if chosen in (DYNAMICS_TREES, DYNAMICS_LEARNER):
                 assert dynamics is not None
@@ -347,7 +352,7 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
                 if chosen == DYNAMICS_LEARNER:
                     names = signed_names(holdout_data.joint_names[j])
                     x_holdout = signed_products(x_holdout)
-            row["gains_most_with"] = ([f"position of {holdout_data.joint_names[j]} (periodic{every})"] if periodic
+            row["gains_most_with"] = ([feature("periodic_position", holdout_data.joint_names[j], **ripple)] if periodic
                                       else _gains_most(learner, x_holdout, holdout_residual[:, j], names))
             row["gains_most_in"] = _gain_regime(holdout_residual[:, j], after, holdout_data.qd[:, j],
                                                 holdout_data.qdd[:, j])

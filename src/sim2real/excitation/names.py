@@ -1,4 +1,4 @@
-"""Names of excitation designs that the diagnosis and the experiment design share: a run that separates two
+"""Names of excitation designs that the report and the experiment design share: a run that separates two
 candidates the diagnosis could not tell apart is the design ``separate-<a>-vs-<b>`` (``rules/excitation.smk``)."""
 
 from __future__ import annotations
