@@ -125,7 +125,7 @@ def compute_gap(
         precomputed = inputs.read_ladder()
     prepared = runs_for_model(inputs.measurements, inputs.urdf, inputs.root)
     replay = _Replay(inputs.mjcf, ReplayModels(inputs.mjcf, cache) if inputs.mjcf is not None else None,
-                     prepared.settings["horizon_s"], (precomputed or {}).get("torque_source"))
+                     prepared.settings, (precomputed or {}).get("torque_source"))
     model = _rigid_body_model(inputs.urdf, prepared, replay)
     floor, gap = _gap_head(inputs.robot, model.joint_names, prepared, precomputed)
     if progress is not None:
@@ -149,11 +149,12 @@ def compute_gap(
 @dataclass(frozen=True)
 class _Replay:
     """How the report replays the commands: in the MJCF (None: not replayed) through its compiled models, with
-    multiple shooting every ``horizon_s``; ``torque_source``: the ladder's, for its rungs' replays."""
+    multiple shooting every ``settings["horizon_s"]`` (the runs' settings); ``torque_source``: the ladder's, for its
+    rungs' replays."""
 
     mjcf: str | Path | None
     models: ReplayModels | None
-    horizon_s: float
+    settings: Mapping[str, Any]
     torque_source: str | None
 
 
@@ -245,7 +246,7 @@ def _replay_models(gap: dict[str, Any], nominal: dict[str, Any], comparisons: li
         if replay.mjcf is None:
             section["state_domain"] = {"status": "skipped", "reason": "no MJCF given to replay the commands in"}
         else:
-            section["state_domain"] = state_domain(replay.mjcf, replayed, replay.horizon_s,
+            section["state_domain"] = state_domain(replay.mjcf, replayed, replay.settings["horizon_s"],
                                                    section["torque_rmse"]["overall"], replay.models, identified)
         if section["state_domain"]["status"] == "computed":
             section["position_rmse"] = section["state_domain"]["position_rmse"]
@@ -255,7 +256,7 @@ def _replay_models(gap: dict[str, Any], nominal: dict[str, Any], comparisons: li
 def _replay_ladders(gap: dict[str, Any], comparisons: list[TorqueComparison], replay: _Replay) -> None:
     """Each rung replayed with its fitted effects written into the MJCF: the state-domain view of the ladder,
     into each rung's metrics (``position_rmse``); the actuator's rungs on the body's last rung."""
-    positions = ladder_position_rmse(replay.mjcf, comparisons, replay.horizon_s, gap["ladder"],
+    positions = ladder_position_rmse(replay.mjcf, comparisons, replay.settings["horizon_s"], gap["ladder"],
                                      replay.torque_source, replay.models)
     for rung, position in zip(gap["ladder"], positions):
         if position is not None:
@@ -264,7 +265,7 @@ def _replay_ladders(gap: dict[str, Any], comparisons: list[TorqueComparison], re
         # The actuator's rungs replayed on the body link's last rung: the commands reach that body.
         body = gap["ladder"][-1].get("params") or {}
         rungs = [{**rung, "params": {**body, **(rung.get("params") or {})}} for rung in gap["actuator"]["ladder"]]
-        positions = ladder_position_rmse(replay.mjcf, comparisons, replay.horizon_s, rungs,
+        positions = ladder_position_rmse(replay.mjcf, comparisons, replay.settings["horizon_s"], rungs,
                                          replay.torque_source, replay.models)
         for rung, position in zip(gap["actuator"]["ladder"], positions):
             if position is not None:
