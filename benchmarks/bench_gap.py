@@ -12,7 +12,7 @@ from pathlib import Path
 
 import yaml
 
-from sim2real.report.gap import build_gap_report, compute_gap
+from sim2real.report.gap import GapInputs, build_gap_report, compute_gap
 from sim2real.lab import run_lab_scenario_run, scenario_runs
 from sim2real.report.figures import FIGURES
 
@@ -31,11 +31,12 @@ def main(robot: str = "panda") -> None:
         listing = Path(tmp) / "m.yaml"
         listing.write_text(yaml.safe_dump({"runs": entries, "replay": {"horizon_s": 0.25}}))
         start = time.perf_counter()
-        gap, _ = compute_gap(robot, urdf, mjcf, listing)
+        inputs = GapInputs(robot, urdf, mjcf, listing)
+        gap, _ = compute_gap(inputs)
         compute_s = time.perf_counter() - start
         figures = {k: Path(tmp) / f"{k}.png" for k in FIGURES}
         start = time.perf_counter()
-        build_gap_report(robot, urdf, mjcf, listing, Path(tmp) / "gap.json", Path(tmp) / "gap.md", figures)
+        build_gap_report(inputs, Path(tmp) / "gap.json", Path(tmp) / "gap.md", figures)
         report_s = time.perf_counter() - start
     samples = sum(r["samples"] for r in gap["runs"])
     print(f"robot                          {robot}")

@@ -82,7 +82,7 @@ def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiproc
     commit's) instead of the installed one."""
     if src is not None:
         sys.path.insert(0, src)
-    from sim2real.report.gap import build_gap_report
+    from sim2real.report import gap as report
     from sim2real.measurements import prepare_for_model, write_prepared_runs
     from sim2real.report.figures import FIGURES
     from sim2real.identification.sysid import run_sysid
@@ -100,9 +100,15 @@ def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiproc
                   t / "configs/panda/model.yaml", prepared, o / "ladder.json", o / "params.yaml",
                   o / "calibration.yaml", root=t, residuals_npz=o / "residuals.npz")
     else:
-        build_gap_report("panda", t / "results/panda/panda.urdf", t / "results/panda/mjcf/panda.xml", prepared,
-                         o / "gap.json", o / "gap.md", {k: o / f"{k}.png" for k in FIGURES},
-                         precomputed_path=o / "ladder.json", root=t, residuals_path=o / "residuals.npz")
+        urdf, mjcf = t / "results/panda/panda.urdf", t / "results/panda/mjcf/panda.xml"
+        figures = {k: o / f"{k}.png" for k in FIGURES}
+        if hasattr(report, "GapInputs"):
+            inputs = report.GapInputs("panda", urdf, mjcf, prepared, root=t, ladder=o / "ladder.json",
+                                      residuals=o / "residuals.npz")
+            report.build_gap_report(inputs, o / "gap.json", o / "gap.md", figures)
+        else:  # a commit before GapInputs
+            report.build_gap_report("panda", urdf, mjcf, prepared, o / "gap.json", o / "gap.md", figures,
+                                    precomputed_path=o / "ladder.json", root=t, residuals_path=o / "residuals.npz")
     profiler.disable()
     seconds = time.perf_counter() - started
     peak_mib = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)) / 1024.0

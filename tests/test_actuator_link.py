@@ -133,7 +133,7 @@ def test_behind_a_link_side_sensor_the_drive_is_found_on_the_actuator_link(lab, 
 
     import yaml
 
-    from sim2real.report.gap import build_gap_report
+    from sim2real.report.gap import GapInputs, build_gap_report
 
     documents = lab.follow("link_side_sensor")  # as tests/test_trustworthy_loop.py: followed once
     first, last = documents[0], documents[-1]
@@ -163,8 +163,8 @@ def test_behind_a_link_side_sensor_the_drive_is_found_on_the_actuator_link(lab, 
     out.mkdir()
     (out / "ladder.json").write_text(json.dumps(last), encoding="utf-8")
     figures = {k: out / f"{k}.png" for k in FIGURES}
-    gap = build_gap_report("panda", lab.urdf, lab.mjcf, listing, out / "gap.json", out / "gap.md", figures,
-                           out / "ladder.json", "/")
+    gap = build_gap_report(GapInputs("panda", lab.urdf, lab.mjcf, listing, root="/", ladder=out / "ladder.json"),
+                           out / "gap.json", out / "gap.md", figures)
     assert gap["links"]["torque_sensor"] == "link"
     markdown = (out / "gap.md").read_text(encoding="utf-8")
     assert "The torque sensor is link-side" in markdown
@@ -179,7 +179,7 @@ def test_behind_a_link_side_sensor_the_drive_is_found_on_the_actuator_link(lab, 
 def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added(lab, tmp_path):
     import json
 
-    from sim2real.report.gap import build_gap_report
+    from sim2real.report.gap import GapInputs, build_gap_report
 
     def report(scenario, effects, name, with_sensor=True):
         listing = lab.measurement_list(scenario) if with_sensor else lab.without_sensor(scenario)
@@ -188,8 +188,8 @@ def test_gap_report_shows_each_link_and_the_replay_falls_when_the_delay_is_added
         out.mkdir()
         (out / "ladder.json").write_text(json.dumps(document), encoding="utf-8")
         figures = {k: out / f"{k}.png" for k in FIGURES}
-        gap = build_gap_report("panda", lab.urdf, lab.mjcf, listing, out / "gap.json", out / "gap.md", figures,
-                               out / "ladder.json", "/")
+        inputs = GapInputs("panda", lab.urdf, lab.mjcf, listing, root="/", ladder=out / "ladder.json")
+        gap = build_gap_report(inputs, out / "gap.json", out / "gap.md", figures)
         return gap, (out / "gap.md").read_text(encoding="utf-8")
 
     gap, markdown = report("sensor_actuation_delay", ["actuation_delay"], "sensor")

@@ -11,7 +11,7 @@ import yaml
 
 from gap_fixtures import PANDA_JOINTS, build_dev_panda, short_lab_config
 from sim2real.errors import InputError
-from sim2real.report.gap import build_gap_report, compute_gap
+from sim2real.report.gap import GapInputs, build_gap_report, compute_gap
 from sim2real.report.metrics import reality_gap
 from sim2real.files import validate
 from sim2real.lab import run_lab_scenario_run
@@ -43,7 +43,8 @@ def test_demo_report_points_at_friction_in_slow_motion_and_reversals(lab):
     listing = lab["scenario"]("demo")
     out = lab["dir"] / "demo_report"
     figures = {k: out / "gap" / f"{k}.png" for k in FIGURES}
-    gap = build_gap_report("panda", lab["urdf"], lab["mjcf"], listing, out / "gap.json", out / "gap.md", figures)
+    inputs = GapInputs("panda", lab["urdf"], lab["mjcf"], listing)
+    gap = build_gap_report(inputs, out / "gap.json", out / "gap.md", figures)
     findings = gap["where"]["findings"]
     assert findings, "friction must show up somewhere"
     assert {f["regime"] for f in findings} == {"slow_reversal"}
@@ -59,12 +60,12 @@ def test_demo_report_points_at_friction_in_slow_motion_and_reversals(lab):
         assert path.stat().st_size > 1000
     # deterministic: a rebuild is byte-identical
     first = {p: p.read_bytes() for p in [out / "gap.json", out / "gap.md", *figures.values()]}
-    build_gap_report("panda", lab["urdf"], lab["mjcf"], listing, out / "gap.json", out / "gap.md", figures)
+    build_gap_report(inputs, out / "gap.json", out / "gap.md", figures)
     assert all(p.read_bytes() == b for p, b in first.items())
 
 
 def test_clean_lab_nominal_model_lands_at_the_noise_floor(lab):
-    gap, _ = compute_gap("panda", lab["urdf"], lab["mjcf"], lab["scenario"]("clean"))
+    gap, _ = compute_gap(GapInputs("panda", lab["urdf"], lab["mjcf"], lab["scenario"]("clean")))
     floor = gap["noise_floor"]["torque_rmse"]
     for joint in PANDA_JOINTS:
         assert gap["metrics"]["torque_rmse"]["per_joint"][joint] < 1.5 * floor["per_joint"][joint]
@@ -73,7 +74,7 @@ def test_clean_lab_nominal_model_lands_at_the_noise_floor(lab):
 
 
 def test_payload_points_at_gravity_loaded_poses(lab):
-    gap, _ = compute_gap("panda", lab["urdf"], lab["mjcf"], lab["scenario"]("payload"))
+    gap, _ = compute_gap(GapInputs("panda", lab["urdf"], lab["mjcf"], lab["scenario"]("payload")))
     regimes = {f["regime"] for f in gap["where"]["findings"]}
     assert "gravity_loaded" in regimes and "slow_reversal" not in regimes
 
@@ -85,7 +86,7 @@ def test_log_without_commands_skips_state_domain_and_says_why(lab, tmp_path):
     listing = tmp_path / "m.yaml"
     listing.write_text(yaml.safe_dump({"runs": [{"name": "real", "path": (tmp_path / "real.parquet").as_posix(),
                                                  "role": "holdout"}]}))
-    gap, _ = compute_gap("panda", lab["urdf"], lab["mjcf"], listing)
+    gap, _ = compute_gap(GapInputs("panda", lab["urdf"], lab["mjcf"], listing))
     sd = gap["metrics"]["state_domain"]
     assert sd["status"] == "skipped" and "tau_cmd" in sd["reason"]
     assert "position_rmse" not in gap["metrics"]
@@ -99,7 +100,7 @@ def test_unknown_joint_in_a_run_is_reported_against_the_model(lab, tmp_path):
     listing = tmp_path / "m.yaml"
     listing.write_text(yaml.safe_dump({"runs": [{"name": "x", "path": (tmp_path / "x.csv").as_posix(), "role": "fit"}]}))
     with pytest.raises(InputError, match="wrist_9"):
-        compute_gap("panda", lab["urdf"], lab["mjcf"], listing)
+        compute_gap(GapInputs("panda", lab["urdf"], lab["mjcf"], listing))
 
 
 def test_precomputed_ladder_is_merged_and_validated(lab, tmp_path):
@@ -108,7 +109,7 @@ def test_precomputed_ladder_is_merged_and_validated(lab, tmp_path):
         "diagnosis": {"candidates": [{"effect": "coulomb_friction", "joints": ["panda_joint7"], "explained": 0.8,
                                       "evidence": {}, "add": "coulomb_friction"}], "verdict": "add coulomb_friction"},
     }
-    gap, _ = compute_gap("panda", lab["urdf"], lab["mjcf"], lab["scenario"]("clean"), precomputed=ladder)
+    gap, _ = compute_gap(GapInputs("panda", lab["urdf"], lab["mjcf"], lab["scenario"]("clean")), precomputed=ladder)
     rung = gap["ladder"][0]
     assert rung["effects"] == [] and rung["metrics"]["torque_rmse"] == ladder["ladder"][0]["metrics"]["torque_rmse"]
     assert gap["diagnosis"]["verdict"] == "add coulomb_friction"
@@ -176,8 +177,8 @@ def test_a_report_kept_replays_and_figures_are_read_back_and_a_changed_rung_repl
         (out / "ladder.json").parent.mkdir(parents=True, exist_ok=True)
         (out / "ladder.json").write_text(json.dumps(ladder_document))
         figures = {k: out / "gap" / f"{k}.png" for k in FIGURES}
-        build_gap_report("panda", lab["urdf"], lab["mjcf"], listing, out / "gap.json", out / "gap.md", figures,
-                         precomputed_path=out / "ladder.json", cache_dir=kept)
+        inputs = GapInputs("panda", lab["urdf"], lab["mjcf"], listing, ladder=out / "ladder.json")
+        build_gap_report(inputs, out / "gap.json", out / "gap.md", figures, cache_dir=kept)
         return {p.name: p.read_bytes() for p in [out / "gap.json", out / "gap.md", *figures.values()]}
 
     kept = tmp_path / "kept"

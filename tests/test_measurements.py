@@ -455,7 +455,7 @@ def _counting_reads(monkeypatch):
 
 def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
     """sysid and the gap report, given the list, read every run's table and metadata, and the list, exactly once."""
-    from sim2real.report.gap import compute_gap
+    from sim2real.report.gap import GapInputs, compute_gap
     from sim2real.identification.sysid import run_sysid
 
     urdf, mjcf, listing = _two_logged_runs(tmp_path)
@@ -466,14 +466,14 @@ def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
               out / "ladder.json", out / "params.yaml", out / "calibration.yaml", root=tmp_path)
     assert reads == once
     reads.clear()
-    compute_gap("panda", urdf, mjcf, listing, root=tmp_path)
+    compute_gap(GapInputs("panda", urdf, mjcf, listing, root=tmp_path))
     assert reads == once
 
 
 def test_prepared_runs_are_read_back_exactly_and_the_rules_read_no_run_file(tmp_path, monkeypatch):
     """The prepare_runs rule's file: the same bytes from the same runs, read back to the same numbers, so that
     sysid and the gap report give what they give from the list, without reading or filtering a run again."""
-    from sim2real.report.gap import compute_gap
+    from sim2real.report.gap import GapInputs, compute_gap
     from sim2real.measurements import prepare_for_model, read_prepared_runs, write_prepared_runs
     from sim2real.identification.sysid import run_sysid
 
@@ -495,10 +495,10 @@ def test_prepared_runs_are_read_back_exactly_and_the_rules_read_no_run_file(tmp_
         return (out / "ladder.json").read_bytes()
 
     from_list = sysid(listing, tmp_path / "list")
-    gap_from_list, _ = compute_gap("panda", urdf, mjcf, listing, root=tmp_path)
+    gap_from_list, _ = compute_gap(GapInputs("panda", urdf, mjcf, listing, root=tmp_path))
     reads = _counting_reads(monkeypatch)
     assert sysid(tmp_path / "runs.npz", tmp_path / "prepared") == from_list
-    assert compute_gap("panda", urdf, mjcf, tmp_path / "runs.npz", root=tmp_path)[0] == gap_from_list
+    assert compute_gap(GapInputs("panda", urdf, mjcf, tmp_path / "runs.npz", root=tmp_path))[0] == gap_from_list
     assert set(reads) <= {"model.yaml", "robot.yaml"}  # no run, no list
     (tmp_path / "broken.npz").write_bytes(b"half a file")
     with pytest.raises(InputError, match=r"broken\.npz.*not a file of prepared runs.*forcerun prepare_runs"):

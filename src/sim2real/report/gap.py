@@ -20,15 +20,17 @@ The runs come prepared by the rule ``prepare_runs`` (``sim2real.measurements.wri
 shared with the sysid rule; given a measurement list instead, they are read and prepared here
 (``sim2real.measurements.runs_for_model``).
 
-``compute_gap`` returns the gap.json content; ``build_gap_report`` writes gap.json, gap.md and the
-figures. An optional precomputed section (``ladder``, ``diagnosis``, ``actuator``, ``links``, from the
-sysid rule) is merged in; each rung of either link is replayed with its fitted effects.
+``compute_gap`` returns the gap.json content of a :class:`GapInputs` (the robot, its model files, its runs,
+the sysid rule's ladder and residuals); ``build_gap_report`` writes gap.json, gap.md and the figures. An
+optional precomputed section (``ladder``, ``diagnosis``, ``actuator``, ``links``, from the sysid rule) is
+merged in; each rung of either link is replayed with its fitted effects.
 """
 
 from __future__ import annotations
 
 import json
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +40,7 @@ from sim2real.cache import FitCache
 from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.errors import InputError
 from sim2real.files import relative_path, validate, write_json
-from sim2real.measurements import PreparedRun, measured_after_drive, noise_floor_of, runs_for_model
+from sim2real.measurements import PreparedRun, RunSet, measured_after_drive, noise_floor_of, runs_for_model
 from sim2real.report.metrics import TorqueComparison, per_joint_dict, torque_metrics
 from sim2real.report.regimes import where_it_fails
 from sim2real.report.replay import ReplayModels, ladder_position_rmse, model_armature, state_domain
@@ -81,32 +83,93 @@ def current_model(precomputed: Mapping[str, Any]) -> dict[str, Any]:
             "identified": {"effects": params, "torque_source": precomputed.get("torque_source")}}
 
 
+@dataclass(frozen=True)
+class GapInputs:
+    """What a gap report is made from: the robot's name, its URDF and MJCF (None: the commands are not replayed),
+    its runs (the measurement list, or the runs prepared from it, ``.npz``; paths in the list are relative to
+    ``root``), and the sysid rule's ladder (``ladder.json``) and the last rung's residuals (``residuals.npz``),
+    where the robot has a model ladder."""
+
+    robot: str
+    urdf: str | Path
+    mjcf: str | Path | None
+    measurements: str | Path
+    root: str | Path = "."
+    ladder: str | Path | None = None
+    residuals: str | Path | None = None
+
+    def read_ladder(self) -> dict[str, Any] | None:
+        """The ladder's sections (``ladder``, ``diagnosis``, ``actuator``, ``links``), None without a ladder file."""
+        if self.ladder is None or not Path(self.ladder).exists():
+            return None
+        return json.loads(Path(self.ladder).read_text(encoding="utf-8"))
+
+
 def compute_gap(
-    robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
-    root: str | Path = ".", precomputed: Mapping[str, Any] | None = None, cache: FitCache | None = None,
+    inputs: GapInputs, precomputed: Mapping[str, Any] | None = None, cache: FitCache | None = None,
     progress: Callable[[dict[str, Any], list[TorqueComparison] | None], Any] | None = None,
-    residuals_path: str | Path | None = None,
 ) -> tuple[dict[str, Any], list[TorqueComparison]]:
     """The gap.json content (validated) and the per-run comparisons (for figures).
 
-    ``measurement_list``: the measurement list, or the runs prepared from it (``.npz``); ``cache``: replays of
-    an earlier report kept there (:class:`ReplayModels`); ``progress``: called with the part of the content
-    known so far, twice: the joints, the noise floor and the precomputed sections (no comparisons yet), then
-    with the torque domain (the runs, the torque metrics, where it fails) and the comparisons, before the
+    ``precomputed``: the ladder's sections (default: read from ``inputs.ladder``, none without it); ``cache``:
+    replays of an earlier report kept there (:class:`ReplayModels`); ``progress``: called with the part of the
+    content known so far, twice: the joints, the noise floor and the precomputed sections (no comparisons yet),
+    then with the torque domain (the runs, the torque metrics, where it fails) and the comparisons, before the
     commands are replayed (the report draws each figure as soon as what it shows is known).
 
-    With a ladder (``precomputed``) and its residuals (``residuals_path``, the sysid rule's), the report
+    With a ladder (``precomputed``) and its residuals (``inputs.residuals``, the sysid rule's), the report
     describes the model being calibrated, the ladder's last rung: the top-level ``metrics`` (on the holdout
     runs, as the ladder judges) and ``where`` are its, and the returned comparisons too; the nominal URDF's
     (every run, at the log's rate) move under ``nominal``, for reference."""
-    # joints come from the first run, the model locks everything else
-    prepared = runs_for_model(measurement_list, urdf_path, root)
-    settings = prepared.settings
-    models = ReplayModels(mjcf_path, cache) if mjcf_path is not None else None
-    armature = model_armature(mjcf_path, prepared[0].joint_names, models) if mjcf_path is not None else None
-    model = RigidBodyModel(urdf_path, prepared[0].joint_names, armature=armature)
-    joints = model.joint_names
+    if precomputed is None:
+        precomputed = inputs.read_ladder()
+    prepared = runs_for_model(inputs.measurements, inputs.urdf, inputs.root)
+    replay = _Replay(inputs.mjcf, ReplayModels(inputs.mjcf, cache) if inputs.mjcf is not None else None,
+                     prepared.settings, (precomputed or {}).get("torque_source"))
+    model = _rigid_body_model(inputs.urdf, prepared, replay)
+    floor, gap = _gap_head(inputs.robot, model.joint_names, prepared, precomputed)
+    if progress is not None:
+        progress(gap, None)
 
+    comparisons = _torque_comparisons(prepared, model)
+    current = current_model(precomputed) if precomputed and "ladder" in gap and inputs.residuals is not None else None
+    judged = _torque_domain(gap, comparisons, model, floor, current, inputs.residuals)
+    if progress is not None:
+        progress(gap, judged)
+
+    nominal = gap["nominal"]["metrics"] if current is not None else gap["metrics"]
+    _replay_models(gap, nominal, comparisons, current, replay)
+    if precomputed and "ladder" in gap and replay.mjcf is not None and nominal["state_domain"]["status"] == "computed":
+        _replay_ladders(gap, comparisons, replay)
+    gap = json.loads(json.dumps(gap))  # plain JSON types only
+    validate(gap, "gap.schema.json", "gap.json")
+    return gap, judged
+
+
+@dataclass(frozen=True)
+class _Replay:
+    """How the report replays the commands: in the MJCF (None: not replayed) through its compiled models, with
+    multiple shooting every ``settings["horizon_s"]`` (the runs' settings); ``torque_source``: the ladder's, for its
+    rungs' replays."""
+
+    mjcf: str | Path | None
+    models: ReplayModels | None
+    settings: Mapping[str, Any]
+    torque_source: str | None
+
+
+def _rigid_body_model(urdf: str | Path, prepared: RunSet[PreparedRun], replay: _Replay) -> RigidBodyModel:
+    """The URDF's inverse dynamics on the first run's joints (the model locks everything else), with the MJCF's
+    armature where there is one."""
+    joints = prepared[0].joint_names
+    armature = model_armature(replay.mjcf, joints, replay.models) if replay.mjcf is not None else None
+    return RigidBodyModel(urdf, joints, armature=armature)
+
+
+def _gap_head(robot: str, joints: list[str], prepared: RunSet[PreparedRun],
+              precomputed: Mapping[str, Any] | None) -> tuple[np.ndarray, dict[str, Any]]:
+    """The arm-wide noise floor per joint (the runs' floors weighed by their samples), and what gap.json knows
+    before any comparison: the robot, the joints, that floor and the ladder's sections, in their words."""
     floors = np.array([noise_floor_of(p) for p in prepared])
     weights = np.array([p.time.size for p in prepared], dtype=float)
     floor = np.sqrt(np.average(floors**2, axis=0, weights=weights))
@@ -118,9 +181,11 @@ def compute_gap(
     for key in ("ladder", "diagnosis", "actuator", "links"):
         if key in sections:
             gap[key] = json.loads(json.dumps(sections[key]))
-    if progress is not None:
-        progress(gap, None)
+    return floor, gap
 
+
+def _torque_comparisons(prepared: RunSet[PreparedRun], model: RigidBodyModel) -> list[TorqueComparison]:
+    """Each run's torque against the nominal URDF's inverse dynamics on its motion."""
     comparisons = []
     for p in prepared:
         model_tau = model.inverse_dynamics(p.q, p.qd, p.qdd)
@@ -128,98 +193,103 @@ def compute_gap(
             model_tau = model_tau - model.drive_torque(p.qd, p.qdd)
         comparisons.append(TorqueComparison(run=p, role=p.role, model_tau=model_tau, residual=p.tau - model_tau,
                                             gravity=model.gravity(p.q)))
-    measured = np.concatenate([c.run.tau for c in comparisons])
-    residual = np.concatenate([c.residual for c in comparisons])
-    metrics = torque_metrics(measured, residual, joints)
+    return comparisons
 
-    runs_out = []
-    for c in comparisons:
-        p = c.run
-        per_run = torque_metrics(p.tau, c.residual, joints)
-        runs_out.append({
-            "name": p.name, "path": Path(p.entry.path).as_posix(), "role": p.role, "torque_source": p.torque_source,
-            "samples": int(p.time.size), "duration_s": float(p.time[-1] - p.time[0]),
-            "has_commands": p.tau_cmd is not None, "filter": p.filter.as_document(),
-            "torque_rmse": per_run["torque_rmse"],
-            "noise_floor": per_joint_dict(noise_floor_of(p), joints,
-                                           float(np.sqrt(np.mean(noise_floor_of(p) ** 2)))),
-        })
 
+def _run_document(c: TorqueComparison, joints: list[str]) -> dict[str, Any]:
+    """A run as gap.json lists it: where it comes from, its size, its preparation, its torque error and floor."""
+    p = c.run
+    per_run = torque_metrics(p.tau, c.residual, joints)
+    return {
+        "name": p.name, "path": Path(p.entry.path).as_posix(), "role": p.role, "torque_source": p.torque_source,
+        "samples": int(p.time.size), "duration_s": float(p.time[-1] - p.time[0]),
+        "has_commands": p.tau_cmd is not None, "filter": p.filter.as_document(),
+        "torque_rmse": per_run["torque_rmse"],
+        "noise_floor": per_joint_dict(noise_floor_of(p), joints, float(np.sqrt(np.mean(noise_floor_of(p) ** 2)))),
+    }
+
+
+def _torque_domain(gap: dict[str, Any], comparisons: list[TorqueComparison], model: RigidBodyModel,
+                   floor: np.ndarray, current: Mapping[str, Any] | None,
+                   residuals_path: str | Path | None) -> list[TorqueComparison]:
+    """The runs, the torque metrics and where the model fails, into ``gap``; the comparisons judged. Without a
+    current model (``current``), the nominal URDF's on every run; with one, its own on the holdout runs (from
+    the sysid rule's residuals), and the nominal URDF's under ``nominal``."""
+    joints = model.joint_names
+    metrics = torque_metrics(np.concatenate([c.run.tau for c in comparisons]),
+                             np.concatenate([c.residual for c in comparisons]), joints)
+    runs_out = [_run_document(c, joints) for c in comparisons]
     nominal = {"metrics": metrics, "where": where_it_fails(comparisons, model.lower, model.upper, floor)}
-    current = current_model(precomputed) if precomputed and "ladder" in gap and residuals_path is not None else None
-    judged = comparisons
     if current is None:
         gap.update({"runs": runs_out, "metrics": metrics, "where": nominal["where"]})
-    else:
-        judged = read_model_residuals(residuals_path, model)
-        last = torque_metrics(np.concatenate([c.run.tau for c in judged]),
-                              np.concatenate([c.residual for c in judged]), joints)
-        last["model"] = {
-            "rung": current["rung"], "effects": current["effects"],
-            "judged_on": "the holdout runs at the fit's rate, as the ladder judges each rung (the nominal URDF's "
-            "metrics under nominal: every run at the log's rate)"}
-        gap.update({"runs": runs_out, "metrics": last, "where": where_it_fails(judged, model.lower, model.upper, floor),
-                    "nominal": nominal})
-    if progress is not None:
-        progress(gap, judged)
+        return comparisons
+    judged = read_model_residuals(residuals_path, model)
+    last = torque_metrics(np.concatenate([c.run.tau for c in judged]),
+                          np.concatenate([c.residual for c in judged]), joints)
+    last["model"] = {
+        "rung": current["rung"], "effects": current["effects"],
+        "judged_on": "the holdout runs at the fit's rate, as the ladder judges each rung (the nominal URDF's "
+        "metrics under nominal: every run at the log's rate)"}
+    gap.update({"runs": runs_out, "metrics": last, "where": where_it_fails(judged, model.lower, model.upper, floor),
+                "nominal": nominal})
+    return judged
 
-    # The current model is replayed on the holdout runs, where it is judged (the ladder's last rung replays the
-    # same: one replay for both); the nominal MJCF on every run.
+
+def _replay_models(gap: dict[str, Any], nominal: dict[str, Any], comparisons: list[TorqueComparison],
+                   current: Mapping[str, Any] | None, replay: _Replay) -> None:
+    """The state domain of ``nominal`` (the nominal MJCF on every run) and of the current model (on the holdout
+    runs, where it is judged; the ladder's last rung replays the same: one replay for both)."""
     holdout = [c for c in comparisons if c.role == "holdout"]
-    sections = ([(metrics, None, comparisons)] if current is None
-                else [(metrics, None, comparisons), (gap["metrics"], current["identified"], holdout)])
+    sections = ([(nominal, None, comparisons)] if current is None
+                else [(nominal, None, comparisons), (gap["metrics"], current["identified"], holdout)])
     for section, identified, replayed in sections:
-        if mjcf_path is None:
+        if replay.mjcf is None:
             section["state_domain"] = {"status": "skipped", "reason": "no MJCF given to replay the commands in"}
         else:
-            section["state_domain"] = state_domain(mjcf_path, replayed, settings["horizon_s"],
-                                                   section["torque_rmse"]["overall"], models, identified)
+            section["state_domain"] = state_domain(replay.mjcf, replayed, replay.settings["horizon_s"],
+                                                   section["torque_rmse"]["overall"], replay.models, identified)
         if section["state_domain"]["status"] == "computed":
             section["position_rmse"] = section["state_domain"]["position_rmse"]
             section["velocity_rmse"] = section["state_domain"]["velocity_rmse"]
-    if precomputed and "ladder" in gap and mjcf_path is not None and metrics["state_domain"]["status"] == "computed":
-        # Each rung replayed with its fitted effects written into the MJCF: the state-domain view of the ladder.
-        positions = ladder_position_rmse(mjcf_path, comparisons, settings["horizon_s"], gap["ladder"],
-                                         precomputed.get("torque_source"), models)
-        for rung, position in zip(gap["ladder"], positions):
+
+
+def _replay_ladders(gap: dict[str, Any], comparisons: list[TorqueComparison], replay: _Replay) -> None:
+    """Each rung replayed with its fitted effects written into the MJCF: the state-domain view of the ladder,
+    into each rung's metrics (``position_rmse``); the actuator's rungs on the body's last rung."""
+    positions = ladder_position_rmse(replay.mjcf, comparisons, replay.settings["horizon_s"], gap["ladder"],
+                                     replay.torque_source, replay.models)
+    for rung, position in zip(gap["ladder"], positions):
+        if position is not None:
+            rung["metrics"]["position_rmse"] = position
+    if "actuator" in gap:
+        # The actuator's rungs replayed on the body link's last rung: the commands reach that body.
+        body = gap["ladder"][-1].get("params") or {}
+        rungs = [{**rung, "params": {**body, **(rung.get("params") or {})}} for rung in gap["actuator"]["ladder"]]
+        positions = ladder_position_rmse(replay.mjcf, comparisons, replay.settings["horizon_s"], rungs,
+                                         replay.torque_source, replay.models)
+        for rung, position in zip(gap["actuator"]["ladder"], positions):
             if position is not None:
                 rung["metrics"]["position_rmse"] = position
-        if "actuator" in gap:
-            # The actuator's rungs replayed on the body link's last rung: the commands reach that body.
-            body = gap["ladder"][-1].get("params") or {}
-            rungs = [{**rung, "params": {**body, **(rung.get("params") or {})}} for rung in gap["actuator"]["ladder"]]
-            positions = ladder_position_rmse(mjcf_path, comparisons, settings["horizon_s"], rungs,
-                                             precomputed.get("torque_source"), models)
-            for rung, position in zip(gap["actuator"]["ladder"], positions):
-                if position is not None:
-                    rung["metrics"]["position_rmse"] = position
-    gap = json.loads(json.dumps(gap))  # plain JSON types only
-    validate(gap, "gap.schema.json", "gap.json")
-    return gap, judged
 
 
 def build_gap_report(
-    robot: str, urdf_path: str | Path, mjcf_path: str | Path | None, measurement_list: str | Path,
-    gap_json: str | Path, gap_md: str | Path, figures: Mapping[str, str | Path],
-    precomputed_path: str | Path | None = None, root: str | Path = ".", threads: int = 1,
-    cache_dir: str | Path | None = None, residuals_path: str | Path | None = None,
+    inputs: GapInputs, gap_json: str | Path, gap_md: str | Path, figures: Mapping[str, str | Path],
+    threads: int = 1, cache_dir: str | Path | None = None,
 ) -> dict[str, Any]:
     """Write gap.json, gap.md and the figures (keys: :data:`sim2real.report.figures.FIGURES`); the figures
-    are drawn on up to ``threads`` processes. ``cache_dir``: where the replays and figures are kept for the
-    next report (:class:`sim2real.cache.FitCache`; None: not kept): a round of the loop that adds a
-    rung replays that rung and redraws what shows the ladder, and reads the rest back, the same bytes."""
+    are drawn on up to ``threads`` processes. The ladder and its residuals are used where their files exist.
+    ``cache_dir``: where the replays and figures are kept for the next report (:class:`sim2real.cache.FitCache`;
+    None: not kept): a round of the loop that adds a rung replays that rung and redraws what shows the ladder,
+    and reads the rest back, the same bytes."""
     from sim2real.report.figures import GapFigures
     from sim2real.report.markdown import render_gap_markdown
 
-    precomputed = None
-    if precomputed_path is not None and Path(precomputed_path).exists():
-        precomputed = json.loads(Path(precomputed_path).read_text(encoding="utf-8"))
+    precomputed = inputs.read_ladder()
     cache = FitCache(cache_dir)
     drawing = GapFigures(figures, threads, cache)  # each figure drawn as soon as what it shows is known
-    if precomputed is None or residuals_path is None or not Path(residuals_path).exists():
-        residuals_path = None
-    gap, comparisons = compute_gap(robot, urdf_path, mjcf_path, measurement_list, root, precomputed, cache,
-                                   drawing.show, residuals_path)
+    if precomputed is None or inputs.residuals is None or not Path(inputs.residuals).exists():
+        inputs = replace(inputs, residuals=None)
+    gap, comparisons = compute_gap(inputs, precomputed, cache, drawing.show)
     drawing.finish()
     md_dir = Path(gap_md).parent
     rel = {k: relative_path(v, md_dir) for k, v in figures.items()}

@@ -256,27 +256,49 @@ def _spike_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
 
 def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> str:
     """gap.md: numbers a reviewer reads in a pull request, then the figures."""
-    joints = gap["joints"]
-    m = gap["metrics"]
-    floor = gap["noise_floor"]["torque_rmse"]
+    model = gap["metrics"].get("model")
     lines = [f"# Reality gap: {gap['robot']}", ""]
-    lines += ["## Runs", "", "| run | role | torque judged | samples | duration [s] | commands |",
-              "|---|---|---|---|---|---|"]
-    for r in gap["runs"]:
+    lines += _runs_lines(gap["runs"])
+    lines += _torque_domain_lines(gap, model)
+    lines += _state_domain_lines(gap, model)
+    lines += _where_lines(gap, model)
+    if "ladder" in gap:
+        lines += _ladder_lines(gap, figures["ladder"])
+    if "diagnosis" in gap:
+        lines += ["", "## Diagnosis", ""] + _diagnosis_markdown(gap["diagnosis"])
+    if "actuator" in gap:
+        lines += _actuator_lines(gap["actuator"])
+    if "links" in gap:
+        lines += _links_lines(gap["links"])
+    lines += _figures_lines(model, figures)
+    return "\n".join(lines)
+
+
+def _runs_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The runs (role, torque judged, size, commands), how they were prepared, and what their files lacked."""
+    lines = ["## Runs", "", "| run | role | torque judged | samples | duration [s] | commands |",
+             "|---|---|---|---|---|---|"]
+    for r in runs:
         lines.append(f"| {r['name']} | {r['role']} | `{r['torque_source']}` | {r['samples']} | "
                      f"{r['duration_s']:.2f} | {'yes' if r['has_commands'] else 'no'} |")
-    f = gap["runs"][0]["filter"]
+    f = runs[0]["filter"]
     lines += ["", f"Preparation: {f['resampling']} at {f['resampled_to_hz']:g} Hz "
               f"(raw steps {f['raw_step_ms']['min']:.2f}-{f['raw_step_ms']['max']:.2f} ms, "
               f"{f['repeated_samples_dropped']} repeated samples dropped); q filtered by a {f['type']}, "
               f"order {f['order']}, cutoff {f['cutoff_hz']:g} Hz; velocity: {f['velocity']}; "
               f"acceleration: {f['acceleration']}; {f['applied_to']}; "
               f"{f['trimmed_s_each_end']:g} s trimmed at each end"
-              f"{' of each piece' if any('gaps' in r['filter'] for r in gap['runs']) else ''}.", ""]
-    lines += _incomplete_lines(gap["runs"]) + _gaps_lines(gap["runs"]) + _spike_lines(gap["runs"])
-    model = m.get("model")
+              f"{' of each piece' if any('gaps' in r['filter'] for r in runs) else ''}.", ""]
+    return lines + _incomplete_lines(runs) + _gaps_lines(runs) + _spike_lines(runs)
+
+
+def _torque_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> list[str]:
+    """The torque domain: the current model's error against the noise floor (with the nominal URDF's, for
+    reference, once a ladder calibrates it), then joint by joint."""
+    m = gap["metrics"]
+    floor = gap["noise_floor"]["torque_rmse"]
     nominal_rung = gap["ladder"][0]["metrics"]["torque_rmse"] if model and gap.get("ladder") else None
-    lines += ["## Torque domain (inverse dynamics on measured motion)", ""]
+    lines = ["## Torque domain (inverse dynamics on measured motion)", ""]
     if model:
         lines += [f"The model of configs/{gap['robot']}/model.yaml ({_model_name(model)}), judged on the holdout runs "
                   f"as the ladder judges it: RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
@@ -289,43 +311,59 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
         lines += [f"Overall RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
                   f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
                   f"R^2 {m['torque_r2']['overall']:.4g}.", ""]
-    lines += ["Each joint is judged in its own units, x its own noise floor: a wrist residual 8x its floor weighs "
-              "what a shoulder residual 8x its floor weighs, although its N m are ten times smaller.", "",
-              "| joint | RMSE [N m] | noise floor [N m] | x floor | relative RMSE | R^2 |"
-              + (" nominal URDF [N m] |" if nominal_rung else ""),
-              "|---|---|---|---|---|---|" + ("---|" if nominal_rung else "")]
+    return lines + _torque_table(gap["joints"], m, floor, nominal_rung)
+
+
+def _torque_table(joints: Sequence[str], m: Mapping[str, Any], floor: Mapping[str, Any],
+                  nominal_rung: Mapping[str, Any] | None) -> list[str]:
+    """Each joint's torque error in N m and x its own floor (and the nominal URDF's, when there is a ladder)."""
+    lines = ["Each joint is judged in its own units, x its own noise floor: a wrist residual 8x its floor weighs "
+             "what a shoulder residual 8x its floor weighs, although its N m are ten times smaller.", "",
+             "| joint | RMSE [N m] | noise floor [N m] | x floor | relative RMSE | R^2 |"
+             + (" nominal URDF [N m] |" if nominal_rung else ""),
+             "|---|---|---|---|---|---|" + ("---|" if nominal_rung else "")]
     for j in joints:
         value, noise = m["torque_rmse"]["per_joint"][j], floor["per_joint"][j]
         lines.append(f"| {j} | {value:.3g} | {noise:.3g} | {_fmt(value / noise if noise > 0 else None)} | "
                      f"{m['torque_relative_rmse']['per_joint'][j]:.3g} | {m['torque_r2']['per_joint'][j]:.4g} |"
                      + (f" {nominal_rung['per_joint'][j]:.3g} |" if nominal_rung else ""))
-    sd = m["state_domain"]
-    lines += ["", "## State domain (replay of the commanded torques)", ""]
+    return lines
+
+
+def _state_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> list[str]:
+    """The replay of the commanded torques: skipped and why, or its errors, score and fidelity, joint by joint."""
+    sd = gap["metrics"]["state_domain"]
+    lines = ["", "## State domain (replay of the commanded torques)", ""]
     if sd["status"] == "skipped":
         lines.append(f"Skipped: {sd['reason']}.")
-    else:
-        g = sd["reality_gap"]
-        if model:
-            lines += [f"The commands of the holdout runs replayed on {_model_name(model)}, its fitted effects "
-                      "written into the MJCF."]
-            nominal_sd = gap["nominal"]["metrics"]["state_domain"]
-            if nominal_sd.get("status") == "computed":
-                lines[-1] += (f" The nominal MJCF, for reference: position RMSE {nominal_sd['position_rmse']['overall']:.3g}"
-                              f" rad, reality-gap score {nominal_sd['reality_gap']['score']:.3f}.")
-            lines.append("")
-        lines += [f"Multiple shooting, reset to the measured state every {sd['horizon_s']:g} s. "
-                  f"Position RMSE {sd['position_rmse']['overall']:.3g} rad, velocity RMSE "
-                  f"{sd['velocity_rmse']['overall']:.3g} rad/s, correlation {sd['correlation']['overall']:.4g}, "
-                  f"spectral divergence {sd['spectral_divergence']:.3g}; {sd['contact_note']}.", "",
-                  f"Reality-gap score **{g['score']:.3f}** ({g['grade'].replace('_', ' ')} gap), "
-                  f"fidelity **{sd['fidelity']}** (mean joint error {sd['mean_abs_position_error']:.3g} rad). "
-                  f"Recommendation: {g['recommendation']}.", "",
-                  "| joint | position RMSE [rad] | velocity RMSE [rad/s] | correlation |", "|---|---|---|---|"]
-        for j in joints:
-            lines.append(f"| {j} | {sd['position_rmse']['per_joint'][j]:.3g} | "
-                         f"{sd['velocity_rmse']['per_joint'][j]:.3g} | {sd['correlation']['per_joint'][j]:.4g} |")
+        return lines
+    g = sd["reality_gap"]
+    if model:
+        lines += [f"The commands of the holdout runs replayed on {_model_name(model)}, its fitted effects "
+                  "written into the MJCF."]
+        nominal_sd = gap["nominal"]["metrics"]["state_domain"]
+        if nominal_sd.get("status") == "computed":
+            lines[-1] += (f" The nominal MJCF, for reference: position RMSE {nominal_sd['position_rmse']['overall']:.3g}"
+                          f" rad, reality-gap score {nominal_sd['reality_gap']['score']:.3f}.")
+        lines.append("")
+    lines += [f"Multiple shooting, reset to the measured state every {sd['horizon_s']:g} s. "
+              f"Position RMSE {sd['position_rmse']['overall']:.3g} rad, velocity RMSE "
+              f"{sd['velocity_rmse']['overall']:.3g} rad/s, correlation {sd['correlation']['overall']:.4g}, "
+              f"spectral divergence {sd['spectral_divergence']:.3g}; {sd['contact_note']}.", "",
+              f"Reality-gap score **{g['score']:.3f}** ({g['grade'].replace('_', ' ')} gap), "
+              f"fidelity **{sd['fidelity']}** (mean joint error {sd['mean_abs_position_error']:.3g} rad). "
+              f"Recommendation: {g['recommendation']}.", "",
+              "| joint | position RMSE [rad] | velocity RMSE [rad/s] | correlation |", "|---|---|---|---|"]
+    for j in gap["joints"]:
+        lines.append(f"| {j} | {sd['position_rmse']['per_joint'][j]:.3g} | "
+                     f"{sd['velocity_rmse']['per_joint'][j]:.3g} | {sd['correlation']['per_joint'][j]:.4g} |")
+    return lines
+
+
+def _where_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> list[str]:
+    """Where the model fails: the regimes and joints its error concentrates in, and the worst time windows."""
     w = gap["where"]
-    lines += ["", "## Where the model fails", ""]
+    lines = ["", "## Where the model fails", ""]
     if model:
         lines += [f"The model of model.yaml ({_model_name(model)}) on the holdout runs. "
                   + _where_nominal_text(gap["nominal"]["where"]), ""]
@@ -343,51 +381,63 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
     for win in w["worst_windows"]:
         lines.append(f"| {win['run']} | {win['t_start']:.2f} | {win['t_end']:.2f} | {win['rmse']:.3g} | "
                      f"{win['worst_joint']} ({win['worst_joint_rmse']:.3g}) |")
-    if "ladder" in gap:
-        separate = gap.get("links", {}).get("mode") == "separate"
-        lines += ["", "## Model ladder" + (" (body link: measured torque against the motion)" if separate else ""), "",
-                  "Effects of configs/{robot}/model.yaml added one by one, each rung fitted on the `fit` runs and "
-                  "judged on the `holdout` runs.".replace("{robot}", gap["robot"]), ""]
-        lines += _ladder_table(gap["ladder"], floor["overall"], unconstrained=True)
-        lines += ["", "Each rung is the physically consistent fit (every body's pseudo-inertia positive definite, "
-                  "friction, damping and armature >= 0); the unconstrained column is the same rung without those "
-                  "constraints, for comparison."]
-        for k, rung in enumerate(gap["ladder"]):
-            for note in rung.get("notes", []):
-                if note.startswith("physical consistency"):
-                    lines += ["", f"**Rung {k}:** {note}."]
-        lines += _identified_markdown(gap["ladder"][-1], gap["robot"])
-        lines += ["", f"![Model ladder]({figures['ladder']})"]
-    if "diagnosis" in gap:
-        lines += ["", "## Diagnosis", ""] + _diagnosis_markdown(gap["diagnosis"])
-    if "actuator" in gap:
-        link = gap["actuator"]
-        link_floor = link["noise_floor"]["torque_rmse"]["overall"]
-        lines += ["", "## Actuator link (measured against commanded torque)", "",
-                  f"The {link['judged']}. Noise floor {link_floor:.3g} N m: the sensor's white noise, what no "
-                  "filter of the command explains. Replay: the commands replayed in MuJoCo on the body link's "
-                  "last rung with each actuator rung's effects.", ""]
-        lines += _ladder_table(link["ladder"], link_floor, unconstrained=False)
-        lines += ["", "### Diagnosis of the actuator link", ""] + _diagnosis_markdown(link["diagnosis"])
-    if "links" in gap:
-        links = gap["links"]
-        lines += ["", "## What these runs can tell apart", "", f"{links['text'][0].upper()}{links['text'][1:]}.", ""]
-        if links["mode"] != "commands_only":
-            lines += [SENSOR_TEXT[links.get("torque_sensor", DEFAULT_TORQUE_SENSOR)], ""]
-        if links.get("metadata_note"):
-            lines += [f"**The data contradict the metadata:** {links['metadata_note']}", ""]
-        if links.get("kept_on"):
-            lines += ["Kept on one link by model.yaml (neither fitted nor tried on the other): " + ", ".join(
-                f"`{name}` on the {link} link" for name, link in links["kept_on"].items()) + ".", ""]
-        for fact in links["can_tell"]:
-            lines.append(f"- Told apart: {', '.join(f'`{e}`' for e in fact['effects'])}: {fact['why']}.")
-        for fact in links["cannot_tell"]:
-            lines.append(f"- **Not told apart:** {', '.join(f'`{e}`' for e in fact['effects'])}: {fact['why']}.")
-    lines += ["", "## Figures", ""]
+    return lines
+
+
+def _ladder_lines(gap: Mapping[str, Any], figure: str) -> list[str]:
+    """The body link's ladder: its table, the rungs' physical-consistency notes, what the data identified of the
+    link inertias, and its figure."""
+    separate = gap.get("links", {}).get("mode") == "separate"
+    lines = ["", "## Model ladder" + (" (body link: measured torque against the motion)" if separate else ""), "",
+             "Effects of configs/{robot}/model.yaml added one by one, each rung fitted on the `fit` runs and "
+             "judged on the `holdout` runs.".replace("{robot}", gap["robot"]), ""]
+    lines += _ladder_table(gap["ladder"], gap["noise_floor"]["torque_rmse"]["overall"], unconstrained=True)
+    lines += ["", "Each rung is the physically consistent fit (every body's pseudo-inertia positive definite, "
+              "friction, damping and armature >= 0); the unconstrained column is the same rung without those "
+              "constraints, for comparison."]
+    for k, rung in enumerate(gap["ladder"]):
+        for note in rung.get("notes", []):
+            if note.startswith("physical consistency"):
+                lines += ["", f"**Rung {k}:** {note}."]
+    lines += _identified_markdown(gap["ladder"][-1], gap["robot"])
+    return lines + ["", f"![Model ladder]({figure})"]
+
+
+def _actuator_lines(link: Mapping[str, Any]) -> list[str]:
+    """The actuator link: what it judges, its floor, its ladder and its diagnosis."""
+    link_floor = link["noise_floor"]["torque_rmse"]["overall"]
+    lines = ["", "## Actuator link (measured against commanded torque)", "",
+             f"The {link['judged']}. Noise floor {link_floor:.3g} N m: the sensor's white noise, what no "
+             "filter of the command explains. Replay: the commands replayed in MuJoCo on the body link's "
+             "last rung with each actuator rung's effects.", ""]
+    lines += _ladder_table(link["ladder"], link_floor, unconstrained=False)
+    return lines + ["", "### Diagnosis of the actuator link", ""] + _diagnosis_markdown(link["diagnosis"])
+
+
+def _links_lines(links: Mapping[str, Any]) -> list[str]:
+    """What these runs can tell apart: the sensor's placement, a contradiction of the metadata, the lines kept on
+    one link, and each pair of effects told apart or not."""
+    lines = ["", "## What these runs can tell apart", "", f"{links['text'][0].upper()}{links['text'][1:]}.", ""]
+    if links["mode"] != "commands_only":
+        lines += [SENSOR_TEXT[links.get("torque_sensor", DEFAULT_TORQUE_SENSOR)], ""]
+    if links.get("metadata_note"):
+        lines += [f"**The data contradict the metadata:** {links['metadata_note']}", ""]
+    if links.get("kept_on"):
+        lines += ["Kept on one link by model.yaml (neither fitted nor tried on the other): " + ", ".join(
+            f"`{name}` on the {link} link" for name, link in links["kept_on"].items()) + ".", ""]
+    for fact in links["can_tell"]:
+        lines.append(f"- Told apart: {', '.join(f'`{e}`' for e in fact['effects'])}: {fact['why']}.")
+    for fact in links["cannot_tell"]:
+        lines.append(f"- **Not told apart:** {', '.join(f'`{e}`' for e in fact['effects'])}: {fact['why']}.")
+    return lines
+
+
+def _figures_lines(model: Mapping[str, Any] | None, figures: Mapping[str, str]) -> list[str]:
+    """The figures of the current model (the ladder's is in its section)."""
+    lines = ["", "## Figures", ""]
     if model:
         lines += [f"The model of model.yaml ({_model_name(model)}) on the holdout runs.", ""]
-    lines += [f"![Measured vs model torque]({figures['torque']})", "",
-              f"![Residual vs velocity]({figures['residual_velocity']})", "",
-              f"![Residual vs time]({figures['residual_time']})", "",
-              f"![Error by regime]({figures['regimes']})", ""]
-    return "\n".join(lines)
+    return lines + [f"![Measured vs model torque]({figures['torque']})", "",
+                    f"![Residual vs velocity]({figures['residual_velocity']})", "",
+                    f"![Residual vs time]({figures['residual_time']})", "",
+                    f"![Error by regime]({figures['regimes']})", ""]
