@@ -20,7 +20,7 @@ from sim2real.report.verdicts import worded
 from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.errors import InputError
 from sim2real.excitation.config import load_designs
-from sim2real.excitation.files import build_excitation, build_excitation_start
+from sim2real.excitation.files import ExcitationInputs, build_excitation, build_excitation_start
 
 TARGET = "results/panda/excitation/identification.csv"
 
@@ -138,8 +138,8 @@ def _broken(tree: Path, tmp_path: Path, edit) -> Path:
 
 def _build(tree: Path, config: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
-    build_excitation("panda", config, "identification", tree / "results/panda/panda.urdf",
-                     tree / "results/panda/mjcf/panda.xml", tree / "configs/panda/robot.yaml",
+    build_excitation(ExcitationInputs("panda", config, "identification", tree / "results/panda/panda.urdf",
+                                      tree / "results/panda/mjcf/panda.xml", tree / "configs/panda/robot.yaml"),
                      tree / "configs/panda/model.yaml",
                      {k: str(out / f"x.{k}") for k in ("csv", "trajectory", "json", "md", "figure")})
 
@@ -220,9 +220,9 @@ def test_the_run_that_separates_confounded_candidates(designed: Path, tmp_path: 
     outputs = {k: str(tmp_path / f"separating.{k}") for k in ("csv", "trajectory", "json", "md", "figure")}
     # As the DAG designs it: from its start (rule excitation_start, the design for friction alone, on the defaults).
     start = tmp_path / f"{separating}.start.npz"
-    build_excitation_start("panda", designed / "configs/panda/excitation.yaml", separating, urdf, mjcf, robot, start)
-    result = build_excitation("panda", designed / "configs/panda/excitation.yaml", separating, urdf, mjcf, robot,
-                              model, outputs, ladder=ladder, start=start)
+    inputs = ExcitationInputs("panda", designed / "configs/panda/excitation.yaml", separating, urdf, mjcf, robot)
+    build_excitation_start(inputs, start)
+    result = build_excitation(inputs, model, outputs, ladder=ladder, start=start)
     difference = result.summary["separation"]["difference_x_floor"]
     # The design sought the difference out: 3.46x on OpenBLAS's SkylakeX, Haswell, SandyBridge and Prescott kernels
     # (1.15x to 2.64x when a pass could end inside the table and the motion was scaled down to pass the dense check).
@@ -407,16 +407,14 @@ def test_a_design_starts_from_its_design_for_friction_alone_and_a_wrong_start_is
     built = designed / "results/panda/excitation/identification.start.npz"  # the DAG's
     assert read_start(built, "identification", _config(designed)["joints"], settings["harmonics"]).shape == (7, 20)
     # In one process (IPOPT's path follows the BLAS kernels' last bits): the start, and the design of `effects: []`.
-    start = build_excitation_start("panda", config, "identification", designed / "results/panda/panda.urdf",
-                                   designed / "results/panda/mjcf/panda.xml", designed / "configs/panda/robot.yaml",
-                                   tmp_path / "identification.start.npz")
+    inputs = ExcitationInputs("panda", config, "identification", designed / "results/panda/panda.urdf",
+                              designed / "results/panda/mjcf/panda.xml", designed / "configs/panda/robot.yaml")
+    start = build_excitation_start(inputs, tmp_path / "identification.start.npz")
     assert np.array_equal(read_start(tmp_path / "identification.start.npz", "identification",
                                      _config(designed)["joints"], settings["harmonics"]), start)
     out = tmp_path / "out"
     friction_alone = build_excitation(
-        "panda", config, "identification", designed / "results/panda/panda.urdf",
-        designed / "results/panda/mjcf/panda.xml", designed / "configs/panda/robot.yaml", None,
-        {k: str(out / f"x.{k}") for k in ("csv", "trajectory", "json", "md", "figure")})
+        inputs, None, {k: str(out / f"x.{k}") for k in ("csv", "trajectory", "json", "md", "figure")})
     assert np.array_equal(friction_alone.coefficients, start)
     assert friction_alone.summary["identified"]["effects"] == ["viscous_friction", "coulomb_friction"]
 
@@ -427,9 +425,7 @@ def test_a_design_starts_from_its_design_for_friction_alone_and_a_wrong_start_is
     for bad, what in ((wrong, r"shape \(3, 4\), not of 'identification' \(7 joints x 20\)"),
                       (not_a_start, "is not a design start")):
         with pytest.raises(InputError, match=what) as err:
-            build_excitation("panda", config, "identification", designed / "results/panda/panda.urdf",
-                             designed / "results/panda/mjcf/panda.xml", designed / "configs/panda/robot.yaml",
-                             designed / "configs/panda/model.yaml",
+            build_excitation(inputs, designed / "configs/panda/model.yaml",
                              {k: str(out / f"y.{k}") for k in ("csv", "trajectory", "json", "md", "figure")},
                              start=bad)
         assert str(bad) in str(err.value) and f"rebuild it: snakemake {bad.as_posix()}" in str(err.value)

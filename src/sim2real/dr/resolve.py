@@ -18,7 +18,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from sim2real.dr.config import curriculum_levels, declared_noise, declared_physics, validate_config
+from sim2real.dr.config import DeclaredTerm, curriculum_levels, declared_noise, declared_physics, validate_config
 from sim2real.dr.parameters import (
     AFFINE,
     NOISE_TERMS,
@@ -81,65 +81,12 @@ def _resolve_physics_channel(
     mjcf_label: str,
 ) -> dict[str, Any]:
     declared = declared_physics(term_cfg, parameter, path)
-    base_key, range_key, operation = declared.key, declared.range_key, declared.operation
-    lo, hi = declared.lo, declared.hi
-
-    # Selector -> elements.
-    if parameter.element == "model":
-        elements: list[tuple[int, str]] = [(0, "gravity")]
-    else:
-        selector_key = SELECTOR_KEY[parameter.element]
-        patterns = term_cfg.get(selector_key, ["*"])
-        what = {"body": "body with mass" if parameter.channel == "mass" else "body", "geom": "colliding geom",
-                "joint": "hinge/slide joint",
-                "actuator": ("actuator with a first-order filter (dyntype filter or filterexact, which '- actuation_lag' "
-                             "in model.yaml writes into the calibrated MJCF)" if parameter.channel == "lag"
-                             else "actuator")}[parameter.element]
-        elements = _match_selector(
-            patterns,
-            candidate_elements(model, parameter.element, parameter.channel),
-            path,
-            f"{base_key}/{selector_key}",
-            what,
-            mjcf_label,
-        )
+    elements = _physics_elements(term_cfg, parameter, model, path, mjcf_label, declared.key)
     ids = np.array([i for i, _ in elements], dtype=int)
     nominal = get_values(model, parameter.channel, ids)
-
     if parameter.channel == "kd":
-        no_kd = [name for (i, name), value in zip(elements, nominal[:, 0]) if value <= 0 or model.actuator_biastype[i] != AFFINE]
-        if no_kd:
-            raise InputError(
-                path,
-                f"key '{base_key}/kd_range'",
-                f"actuators {', '.join(no_kd)} have no derivative gain (kv) in {mjcf_label}, so kd cannot be scaled",
-                "select only position actuators with kv > 0 in 'actuator_names', or drop 'kd_range'",
-            )
-
-    targets = []
-    for (element_id, name), nominal_row in zip(elements, nominal):
-        absolute_lo = apply_operation(operation, nominal_row, np.full(parameter.width, lo))
-        absolute_hi = apply_operation(operation, nominal_row, np.full(parameter.width, hi))
-        # A scale of a negative nominal flips the order; keep [min, max].
-        low_abs, high_abs = np.minimum(absolute_lo, absolute_hi), np.maximum(absolute_lo, absolute_hi)
-        bad = [v for v in low_abs if not is_physical(float(v), parameter)]
-        if bad:
-            raise InputError(
-                path,
-                f"key '{range_key}' ({parameter.element} '{name}')",
-                f"{operation} [{fmt(lo)}, {fmt(hi)}] on the nominal {parameter.quantity} {fmt(float(nominal_row[0]))} "
-                f"{parameter.unit} reaches {fmt(float(bad[0]))} {parameter.unit}, which is not physical "
-                f"(must be {bound_words(parameter)})",
-                "narrow the range or use operation 'scale' with a positive range",
-            )
-        targets.append(
-            {
-                "name": name,
-                "nominal": [rounded(v) for v in nominal_row],
-                "range": [[rounded(a), rounded(b)] for a, b in zip(low_abs, high_abs)],
-            }
-        )
-        del element_id
+        _check_kd(elements, nominal, model, path, mjcf_label, declared.key)
+    targets = [_physics_target(name, nominal_row, parameter, declared, path) for (_, name), nominal_row in zip(elements, nominal)]
 
     resolved: dict[str, Any] = {
         "term": parameter.term,
@@ -148,8 +95,8 @@ def _resolve_physics_channel(
         "unit": parameter.unit,
         "mode": declared.mode,
         "distribution": declared.distribution,
-        "operation": operation,
-        "range": [lo, hi],
+        "operation": declared.operation,
+        "range": [declared.lo, declared.hi],
         "shared": bool(term_cfg.get("shared", False)),
         "targets": targets,
     }
@@ -163,6 +110,79 @@ def _resolve_physics_channel(
             trn_joint = int(model.actuator_trntype[element_id]) == int(mujoco.mjtTrn.mjTRN_JOINT)
             target["joint"] = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, joint_id) if trn_joint else None
     return resolved
+
+
+def _physics_elements(
+    term_cfg: Mapping[str, Any],
+    parameter: Parameter,
+    model: mujoco.MjModel,
+    path: str | Path | None,
+    mjcf_label: str,
+    base_key: str,
+) -> list[tuple[int, str]]:
+    """The channel's selector -> the elements it names (the model's gravity for a model channel)."""
+    if parameter.element == "model":
+        return [(0, "gravity")]
+    selector_key = SELECTOR_KEY[parameter.element]
+    patterns = term_cfg.get(selector_key, ["*"])
+    what = {"body": "body with mass" if parameter.channel == "mass" else "body", "geom": "colliding geom",
+            "joint": "hinge/slide joint",
+            "actuator": ("actuator with a first-order filter (dyntype filter or filterexact, which '- actuation_lag' "
+                         "in model.yaml writes into the calibrated MJCF)" if parameter.channel == "lag"
+                         else "actuator")}[parameter.element]
+    return _match_selector(
+        patterns,
+        candidate_elements(model, parameter.element, parameter.channel),
+        path,
+        f"{base_key}/{selector_key}",
+        what,
+        mjcf_label,
+    )
+
+
+def _check_kd(
+    elements: Sequence[tuple[int, str]],
+    nominal: np.ndarray,
+    model: mujoco.MjModel,
+    path: str | Path | None,
+    mjcf_label: str,
+    base_key: str,
+) -> None:
+    """kd scales an actuator's derivative gain: every selected actuator must have one."""
+    no_kd = [name for (i, name), value in zip(elements, nominal[:, 0]) if value <= 0 or model.actuator_biastype[i] != AFFINE]
+    if no_kd:
+        raise InputError(
+            path,
+            f"key '{base_key}/kd_range'",
+            f"actuators {', '.join(no_kd)} have no derivative gain (kv) in {mjcf_label}, so kd cannot be scaled",
+            "select only position actuators with kv > 0 in 'actuator_names', or drop 'kd_range'",
+        )
+
+
+def _physics_target(
+    name: str, nominal_row: np.ndarray, parameter: Parameter, declared: DeclaredTerm, path: str | Path | None
+) -> dict[str, Any]:
+    """One element's nominal value and absolute range, which must stay physical."""
+    operation, lo, hi = declared.operation, declared.lo, declared.hi
+    absolute_lo = apply_operation(operation, nominal_row, np.full(parameter.width, lo))
+    absolute_hi = apply_operation(operation, nominal_row, np.full(parameter.width, hi))
+    # A scale of a negative nominal flips the order; keep [min, max].
+    low_abs, high_abs = np.minimum(absolute_lo, absolute_hi), np.maximum(absolute_lo, absolute_hi)
+    bad = [v for v in low_abs if not is_physical(float(v), parameter)]
+    if bad:
+        raise InputError(
+            path,
+            f"key '{declared.range_key}' ({parameter.element} '{name}')",
+            f"{operation} [{fmt(lo)}, {fmt(hi)}] on the nominal {parameter.quantity} {fmt(float(nominal_row[0]))} "
+            f"{parameter.unit} reaches {fmt(float(bad[0]))} {parameter.unit}, which is not physical "
+            f"(must be {bound_words(parameter)})",
+            "narrow the range or use operation 'scale' with a positive range",
+        )
+    return {
+        "name": name,
+        "nominal": [rounded(v) for v in nominal_row],
+        "range": [[rounded(a), rounded(b)] for a, b in zip(low_abs, high_abs)],
+    }
 
 
 def _resolve_noise(

@@ -222,8 +222,81 @@ def check_trajectory(nominal: NominalModel, trajectory: Trajectory, lim: Limits,
     return failures, torque, distances
 
 
-def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Path, home: Mapping[str, float],
-                      model_effects: Sequence[str], urdf_path: str | Path,
+@dataclass(frozen=True)
+class DesignRobot:
+    """The robot a design is for: the nominal model of the design's joints, the built URDF (its limits) and MJCF (its
+    collision parts), and its home pose (robot.yaml's ``home``, which a design's ``start: home`` names)."""
+
+    nominal: NominalModel
+    mjcf_path: str | Path
+    urdf_path: str | Path
+    home: Mapping[str, float]
+
+
+@dataclass(frozen=True, eq=False)
+class _Program:
+    """What every pass of one design reads: its start, limits and clearance, the series, its grids and the objective,
+    with the objective and the torques as functions of the coefficients (and their Jacobians)."""
+
+    design: Design
+    nominal: NominalModel
+    excited: np.ndarray
+    start: np.ndarray
+    lim: Limits
+    margin: float
+    clearance: Clearance
+    effects: list[str]
+    ident: Identification
+    series: FourierSeries
+    objective_grid: _Grid
+    limit_grid: _Grid
+    objective: str
+    judge: Identification | Separation
+
+    @property
+    def n(self) -> int:
+        return len(self.design.joints)
+
+    def f(self, x: np.ndarray) -> np.ndarray:
+        return np.array([self.judge.value(*self.objective_grid.state(x), self.objective)])
+
+    def df(self, x: np.ndarray) -> np.ndarray:
+        _, dq, dqd, dqdd = self.judge.state_gradient(*self.objective_grid.state(x), self.objective)
+        return self.objective_grid.chain(dq, dqd, dqdd).reshape(1, -1)
+
+    def torque(self, x: np.ndarray) -> np.ndarray:
+        return self.nominal.dynamics.inverse_dynamics(*self.objective_grid.state(x)).ravel()
+
+    def torque_jac(self, x: np.ndarray, samples: np.ndarray) -> np.ndarray:
+        """The Jacobian's rows of ``samples`` only (the program carries the torques near their limits)."""
+        grid = _Grid.subset(self.objective_grid, samples)
+        return _torque_jacobian(self.nominal, *grid.state(x), grid).reshape(-1, self.series.size)
+
+
+@dataclass(frozen=True)
+class _Solved:
+    """Where the passes of IPOPT ended."""
+
+    x: np.ndarray
+    status: str
+    iterations: int
+    active: list[float]  # the times (one period) where the clearance was constrained
+
+
+@dataclass(frozen=True)
+class _Checked:
+    """The designed motion at the controller rate that passed the check at every sample."""
+
+    x: np.ndarray  # the coefficients, scaled
+    scale: float
+    time: np.ndarray
+    one_period: np.ndarray  # which samples of ``time`` are the first period's
+    trajectory: Trajectory
+    torque: np.ndarray
+    distances: np.ndarray  # the clearance at every sample of the first period
+
+
+def design_trajectory(design: Design, robot: DesignRobot, model_effects: Sequence[str],
                       log: Callable[[str], None] = lambda message: None,
                       separation: Separation | None = None,
                       start_coefficients: np.ndarray | None = None) -> DesignResult:
@@ -234,30 +307,42 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
     joints x 2 harmonics; :func:`design_start`), instead of a random series at a fraction of the limits.
     """
     started = clock.perf_counter()
+    program = _program(design, robot, model_effects, separation)
+    series = program.series
+    if start_coefficients is None:
+        x0 = _scaled_start(series, program.limit_grid, program.lim, program.excited, int(design.settings["solver"]["seed"]))
+    else:
+        x0 = np.asarray(start_coefficients, dtype=float).ravel().copy()
+        assert x0.size == series.size, f"a start of {x0.size} coefficients for a series of {series.size}"
+    initial = x0.copy()
+    solved = _optimise(program, x0, log)
+    checked = _check_every_sample(program, solved.x, log)
+    log(f"designed in {clock.perf_counter() - started:.1f} s")  # the log, not the outputs: those stay byte-identical
+    summary = _summary(program, initial, solved, checked, separation)
+    return DesignResult(design=design, joints=list(design.joints), coefficients=checked.x.reshape(len(program.excited), -1),
+                        start=program.start, limits=program.lim, trajectory=checked.trajectory, torque=checked.torque,
+                        clearance=checked.distances, closest_pair=summary["closest_pair"], summary=summary)
+
+
+def _program(design: Design, robot: DesignRobot, model_effects: Sequence[str],
+             separation: Separation | None) -> _Program:
+    """The design's start pose (clear of collision), limits, clearance, series, grids and objective."""
     settings, joints = design.settings, design.joints
-    dynamics = nominal.dynamics
+    dynamics = robot.nominal.dynamics
     n = len(joints)
     excited = np.array([joints.index(j) for j in design.excite])
-    start = start_pose(design, home, dynamics.lower, dynamics.upper)
+    start = start_pose(design, robot.home, dynamics.lower, dynamics.upper)
     lim = limits(design, dynamics.lower, dynamics.upper, dynamics.velocity_limit, dynamics.effort_limit, start,
-                 dynamics.gravity(start)[0], urdf_path)
+                 dynamics.gravity(start)[0], robot.urdf_path)
     margin = float(settings["margins"]["collision_m"])
-    clearance = Clearance(mjcf_path, joints, settings["obstacles"], max(CLEARANCE_SEARCH_M, CLEARANCE_WATCH * margin),
-                          design.path, design.key("obstacles"))
-    distance, pair = clearance.closest(start)
-    if distance < margin:
-        obstacle = next((o for o in (pair or "").split(" / ") if o.startswith("obstacle_")), None)
-        what = (f"obstacle '{obstacle.removeprefix('obstacle_')}' contains the start pose or comes within "
-                f"{margin:g} m of it" if obstacle else f"the start pose is in self-collision ({pair})")
-        raise InputError(design.path, design.key("obstacles" if obstacle else "start"),
-                         f"{what}: distance {distance:.3g} m at the start pose",
-                         "move the obstacle away from the robot, choose another start pose, or lower "
-                         "margins/collision_m")
+    clearance = Clearance(robot.mjcf_path, joints, settings["obstacles"],
+                          max(CLEARANCE_SEARCH_M, CLEARANCE_WATCH * margin), design.path, design.key("obstacles"))
+    _check_start(design, clearance, start, margin)
 
     noise_floor = design.per_joint("noise_floor")
     effects = identification_effects(model_effects)
     solver = settings["solver"]
-    ident = Identification(nominal, effects, noise_floor, lim.lower, lim.upper, lim.velocity, lim.acceleration,
+    ident = Identification(robot.nominal, effects, noise_floor, lim.lower, lim.upper, lim.velocity, lim.acceleration,
                            seed=int(solver["seed"]))
     series = FourierSeries(2.0 * np.pi * float(settings["base_frequency_hz"]), int(settings["harmonics"]),
                            len(excited))
@@ -268,63 +353,67 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
                        excited, n, start)
     objective = str(settings["objective"]) if separation is None else "separate"
     judge: Identification | Separation = ident if separation is None else separation
+    return _Program(design, robot.nominal, excited, start, lim, margin, clearance, effects, ident, series,
+                    objective_grid, limit_grid, objective, judge)
 
-    def f(x: np.ndarray) -> np.ndarray:
-        return np.array([judge.value(*objective_grid.state(x), objective)])
 
-    def df(x: np.ndarray) -> np.ndarray:
-        _, dq, dqd, dqdd = judge.state_gradient(*objective_grid.state(x), objective)
-        return objective_grid.chain(dq, dqd, dqdd).reshape(1, -1)
+def _check_start(design: Design, clearance: Clearance, start: np.ndarray, margin: float) -> None:
+    """The start pose must be clear of every obstacle and of self-collision by the margin."""
+    distance, pair = clearance.closest(start)
+    if distance < margin:
+        obstacle = next((o for o in (pair or "").split(" / ") if o.startswith("obstacle_")), None)
+        what = (f"obstacle '{obstacle.removeprefix('obstacle_')}' contains the start pose or comes within "
+                f"{margin:g} m of it" if obstacle else f"the start pose is in self-collision ({pair})")
+        raise InputError(design.path, design.key("obstacles" if obstacle else "start"),
+                         f"{what}: distance {distance:.3g} m at the start pose",
+                         "move the obstacle away from the robot, choose another start pose, or lower "
+                         "margins/collision_m")
 
-    def torque(x: np.ndarray) -> np.ndarray:
-        return dynamics.inverse_dynamics(*objective_grid.state(x)).ravel()
 
-    def torque_jac(x: np.ndarray, samples: np.ndarray) -> np.ndarray:
-        """The Jacobian's rows of ``samples`` only (the program carries the torques near their limits)."""
-        grid = _Grid.subset(objective_grid, samples)
-        return _torque_jacobian(nominal, *grid.state(x), grid).reshape(-1, series.size)
-
-    if start_coefficients is None:
-        x0 = _scaled_start(series, limit_grid, lim, excited, int(solver["seed"]))
-    else:
-        x0 = np.asarray(start_coefficients, dtype=float).ravel().copy()
-        assert x0.size == series.size, f"a start of {x0.size} coefficients for a series of {series.size}"
-    initial = x0.copy()
-    scan_grid = _Grid(series, np.linspace(0.0, period, CLEARANCE_SCAN * len(limit_grid.time), endpoint=False),
-                      excited, n, start)
-    usable = np.tile(lim.torque, len(objective_grid.time))
+def _optimise(program: _Program, x0: np.ndarray, log: Callable[[str], None]) -> _Solved:
+    """Passes of IPOPT from ``x0``, each with the torque and clearance rows near their limits (the active sets), until
+    a check of every row finds none short (at most ACTIVE_SET_ROUNDS + 1 passes)."""
+    series, margin, clearance = program.series, program.margin, program.clearance
+    scan_grid = _Grid(series, np.linspace(0.0, series.period, CLEARANCE_SCAN * len(program.limit_grid.time),
+                                          endpoint=False), program.excited, program.n, program.start)
+    usable = np.tile(program.lim.torque, len(program.objective_grid.time))
     active: list[float] = []  # times (one period) where the clearance is constrained
     rows = np.zeros(0, dtype=int)  # torque rows (sample * n + joint) in the program
     x = x0
     status, iterations = "not run", 0
     for _ in range(ACTIVE_SET_ROUNDS + 1):
-        rows = np.union1d(rows, np.flatnonzero(np.abs(torque(x)) >= TORQUE_WATCH * usable))
+        rows = np.union1d(rows, np.flatnonzero(np.abs(program.torque(x)) >= TORQUE_WATCH * usable))
         distances = clearance.distances(scan_grid.state(x)[0])
         # The closest sample of each stretch near the margin, and of each stretch inside it: a stretch near the margin
         # can dip inside it away from its closest sample (another link, another obstacle).
         active = sorted(set(active) | set(_short_samples(distances, scan_grid, CLEARANCE_WATCH * margin))
                         | set(_short_samples(distances, scan_grid, margin)))
-        x, status, iterations = _solve(series, limit_grid, lim, excited, f, df, torque, torque_jac, rows, usable,
-                                       clearance, active, margin * (1.0 + CLEARANCE_SLACK), x,
-                                       int(solver["max_iterations"]))
+        x, status, iterations = _solve(program, rows, usable, active, margin * (1.0 + CLEARANCE_SLACK), x)
         # Every row, those in the program too: a pass stopped at its iteration limit can end where a row it carries
         # is still violated (a clearance row 0.25 m into the table), which the every-sample check would then fix by
         # scaling the whole motion down (to 0.6x); another pass from there restores it.
-        over = np.flatnonzero(np.abs(torque(x)) > usable)
+        over = np.flatnonzero(np.abs(program.torque(x)) > usable)
         distances = clearance.distances(scan_grid.state(x)[0])
         short = _short_samples(distances, scan_grid, margin)
         log(f"IPOPT: {status} after {iterations} iterations with {len(rows)} torque rows and {len(active)} clearance "
             f"rows; {len(over)} torques over their limit and {len(short)} samples short of clearance")
         if not short and not len(over):
             break
+    return _Solved(x, status, iterations, active)
 
+
+def _check_every_sample(program: _Program, x: np.ndarray, log: Callable[[str], None]) -> _Checked:
+    """The motion at the controller rate, checked at every sample of one period and scaled towards the start pose
+    (by 0.97 a step) until every check passes."""
+    settings = program.design.settings
+    series, margin, clearance = program.series, program.margin, program.clearance
     rate = float(settings["sample_rate_hz"])
     time = np.arange(int(round(float(settings["duration_s"]) * rate))) / rate
-    one_period = time < period - 0.5 / rate
+    one_period = time < series.period - 0.5 / rate
     scale = 1.0
     closest: list[int] = []  # the closest sample of each stretch short of clearance in the last check of every sample
     for _ in range(40):
-        trajectory = _trajectory(series, x * scale, time, start, excited, n)
+        trajectory = _trajectory(series, x * scale, time, program.start, program.excited, program.n)
         head = _head(trajectory, one_period)
         # A stretch short of clearance mostly stays short over the next steps: its closest samples are looked at
         # first (milliseconds), every sample (seconds) only when they pass. The same steps and scale as checking
@@ -332,45 +421,42 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
         if closest and np.any(clearance.distances(head.q[closest]) < margin):
             failures = ["collision"]
         else:
-            failures, tau, distances = check_trajectory(nominal, head, lim, clearance, margin, excited)
+            failures, tau, distances = check_trajectory(program.nominal, head, program.lim, clearance, margin,
+                                                        program.excited)
             if not failures:
                 break
             closest = _closest_of_each_stretch(distances, margin)
         log(f"dense check at {rate:g} Hz failed ({', '.join(failures)}); scaling the motion by {scale * 0.97:.3g}")
         scale *= 0.97
     else:
-        raise RuntimeError(f"the design '{design.name}' violates {failures} even scaled to {scale:.3g}")
+        raise RuntimeError(f"the design '{program.design.name}' violates {failures} even scaled to {scale:.3g}")
     x = x * scale
-    tau = dynamics.inverse_dynamics(trajectory.q, trajectory.qd, trajectory.qdd)
-    log(f"designed in {clock.perf_counter() - started:.1f} s")  # the log, not the outputs: those stay byte-identical
-    head = _head(trajectory, one_period)
-    before = _trajectory(series, initial, time, start, excited, n)
-    before_head = _head(before, one_period)
-    _, closest = clearance.closest(head.q[int(np.argmin(distances))])
+    tau = program.nominal.dynamics.inverse_dynamics(trajectory.q, trajectory.qd, trajectory.qdd)
+    return _Checked(x, scale, time, one_period, trajectory, tau, distances)
+
+
+def _summary(program: _Program, initial: np.ndarray, solved: _Solved, checked: _Checked,
+             separation: Separation | None) -> dict[str, Any]:
+    """The design's report: the objective and condition number before and after, the solver, the closest approach
+    and the peaks against the limits."""
+    ident, trajectory = program.ident, checked.trajectory
+    head = _head(trajectory, checked.one_period)
+    before = _trajectory(program.series, initial, checked.time, program.start, program.excited, program.n)
+    before_head = _head(before, checked.one_period)
+    _, closest = program.clearance.closest(head.q[int(np.argmin(checked.distances))])
     summary: dict[str, Any] = {
-        "objective": objective,
-        "identified": {"inertial": "base parameters of the moving bodies", "effects": effects,
+        "objective": program.objective,
+        "identified": {"inertial": "base parameters of the moving bodies", "effects": program.effects,
                        "base_parameters": ident.size},
-        "objective_value": {"initial": round(f(initial)[0], 6), "designed": round(f(x)[0], 6)},
+        "objective_value": {"initial": round(program.f(initial)[0], 6), "designed": round(program.f(checked.x)[0], 6)},
         "condition_number": {"initial": round(condition_number(ident.matrix(before_head.q, before_head.qd,
                                                                              before_head.qdd)), 4),
                              "designed": round(condition_number(ident.matrix(head.q, head.qd, head.qdd)), 4)},
-        "solver": {"status": status, "iterations": iterations, "active_clearance_samples": len(active),
-                   "scaled_by": round(scale, 6)},
-        "min_clearance_m": round(float(distances.min()), 6),
+        "solver": {"status": solved.status, "iterations": solved.iterations,
+                   "active_clearance_samples": len(solved.active), "scaled_by": round(checked.scale, 6)},
+        "min_clearance_m": round(float(checked.distances.min()), 6),
         "closest_pair": closest,
-        "peak": {
-            "torque_Nm": _per_joint(joints, np.abs(tau).max(axis=0)),
-            "torque_limit_Nm": _per_joint(joints, lim.torque),
-            "velocity_rad_s": _per_joint(joints, np.abs(trajectory.qd).max(axis=0)),
-            "velocity_limit_rad_s": _per_joint(joints, lim.velocity),
-            "acceleration_rad_s2": _per_joint(joints, np.abs(trajectory.qdd).max(axis=0)),
-            "acceleration_limit_rad_s2": _per_joint(joints, lim.acceleration),
-            "position_min_rad": _per_joint(joints, trajectory.q.min(axis=0)),
-            "position_max_rad": _per_joint(joints, trajectory.q.max(axis=0)),
-            "position_lower_rad": _per_joint(joints, lim.lower),
-            "position_upper_rad": _per_joint(joints, lim.upper),
-        },
+        "peak": _peaks(program.design.joints, program.lim, trajectory, checked.torque),
     }
     if separation is not None:
         summary["separation"] = {
@@ -379,19 +465,32 @@ def design_trajectory(design: Design, nominal: NominalModel, mjcf_path: str | Pa
                                                                            before_head.qdd), 4),
                                    "designed": round(separation.rms_x_floor(head.q, head.qd, head.qdd), 4)},
         }
-    return DesignResult(design=design, joints=list(joints), coefficients=x.reshape(len(excited), -1), start=start,
-                        limits=lim, trajectory=trajectory, torque=tau, clearance=distances, closest_pair=closest,
-                        summary=summary)
+    return summary
 
 
-def design_start(design: Design, nominal: NominalModel, mjcf_path: str | Path, home: Mapping[str, float],
-                 urdf_path: str | Path, log: Callable[[str], None] = lambda message: None) -> np.ndarray:
+def _peaks(joints: Sequence[str], lim: Limits, trajectory: Trajectory, tau: np.ndarray) -> dict[str, dict[str, float]]:
+    """Each joint's peak torque, velocity and acceleration and its range of motion, beside its usable limits."""
+    return {
+        "torque_Nm": _per_joint(joints, np.abs(tau).max(axis=0)),
+        "torque_limit_Nm": _per_joint(joints, lim.torque),
+        "velocity_rad_s": _per_joint(joints, np.abs(trajectory.qd).max(axis=0)),
+        "velocity_limit_rad_s": _per_joint(joints, lim.velocity),
+        "acceleration_rad_s2": _per_joint(joints, np.abs(trajectory.qdd).max(axis=0)),
+        "acceleration_limit_rad_s2": _per_joint(joints, lim.acceleration),
+        "position_min_rad": _per_joint(joints, trajectory.q.min(axis=0)),
+        "position_max_rad": _per_joint(joints, trajectory.q.max(axis=0)),
+        "position_lower_rad": _per_joint(joints, lim.lower),
+        "position_upper_rad": _per_joint(joints, lim.upper),
+    }
+
+
+def design_start(design: Design, robot: DesignRobot, log: Callable[[str], None] = lambda message: None) -> np.ndarray:
     """Where a design for any model starts: the same design for the nominal model and friction alone (what
     ``effects: []`` identifies), from a random series. It reads nothing of model.yaml, so a change of the model's
     effects designs from here (a few seconds) rather than from a random series (issue 32: warm-started when the
     model changes), and the result is the same bytes whatever was designed before. Coefficients: excited joints x 2
     harmonics."""
-    return design_trajectory(design, nominal, mjcf_path, home, [], urdf_path, log=log).coefficients
+    return design_trajectory(design, robot, [], log=log).coefficients
 
 
 def _per_joint(joints: Sequence[str], values: np.ndarray) -> dict[str, float]:
@@ -439,11 +538,12 @@ def _sparse(matrix: np.ndarray) -> ca.DM:
     return ca.DM(scipy.sparse.csc_matrix(matrix))
 
 
-def _solve(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray, f, df, torque, torque_jac,
-           rows: np.ndarray, usable: np.ndarray, clearance: Clearance, active: Sequence[float], least: float,
-           x0: np.ndarray, max_iterations: int) -> tuple[np.ndarray, str, int]:
+def _solve(program: _Program, rows: np.ndarray, usable: np.ndarray, active: Sequence[float], least: float,
+           x0: np.ndarray) -> tuple[np.ndarray, str, int]:
     """One IPOPT pass from ``x0``: the torque rows ``rows`` (of the objective's samples) within ``usable``, the
     clearance at the times ``active`` at least ``least``."""
+    series, grid, lim, excited = program.series, program.limit_grid, program.lim, program.excited
+    clearance = program.clearance
     x = ca.MX.sym("x", series.size)
     constraints, lower, upper = [], [], []
 
@@ -463,12 +563,12 @@ def _solve(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray,
         state_rows = state_map[:, excited].reshape(-1, series.size)
         add(ca.mtimes(_sparse(state_rows), x), np.tile(lo[excited] + margin, count),
             np.tile(hi[excited] - margin, count))
-    callbacks = [_Numeric("objective", series.size, 1, f, df)]
+    callbacks = [_Numeric("objective", series.size, 1, program.f, program.df)]
     if len(rows):
         samples, where = np.unique(rows // grid.maps[0].shape[1], return_inverse=True)
         flat = where * grid.maps[0].shape[1] + rows % grid.maps[0].shape[1]  # the rows among those samples' rows
-        callbacks.append(_Numeric("torque", series.size, len(rows), lambda xv: torque(xv)[rows],
-                                  lambda xv: torque_jac(xv, samples)[flat]))
+        callbacks.append(_Numeric("torque", series.size, len(rows), lambda xv: program.torque(xv)[rows],
+                                  lambda xv: program.torque_jac(xv, samples)[flat]))
         add(callbacks[-1](x), -usable[rows], usable[rows])
     if active:
         active_grid = _Grid(series, np.asarray(active), excited, grid.maps[0].shape[1], grid.start)
@@ -483,6 +583,7 @@ def _solve(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.ndarray,
         callbacks.append(_Numeric("clearance", series.size, len(active), distance, distance_jac))
         add(callbacks[-1](x), np.full(len(active), least), np.full(len(active), np.inf))
     nlp = {"x": x, "f": callbacks[0](x), "g": ca.densify(ca.vertcat(*constraints))}
+    max_iterations = int(program.design.settings["solver"]["max_iterations"])
     options = {"ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": max_iterations,
                "ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False, "ipopt.tol": 1e-6,
                "ipopt.acceptable_tol": 1e-3, "ipopt.mu_init": MU_INIT, "ipopt.mu_strategy": "monotone",

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,8 +18,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from sim2real.excitation.config import design_from_spec, load_design  # noqa: E402
-from sim2real.excitation.design import DesignResult, design_start, design_trajectory  # noqa: E402
+from sim2real.excitation.config import Design, design_from_spec, load_design  # noqa: E402
+from sim2real.excitation.design import DesignResult, DesignRobot, design_start, design_trajectory  # noqa: E402
 from sim2real.identification.fitting import load_nominal  # noqa: E402
 from sim2real.errors import InputError  # noqa: E402
 from sim2real.excitation.names import confounded_pair  # noqa: E402
@@ -152,28 +153,42 @@ def markdown(result: DesignResult, robot: str, outputs: Mapping[str, str]) -> st
     return "\n".join(lines)
 
 
-def build_excitation_start(robot: str, config: str | Path, name: str, urdf: str | Path, mjcf: str | Path,
-                           robot_config: str | Path, output: str | Path,
-                           robot_settings: Mapping[str, Any] | None = None,
-                           design_spec: Mapping[str, Any] | None = None) -> np.ndarray:
-    """Where design ``name`` of ``config`` starts for any model (:func:`sim2real.excitation.design.design_start`),
-    written to ``output`` (an array archive: ``coefficients``, excited joints x 2 harmonics); ``design_spec``: the
-    design as already read (:meth:`sim2real.excitation.config.Design.spec`, the DAG's param)."""
-    design = _design(config, name, design_spec)
-    robot_settings = read_robot_config(robot_config, robot_settings)
-    nominal = load_nominal(urdf, design.joints, robot_settings.get("armature"), robot_settings.get("flange"))
-    coefficients = design_start(design, nominal, mjcf, robot_settings.get("home") or {}, urdf, log=logging.info)
+@dataclass(frozen=True)
+class ExcitationInputs:
+    """One design of an excitation.yaml and the built robot it is designed on: what both rules of a design read."""
+
+    robot: str
+    config: str | Path  # the excitation.yaml
+    name: str  # the design's name in it
+    urdf: str | Path
+    mjcf: str | Path
+    robot_config: str | Path
+    robot_settings: Mapping[str, Any] | None = None  # robot_config's content, when already read (read_robot_config)
+    # the design as already read (:meth:`sim2real.excitation.config.Design.spec`, the DAG's param)
+    design_spec: Mapping[str, Any] | None = None
+
+    def design(self) -> Design:
+        """The design: from its spec when the DAG passed it, else read (a separating name takes the file's
+        defaults)."""
+        if self.design_spec is not None:
+            return design_from_spec(self.config, self.name, self.design_spec)
+        return load_design(self.config, self.name, allow_default=confounded_pair(self.name) is not None)
+
+    def design_robot(self, design: Design, robot_settings: Mapping[str, Any]) -> DesignRobot:
+        """The robot ``design`` is for: the nominal model of its joints (robot.yaml's armature and flange)."""
+        nominal = load_nominal(self.urdf, design.joints, robot_settings.get("armature"), robot_settings.get("flange"))
+        return DesignRobot(nominal, self.mjcf, self.urdf, robot_settings.get("home") or {})
+
+
+def build_excitation_start(inputs: ExcitationInputs, output: str | Path) -> np.ndarray:
+    """Where design ``inputs.name`` starts for any model (:func:`sim2real.excitation.design.design_start`),
+    written to ``output`` (an array archive: ``coefficients``, excited joints x 2 harmonics)."""
+    design = inputs.design()
+    robot_settings = read_robot_config(inputs.robot_config, inputs.robot_settings)
+    coefficients = design_start(design, inputs.design_robot(design, robot_settings), log=logging.info)
     write_array_archive(output, {"coefficients": coefficients},
-                        {"design": name, "robot": robot, "excited": list(design.excite)})
+                        {"design": inputs.name, "robot": inputs.robot, "excited": list(design.excite)})
     return coefficients
-
-
-def _design(config: str | Path, name: str, spec: Mapping[str, Any] | None) -> Any:
-    """Design ``name`` of ``config``: from its spec when the DAG passed it, else read (a separating name takes the
-    file's defaults)."""
-    if spec is not None:
-        return design_from_spec(config, name, spec)
-    return load_design(config, name, allow_default=confounded_pair(name) is not None)
 
 
 def read_start(path: str | Path, name: str, excited: Sequence[str], harmonics: int) -> np.ndarray:
@@ -194,47 +209,32 @@ def read_start(path: str | Path, name: str, excited: Sequence[str], harmonics: i
     return coefficients
 
 
-def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path, mjcf: str | Path,
-                     robot_config: str | Path, model_config: str | Path | None, outputs: Mapping[str, str],
-                     ladder: str | Path | None = None, robot_settings: Mapping[str, Any] | None = None,
-                     model_effects: Sequence[str] | None = None, start: str | Path | None = None,
-                     design_spec: Mapping[str, Any] | None = None) -> DesignResult:
-    """Design ``name`` of ``config`` and write its outputs (keys csv, trajectory, json, md, figure).
+def build_excitation(inputs: ExcitationInputs, model_config: str | Path | None, outputs: Mapping[str, str], *,
+                     ladder: str | Path | None = None, model_effects: Sequence[str] | None = None,
+                     start: str | Path | None = None) -> DesignResult:
+    """Design ``inputs.name`` and write its outputs (keys csv, trajectory, json, md, figure).
 
     A name ``separate-<a>-vs-<b>`` designs the run that tells the confounded candidates a and b of
     ``ladder`` (results/{robot}/sysid/ladder.json) apart, with the file's default settings (or its own entry).
-    ``robot_settings``: ``robot_config``'s content, when already read (:func:`read_robot_config`); ``model_effects``:
-    ``model_config``'s effects, when already read (the DAG passes them as params), checked as the file's would be;
-    ``start``: the file of :func:`build_excitation_start` the design starts from (None: from a random series);
-    ``design_spec``: the design as already read (:meth:`sim2real.excitation.config.Design.spec`, the DAG's param).
+    ``model_effects``: ``model_config``'s effects, when already read (the DAG passes them as params), checked as the
+    file's would be; ``start``: the file of :func:`build_excitation_start` the design starts from (None: from a
+    random series).
     """
     from sim2real.identification.model_config import effect_lines, load_model_config
 
+    name = inputs.name
     pair = confounded_pair(name)
-    design = _design(config, name, design_spec)
-    robot_settings = read_robot_config(robot_config, robot_settings)
+    design = inputs.design()
+    robot_settings = read_robot_config(inputs.robot_config, inputs.robot_settings)
     if model_effects is not None:
         effects = [line.name for line in effect_lines(model_effects, model_config or "model.yaml")]
     else:
         effects = list(load_model_config(model_config).effects) if model_config and Path(model_config).exists() else []
-    nominal = load_nominal(urdf, design.joints, robot_settings.get("armature"), robot_settings.get("flange"))
-    separation = None
-    if pair is not None:
-        if ladder is None:
-            raise InputError(config, f"designs/{name}", "a separating design needs the diagnosis",
-                             f"build it with snakemake results/{robot}/excitation/{name}.csv")
-        document = json.loads(Path(ladder).read_text(encoding="utf-8"))
-        if document.get("joints") != design.joints:
-            raise InputError(config, "joints", f"are not the joints of {ladder} ({document.get('joints')})",
-                             "list the identified joints in the excitation.yaml `joints`")
-        floor = design.per_joint("noise_floor")
-        if floor is None:
-            floor = np.array([document["noise_floor"]["torque_rmse"]["per_joint"][j] for j in design.joints])
-        separation = Separation(nominal, fitted_candidates(document, pair, str(ladder)), floor, str(ladder))
+    robot = inputs.design_robot(design, robot_settings)
+    separation = None if pair is None else _separation(inputs, design, robot, pair, ladder)
     coefficients = (None if start is None else
                     read_start(start, name, design.excite, int(design.settings["harmonics"])))
-    result = design_trajectory(design, nominal, mjcf, robot_settings.get("home") or {}, effects, urdf,
-                               log=logging.info, separation=separation,
+    result = design_trajectory(design, robot, effects, log=logging.info, separation=separation,
                                start_coefficients=coefficients)
     write_csv(result, outputs["csv"])
     rate = float(design.settings["trajectory_rate_hz"])
@@ -242,5 +242,21 @@ def build_excitation(robot: str, config: str | Path, name: str, urdf: str | Path
                                                 default_flow_style=None))
     figure(result, outputs["figure"])
     write_json(outputs["json"], result.summary)
-    write_text(outputs["md"], markdown(result, robot, outputs))
+    write_text(outputs["md"], markdown(result, inputs.robot, outputs))
     return result
+
+
+def _separation(inputs: ExcitationInputs, design: Design, robot: DesignRobot, pair: tuple[str, str],
+                ladder: str | Path | None) -> Separation:
+    """What a separating design tells apart: the fits of the confounded ``pair`` in the diagnosis ``ladder``."""
+    if ladder is None:
+        raise InputError(inputs.config, f"designs/{inputs.name}", "a separating design needs the diagnosis",
+                         f"build it with snakemake results/{inputs.robot}/excitation/{inputs.name}.csv")
+    document = json.loads(Path(ladder).read_text(encoding="utf-8"))
+    if document.get("joints") != design.joints:
+        raise InputError(inputs.config, "joints", f"are not the joints of {ladder} ({document.get('joints')})",
+                         "list the identified joints in the excitation.yaml `joints`")
+    floor = design.per_joint("noise_floor")
+    if floor is None:
+        floor = np.array([document["noise_floor"]["torque_rmse"]["per_joint"][j] for j in design.joints])
+    return Separation(robot.nominal, fitted_candidates(document, pair, str(ladder)), floor, str(ladder))

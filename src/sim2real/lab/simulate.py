@@ -4,6 +4,7 @@ effects, the sensors (:func:`simulate_run`), and the files it writes (:func:`run
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -101,6 +102,88 @@ def _friction_now(data: mujoco.MjData, qd: np.ndarray, friction: Mapping[str, An
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class _Arms:
+    """The controller's nominal arm and the real arm (hidden effects included), compiled at the substep, with their
+    data and the measured joints' addresses; ``truth``: the hidden values, filled in as the effects are resolved."""
+
+    nominal: mujoco.MjModel
+    nominal_data: mujoco.MjData
+    qadr: np.ndarray
+    dadr: np.ndarray
+    real: mujoco.MjModel
+    real_data: mujoco.MjData
+    qadr_r: np.ndarray
+    dadr_r: np.ndarray
+    ctrl_index: np.ndarray  # the real arm's motors, in joint order
+    substeps: int
+    truth: dict[str, Any]
+
+
+@dataclass(frozen=True, eq=False)
+class _Hidden:
+    """The hidden effects the run plays step by step: passive and position-dependent torques, the drive's delay,
+    lag, gain and offset, the sensor's gain, offset and drift. ``friction`` changes as the run goes (a hysteretic
+    friction's state, a load friction's level)."""
+
+    friction: dict[str, Any]
+    dahl: Any
+    load: Any
+    cogging: Any
+    spring: Any
+    drift: np.ndarray | None
+    delay_steps: int
+    lag_keep: float
+    scales: Mapping[str, np.ndarray]
+    passive: bool  # any passive friction torque applied on the real arm
+    positional: bool  # any torque the positions decide
+
+    def position_torque(self, q: np.ndarray) -> np.ndarray:
+        """The torques the joints' positions decide (a cogging, a cable's pull)."""
+        torque = np.zeros(len(q))
+        if self.cogging is not None:
+            torque = torque + cogging_torque(q, self.cogging)
+        if self.spring is not None:
+            torque = torque + cable_spring_torque(q, self.spring)
+        return torque
+
+    def apply(self, arms: _Arms) -> None:
+        """The passive and position-dependent torques at the real arm's state, as its applied forces (when there are
+        any: ``passive or positional``)."""
+        real_data, dadr_r = arms.real_data, arms.dadr_r
+        torque = np.zeros(len(dadr_r)) if not self.passive else -passive_friction(real_data.qvel[dadr_r], self.friction)
+        real_data.qfrc_applied[dadr_r] = torque + self.position_torque(real_data.qpos[arms.qadr_r])
+
+
+@dataclass(frozen=True, eq=False)
+class _LinkSide:
+    """The real arm without its drive terms (:func:`_link_side_model`): its inverse dynamics is the torque the gear
+    transmits to the links, which a link-side sensor measures and a load friction's level follows."""
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    dadr: np.ndarray
+    dof_of: Mapping[int, int]  # the real arm's dof -> joint
+
+    def torque(self, arms: _Arms) -> np.ndarray:
+        """The transmitted torque at the real arm's state and acceleration."""
+        real_data, data = arms.real_data, self.data
+        data.qpos[:], data.qvel[:], data.qacc[:] = real_data.qpos, real_data.qvel, real_data.qacc
+        mujoco.mj_inverse(self.model, data)
+        return data.qfrc_inverse[self.dadr]
+
+
+@dataclass(frozen=True, eq=False)
+class _Controller:
+    """The controller on the nominal model and what it measures."""
+
+    kind: str  # computed_torque or pd (plus gravity compensation)
+    kp: np.ndarray
+    kd: np.ndarray
+    resolution: float  # the encoder's, rad (0: exact)
+    vel_noise: float  # the velocity's noise, std
+
+
 def simulate_run(
     mjcf_path: str | Path, joints: Sequence[str], scenario: Mapping[str, Any], seed: int,
     config_path: str | Path | None = None,
@@ -116,33 +199,69 @@ def simulate_run(
     unknown = [e for e in effects if e not in EFFECTS]
     if unknown:
         raise InputError(path, f"effects/{unknown[0]}", "unknown effect", f"use one of {', '.join(EFFECTS)}")
+    rate = float(scenario["sample_rate_hz"])
+    arms = _arms(mjcf_path, joints, effects, path, rate, int(scenario["substeps"]))
+    desired = _desired_motion(arms.nominal, joints, scenario, seed, path, trajectory)
+    hidden = _hidden_effects(effects, joints, path, seed, arms.truth, desired[0], rate)
+    # A link-side torque sensor: the rigid-body inverse dynamics of the real arm without its drive terms,
+    # at each sample's true state and acceleration (two MuJoCo calls per sample, only when tau is logged).
+    link_side = _torque_sensor(scenario, path) == "link" and "tau" in scenario["columns"]
+    link = None
+    # A load friction's level follows the same torque: what the gear transmits to the link.
+    if link_side or hidden.load is not None:
+        real_link = _link_side_model(mjcf_path, joints, effects, path)
+        link = _LinkSide(real_link, mujoco.MjData(real_link),
+                         np.array([real_link.jnt_dofadr[real_link.joint(j).id] for j in joints]),
+                         {int(d): i for i, d in enumerate(arms.dadr_r)})
+    sensors, controller = scenario["sensors"], scenario["controller"]
+    control = _Controller(str(controller["type"]), _per_joint(controller["kp"], joints, "controller/kp", path),
+                          _per_joint(controller["kd"], joints, "controller/kd", path),
+                          float(sensors["encoder_resolution_rad"]), float(sensors["velocity_noise_std"]))
+    rng = np.random.default_rng(seed + 7919)  # sensor noise stream, independent of the excitation draw
+    played = _play(arms, desired, hidden, control, link, link_side, rng)
+    return _logged(scenario, desired, played, hidden, 1.0 / rate, rng) + (arms.truth,)
 
+
+def _arms(mjcf_path: str | Path, joints: Sequence[str], effects: Mapping[str, Any], path: Path | None, rate: float,
+          substeps: int) -> _Arms:
+    """The nominal and the real arm (the spec's hidden effects applied), stepped ``substeps`` times a sample."""
     nominal_spec = arm_spec(mjcf_path, joints)
     real_spec = arm_spec(mjcf_path, joints)
     truth = _apply_spec_effects(real_spec, joints, effects, path)
     for spec in (nominal_spec, real_spec):
         drop_inert_meshes(spec)  # most of each compile, and no number of the motion
-    rate = float(scenario["sample_rate_hz"])
-    substeps = int(scenario["substeps"])
     dt = 1.0 / rate
     nominal, qadr, dadr = compile_arm(nominal_spec, joints)
     real, qadr_r, dadr_r = compile_arm(real_spec, joints)
     for model in (nominal, real):
         model.opt.timestep = dt / substeps
-    nominal_data, real_data = mujoco.MjData(nominal), mujoco.MjData(real)
-    n = len(joints)
+    ctrl_index = np.array([real.actuator(f"motor_{j}").id for j in joints])
+    return _Arms(nominal, mujoco.MjData(nominal), qadr, dadr, real, mujoco.MjData(real), qadr_r, dadr_r, ctrl_index,
+                 substeps, truth)
 
+
+def _desired_motion(
+    nominal: mujoco.MjModel, joints: Sequence[str], scenario: Mapping[str, Any], seed: int, path: Path | None,
+    trajectory: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """time, q, qd, qdd of the motion the controller follows: ``trajectory``, or the scenario's random Fourier
+    series within the nominal arm's joint range and the scenario's velocity limit."""
     lower = nominal.jnt_range[[nominal.joint(j).id for j in joints], 0]
     upper = nominal.jnt_range[[nominal.joint(j).id for j in joints], 1]
     vel_limit = _per_joint(scenario.get("velocity_limit", 2.0), joints, "velocity_limit", path)
-    if trajectory is None:
-        steps = int(round(float(scenario["duration_s"]) * rate))
-        time = np.arange(steps) * dt
-        q_des, qd_des, qdd_des = fourier_excitation(time, lower, upper, vel_limit, scenario["excitation"], seed)
-    else:
-        time, q_des, qd_des, qdd_des = trajectory
-        steps = len(time)
+    if trajectory is not None:
+        return trajectory
+    rate = float(scenario["sample_rate_hz"])
+    steps = int(round(float(scenario["duration_s"]) * rate))
+    time = np.arange(steps) * (1.0 / rate)
+    q_des, qd_des, qdd_des = fourier_excitation(time, lower, upper, vel_limit, scenario["excitation"], seed)
+    return time, q_des, qd_des, qdd_des
 
+
+def _hidden_effects(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None, seed: int,
+                    truth: dict[str, Any], time: np.ndarray, rate: float) -> _Hidden:
+    """The hidden effects the run plays (their resolved values recorded in ``truth``, in this order)."""
+    dt = 1.0 / rate
     friction = _joint_friction(effects, joints, path, truth)
     dahl = _hysteretic_friction(effects, joints, path, truth)
     if dahl is not None:
@@ -152,20 +271,8 @@ def simulate_run(
         friction["load_level"] = load[0].copy()
     cogging = _cogging(effects, joints, path, truth)
     spring = _cable_spring(effects, joints, path, truth)
-    positional = cogging is not None or spring is not None
-
-    def position_torque(q: np.ndarray) -> np.ndarray:
-        """The torques the joints' positions decide (a cogging, a cable's pull)."""
-        torque = np.zeros(n)
-        if cogging is not None:
-            torque = torque + cogging_torque(q, cogging)
-        if spring is not None:
-            torque = torque + cable_spring_torque(q, spring)
-        return torque
-
     drift = _torque_drift(effects, joints, path, seed, truth, time)
     passive = friction["gaz"] is not None or friction["stribeck"] is not None or dahl is not None or load is not None
-    after = friction["after"]
     delay_steps = 0
     if "actuation_delay" in effects:
         delay_steps = int(round(float(effects["actuation_delay"]["delay_s"]) * rate))
@@ -178,41 +285,39 @@ def simulate_run(
         lag_keep = float(np.exp(-dt / constant)) if constant > 0 else 0.0
         truth["actuation_lag"] = {"time_constant_s": constant}
     scales = _gains_and_biases(effects, joints, path, truth)
+    return _Hidden(friction, dahl, load, cogging, spring, drift, delay_steps, lag_keep, scales, passive,
+                   cogging is not None or spring is not None)
+
+
+def _play(arms: _Arms, desired: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], hidden: _Hidden,
+          control: _Controller, link: _LinkSide | None, link_side: bool,
+          rng: np.random.Generator) -> dict[str, np.ndarray | None]:
+    """The control loop: at each sample the measured state, the controller's command, the torque the drive applies
+    (delayed, lagged, scaled) and, with a link-side sensor, the torque transmitted to the links; then the real arm's
+    substeps. Returns those per sample (``link``: None without a link-side sensor)."""
+    nominal, nominal_data, qadr, dadr = arms.nominal, arms.nominal_data, arms.qadr, arms.dadr
+    real, real_data, qadr_r, dadr_r = arms.real, arms.real_data, arms.qadr_r, arms.dadr_r
+    ctrl_index, substeps = arms.ctrl_index, arms.substeps
+    time, q_des, qd_des, qdd_des = desired
+    steps, n = len(time), len(qadr_r)
+    kp, kd, resolution, vel_noise = control.kp, control.kd, control.resolution, control.vel_noise
+    scales, friction, delay_steps, lag_keep = hidden.scales, hidden.friction, hidden.delay_steps, hidden.lag_keep
     motor_gain, motor_bias = scales["actuator_gain"], scales["command_bias"]
-    gain, bias = scales["torque_gain"], scales["torque_bias"]
-
-    sensors = scenario["sensors"]
-    # A link-side torque sensor: the rigid-body inverse dynamics of the real arm without its drive terms,
-    # at each sample's true state and acceleration (two MuJoCo calls per sample, only when tau is logged).
-    link_side = _torque_sensor(scenario, path) == "link" and "tau" in scenario["columns"]
-    # A load friction's level follows the same torque: what the gear transmits to the link.
-    if link_side or load is not None:
-        real_link = _link_side_model(mjcf_path, joints, effects, path)
-        link_data = mujoco.MjData(real_link)
-        dadr_l = np.array([real_link.jnt_dofadr[real_link.joint(j).id] for j in joints])
-    if link_side:
-        out_link = np.empty((steps, n))
-        dof_of = {int(d): i for i, d in enumerate(dadr_r)}
-    controller = scenario["controller"]
-    kp = _per_joint(controller["kp"], joints, "controller/kp", path)
-    kd = _per_joint(controller["kd"], joints, "controller/kd", path)
-    rng = np.random.default_rng(seed + 7919)  # sensor noise stream, independent of the excitation draw
-    resolution = float(sensors["encoder_resolution_rad"])
-    vel_noise = float(sensors["velocity_noise_std"])
-
+    after = friction["after"]
+    forced = hidden.passive or hidden.positional
     real_data.qpos[qadr_r] = q_des[0]
     real_data.qvel[dadr_r] = qd_des[0]
     out_q = np.empty((steps, n))
     out_qd = np.empty((steps, n))
     out_cmd = np.empty((steps, n))
     out_applied = np.empty((steps, n))
-    ctrl_index = np.array([real.actuator(f"motor_{j}").id for j in joints])
+    out_link = np.empty((steps, n)) if link_side else None
     for k in range(steps):
         q_true = real_data.qpos[qadr_r]
         qd_true = real_data.qvel[dadr_r]
         q_meas = np.round(q_true / resolution) * resolution if resolution > 0 else q_true.copy()
         qd_meas = qd_true + vel_noise * rng.standard_normal(n)
-        if controller["type"] == "computed_torque":
+        if control.kind == "computed_torque":
             acc = qdd_des[k] + kp * (q_des[k] - q_meas) + kd * (qd_des[k] - qd_meas)
             cmd = _nominal_torque(nominal, nominal_data, q_meas, qd_meas, acc, qadr, dadr)
         else:  # PD plus gravity compensation on the nominal model
@@ -225,41 +330,44 @@ def simulate_run(
             applied = lag_keep * out_applied[k - 1] + (1.0 - lag_keep) * applied
         out_q[k], out_qd[k], out_applied[k] = q_meas, qd_meas, applied
         real_data.ctrl[ctrl_index] = applied
-        if load is not None:
+        if hidden.load is not None:
             # The level the gear's load sets, held over the control step: the torque transmitted to the link at the
             # last step's acceleration (one step late: what the friction of this step does is not known before it).
-            link_data.qpos[:], link_data.qvel[:], link_data.qacc[:] = real_data.qpos, real_data.qvel, real_data.qacc
-            mujoco.mj_inverse(real_link, link_data)
-            friction["load_level"] = load_friction_level(link_data.qfrc_inverse[dadr_l], load)
+            friction["load_level"] = load_friction_level(link.torque(arms), hidden.load)  # type: ignore[union-attr]
         if link_side:
-            if passive or positional:
-                torque = np.zeros(n) if not passive else -passive_friction(real_data.qvel[dadr_r], friction)
-                real_data.qfrc_applied[dadr_r] = torque + position_torque(real_data.qpos[qadr_r])
+            if forced:
+                hidden.apply(arms)
             mujoco.mj_forward(real, real_data)  # the acceleration the step below integrates
-            link_data.qpos[:] = real_data.qpos
-            link_data.qvel[:] = real_data.qvel
-            link_data.qacc[:] = real_data.qacc
-            mujoco.mj_inverse(real_link, link_data)
-            out_link[k] = link_data.qfrc_inverse[dadr_l]
+            out_link[k] = link.torque(arms)  # type: ignore[index,union-attr]
             if np.any(after > 0):
                 # Output bearings and seals sit between the sensor and the link: the sensor transmits the
                 # link's inverse dynamics plus their share of the friction (the arm's motion is unchanged).
-                out_link[k] += after * _friction_now(real_data, qd_true, friction, dof_of)
+                out_link[k] += after * _friction_now(real_data, qd_true, friction, link.dof_of)  # type: ignore[index,union-attr]
         for _ in range(substeps):
             before = real_data.qpos[qadr_r].copy()
-            if passive or positional:
-                torque = np.zeros(n) if not passive else -passive_friction(real_data.qvel[dadr_r], friction)
-                real_data.qfrc_applied[dadr_r] = torque + position_torque(real_data.qpos[qadr_r])
+            if forced:
+                hidden.apply(arms)
             mujoco.mj_step(real, real_data)
-            if dahl is not None:  # the friction's memory follows the motion the step made
-                friction["dahl_state"] = dahl_step(friction["dahl_state"], real_data.qpos[qadr_r] - before, dahl[1])
+            if hidden.dahl is not None:  # the friction's memory follows the motion the step made
+                friction["dahl_state"] = dahl_step(friction["dahl_state"], real_data.qpos[qadr_r] - before, hidden.dahl[1])
+    return {"q": out_q, "qd": out_qd, "cmd": out_cmd, "applied": out_applied, "link": out_link}
 
-    seen = first_order_lag(out_link if link_side else out_applied, dt,
+
+def _logged(scenario: Mapping[str, Any], desired: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+            played: Mapping[str, np.ndarray | None], hidden: _Hidden, dt: float,
+            rng: np.random.Generator) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """What the logger writes: the torque sensor's reading (lagged, scaled, offset, noisy, drifting), the stamps
+    (jittered), less the rows dropped, with lone glitches, at the logger's rate; the scenario's columns only."""
+    sensors = scenario["sensors"]
+    time, q_des = desired[0], desired[1]
+    steps, n = played["q"].shape  # type: ignore[union-attr]
+    seen = first_order_lag(played["link"] if played["link"] is not None else played["applied"], dt,
                           float(sensors.get("torque_time_constant_s", 0.0)))
+    gain, bias = hidden.scales["torque_gain"], hidden.scales["torque_bias"]
     tau_sensor = gain * seen + bias + float(sensors["torque_noise_std"]) * rng.standard_normal((steps, n))
-    if drift is not None:
-        tau_sensor = tau_sensor + drift
-    signals = {"q": out_q, "qd": out_qd, "tau": tau_sensor, "tau_cmd": out_cmd, "q_cmd": q_des}
+    if hidden.drift is not None:
+        tau_sensor = tau_sensor + hidden.drift
+    signals = {"q": played["q"], "qd": played["qd"], "tau": tau_sensor, "tau_cmd": played["cmd"], "q_cmd": q_des}
     columns = set(scenario["columns"])
     jitter = float(sensors.get("stamp_jitter_s", 0.0))
     if jitter > 0:
@@ -273,7 +381,7 @@ def simulate_run(
     _glitch(signals["q"], (sensors.get("encoder_glitches") or {}).get("count", 0),
             (sensors.get("encoder_glitches") or {}).get("size_rad", 0.0), rng)
     logged[np.arange(steps) % log_every(scenario) != 0] = False  # a logger slower than the controller
-    return time[logged], {k: v[logged] for k, v in signals.items() if k in columns}, truth
+    return time[logged], {k: v[logged] for k, v in signals.items() if k in columns}  # type: ignore[index]
 
 
 def _glitch(signal: np.ndarray, count: int, size: float, rng: np.random.Generator) -> None:

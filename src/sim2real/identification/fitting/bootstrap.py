@@ -59,68 +59,32 @@ def _block_bootstrap(
         return None
     signals = problem.signals
     weights = problem.weights
-    joints = signals.n
-    # The replicates solve the same weighted problem as the fit. Without a time shift the weighted design's rows
-    # are put together block by block (DesignRows; on a long log the whole would be the largest array here).
-    design: np.ndarray | DesignRows
-    if not problem.retimed(nonlinear):
-        columns = [b for b in problem._blocks(nonlinear)[0] if b.shape[2]]
-        design = problem.weighted_rows(columns) if columns else np.zeros((len(signals.time) * joints, 0))
-    else:
-        shifted, _ = problem.shifted_design(nonlinear)  # a new array (the effects' columns put together)
-        shifted *= weights[None, :, None]
-        design = shifted.reshape(shifted.shape[0] * shifted.shape[1], shifted.shape[2])
+    design = _weighted_design(problem, nonlinear)
     # Offsets (payload inertia) are held at the estimate: the replicates are linear solves.
     target = (tau - problem.base(theta, nonlinear)) * weights
     p = design.shape[1]
     scale = column_norms(design)
     scale[scale == 0] = 1.0
     lags = np.array([float(nonlinear[shift.name][0]) for shift in shifts])
-    slopes = []  # each lag's d(prediction)/d(lag), central differences
-    for shift, lag in zip(shifts, lags, strict=True):
-        low, high = max(lag - DELAY_STEP_S, 0.0), lag + DELAY_STEP_S
-        slopes.append(weights * (problem.predict(theta, {**nonlinear, shift.name: np.array([high])})
-                                 - problem.predict(theta, {**nonlinear, shift.name: np.array([low])})) / (high - low))
-    if shifts:
-        left = weights * (tau - problem.predict(theta, nonlinear))
+    slopes = _lag_slopes(problem, theta, nonlinear, shifts, lags)
+    left = weights * (tau - problem.predict(theta, nonlinear)) if shifts else None
     dt = float(np.median(np.diff(signals.time))) if len(signals.time) > 1 else 1.0
     block = max(2, int(round(float(settings["bootstrap_block_s"]) / dt)))
-    # Gram matrices per block: a replicate is a sum of blocks, solved in p x p.
-    grams, rhs, delay_grams, delay_rhs = [], [], [], []
-    for seg in signals.segments:
-        for start in range(seg.start, seg.stop, block):
-            stop = min(start + block, seg.stop)
-            a = design[start * joints : stop * joints] / scale
-            y = target[start:stop].reshape(-1)
-            grams.append(a.T @ a)
-            rhs.append(a.T @ y)
-            if shifts:
-                delay_grams.append([[float(np.sum(a_[start:stop] * b_[start:stop])) for b_ in slopes] for a_ in slopes])
-                delay_rhs.append([float(np.sum(a_[start:stop] * left[start:stop])) for a_ in slopes])
-    grams_arr, rhs_arr = np.asarray(grams), np.asarray(rhs)
-    # (blocks, lags, lags) and (blocks, lags); one lag: the same sums as scalars
-    delay_grams_arr = np.asarray(delay_grams, dtype=float).reshape(len(delay_grams), len(shifts), len(shifts))
-    delay_rhs_arr = np.asarray(delay_rhs, dtype=float).reshape(len(delay_rhs), len(shifts))
+    grams_arr, rhs_arr, delay_grams_arr, delay_rhs_arr = _block_sums(signals, design, scale, target, slopes, left, block)
     # Replicates are unconstrained solves; their spread around the full-sample solve is centred on the
     # estimate (which may be the consistent one), so intervals describe the estimate the rung reports.
     full = np.linalg.lstsq(grams_arr.sum(axis=0), rhs_arr.sum(axis=0), rcond=1e-12)[0] / scale
     estimate = _flatten_theta(problem.effects, theta, sizes)
-    weights = np.trace(grams_arr, axis1=1, axis2=2) if p else np.trace(delay_grams_arr, axis1=1, axis2=2)
-    stretch = (small_sample_stretch(weights, float(settings["confidence"]))
+    block_weights = np.trace(grams_arr, axis1=1, axis2=2) if p else np.trace(delay_grams_arr, axis1=1, axis2=2)
+    stretch = (small_sample_stretch(block_weights, float(settings["confidence"]))
                if settings.get("bootstrap_few_blocks_correction", True) else 1.0)
     # The lags' steps are centred like the linear solves: the refinement ran on a subset of the samples.
-    full_step = _lag_steps(*_summed(delay_grams_arr, delay_rhs_arr, np.arange(len(grams))[None]))[0] if shifts else None
+    full_step = (_lag_steps(*_summed(delay_grams_arr, delay_rhs_arr, np.arange(len(grams_arr))[None]))[0]
+                 if shifts else None)
     # One draw for all replicates: the same stream as one draw per replicate, row after row (numpy's bit
     # generator keeps the unused half of a 64-bit word between calls; tests/test_sysid.py holds it to that).
-    picks = np.random.default_rng(int(settings["seed"])).integers(0, len(grams), size=(replicates, len(grams)))
-    # Each replicate's sums and solve as its own would be (the same bits), a few replicates at a time: the
-    # stacked Gram matrices of a long log's hundreds of blocks are large.
-    coefs = np.empty((replicates, p))
-    chunk = max(1, BOOTSTRAP_CHUNK_BYTES // max(1, grams_arr[:1].nbytes * len(grams)))
-    for start in range(0, replicates, chunk):
-        rows = picks[start : start + chunk]
-        coefs[start : start + chunk] = stacked_lstsq(grams_arr[rows].sum(axis=1), rhs_arr[rows].sum(axis=1)) / scale
-    thetas = estimate + stretch * (coefs - full)
+    picks = np.random.default_rng(int(settings["seed"])).integers(0, len(grams_arr), size=(replicates, len(grams_arr)))
+    thetas = estimate + stretch * (_replicate_solves(grams_arr, rhs_arr, picks, scale) - full)
     bounds = np.cumsum([0, *sizes])
     stacked = {e.name: thetas[:, bounds[k] : bounds[k + 1]] for k, e in enumerate(problem.effects)}
     replicate_nonlinear = dict(nonlinear)
@@ -131,6 +95,72 @@ def _block_bootstrap(
             replicate_nonlinear[shift.name] = np.where(
                 moved, np.clip(lags[k] + stretch * (steps[:, k] - full_step[k]), 0.0, MAX_DELAY), lags[k])[:, None]
     return stacked, replicate_nonlinear
+
+
+def _weighted_design(problem: _Problem, nonlinear: dict[str, np.ndarray]) -> np.ndarray | DesignRows:
+    """The weighted design the replicates solve, the fit's: without a time shift put together block by block
+    (DesignRows; on a long log the whole would be the largest array here)."""
+    signals = problem.signals
+    if not problem.retimed(nonlinear):
+        columns = [b for b in problem._blocks(nonlinear)[0] if b.shape[2]]
+        return problem.weighted_rows(columns) if columns else np.zeros((len(signals.time) * signals.n, 0))
+    shifted, _ = problem.shifted_design(nonlinear)  # a new array (the effects' columns put together)
+    shifted *= problem.weights[None, :, None]
+    return shifted.reshape(shifted.shape[0] * shifted.shape[1], shifted.shape[2])
+
+
+def _lag_slopes(problem: _Problem, theta: dict[str, np.ndarray], nonlinear: dict[str, np.ndarray],
+                shifts: Sequence[Effect], lags: np.ndarray) -> list[np.ndarray]:
+    """Each lag's weighted d(prediction)/d(lag), central differences."""
+    slopes = []
+    for shift, lag in zip(shifts, lags, strict=True):
+        low, high = max(lag - DELAY_STEP_S, 0.0), lag + DELAY_STEP_S
+        slopes.append(problem.weights * (problem.predict(theta, {**nonlinear, shift.name: np.array([high])})
+                                         - problem.predict(theta, {**nonlinear, shift.name: np.array([low])}))
+                      / (high - low))
+    return slopes
+
+
+def _block_sums(
+    signals: Signals,
+    design: np.ndarray | DesignRows,
+    scale: np.ndarray,
+    target: np.ndarray,
+    slopes: Sequence[np.ndarray],
+    left: np.ndarray | None,
+    block: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Gram matrices per block of ``block`` samples (within each segment; a replicate is a sum of blocks, solved in
+    p x p): the scaled design's (blocks, p, p) and its right-hand side (blocks, p), and the lags' sums of the
+    ``slopes`` with each other (blocks, lags, lags) and with the weighted residual ``left`` (blocks, lags)."""
+    joints = signals.n
+    grams, rhs, delay_grams, delay_rhs = [], [], [], []
+    for seg in signals.segments:
+        for start in range(seg.start, seg.stop, block):
+            stop = min(start + block, seg.stop)
+            a = design[start * joints : stop * joints] / scale
+            y = target[start:stop].reshape(-1)
+            grams.append(a.T @ a)
+            rhs.append(a.T @ y)
+            if slopes:
+                delay_grams.append([[float(np.sum(a_[start:stop] * b_[start:stop])) for b_ in slopes] for a_ in slopes])
+                delay_rhs.append([float(np.sum(a_[start:stop] * left[start:stop])) for a_ in slopes])  # type: ignore[index]
+    # (blocks, lags, lags) and (blocks, lags); one lag: the same sums as scalars
+    delay_grams_arr = np.asarray(delay_grams, dtype=float).reshape(len(delay_grams), len(slopes), len(slopes))
+    delay_rhs_arr = np.asarray(delay_rhs, dtype=float).reshape(len(delay_rhs), len(slopes))
+    return np.asarray(grams), np.asarray(rhs), delay_grams_arr, delay_rhs_arr
+
+
+def _replicate_solves(grams: np.ndarray, rhs: np.ndarray, picks: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Each replicate's (row of ``picks``) solve of its blocks' summed Gram matrices, (replicates, p): the same bits
+    as its own sums and solve would be, a few replicates at a time (the stacked Gram matrices of a long log's hundreds
+    of blocks are large)."""
+    coefs = np.empty((len(picks), len(scale)))
+    chunk = max(1, BOOTSTRAP_CHUNK_BYTES // max(1, grams[:1].nbytes * len(grams)))
+    for start in range(0, len(picks), chunk):
+        rows = picks[start : start + chunk]
+        coefs[start : start + chunk] = stacked_lstsq(grams[rows].sum(axis=1), rhs[rows].sum(axis=1)) / scale
+    return coefs
 
 
 def _summed(grams: np.ndarray, rhs: np.ndarray, picks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

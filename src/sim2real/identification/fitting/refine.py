@@ -64,14 +64,7 @@ def _refine_nonlinear(
     lower = np.concatenate([e.nonlinear_bounds(signals)[0] for e in problem.effects])
     upper = np.concatenate([e.nonlinear_bounds(signals)[1] for e in problem.effects])
     held = np.concatenate([np.full(s, e.name in fixed) for e, s in zip(problem.effects, problem.nl_sizes, strict=True)])
-    # A previous value at its bound sits on a plateau (a sigmoid at its steepest is a sign function for every
-    # sample: its slope no longer moves the residual), where the refinement cannot leave it: start that one
-    # from its default instead.
-    default = np.concatenate(
-        [np.asarray(e.nonlinear_init(signals), dtype=float) for e in problem.effects] or [np.zeros(0)]
-    )
-    at_bound = ~held & ((x0 <= lower + 1e-9 * np.abs(lower)) | (x0 >= upper - 1e-9 * np.abs(upper)))
-    x0 = np.where(at_bound & (lower < upper), default, x0)
+    x0 = _off_the_bounds(problem, x0, lower, upper, held)
     if held.all():
         return problem.split_nonlinear(x0)
     rows, windows = refinement_rows(signals, int(settings["refine_max_samples"]), settings.get("refine_windows_s"))
@@ -80,26 +73,43 @@ def _refine_nonlinear(
         sub_signals.segments = windows
     sub = _Problem(problem.effects, sub_signals, problem.states, problem.weights, reuse_design=True)
     sub_tau = tau[rows]
+    cache = _refinement_cache(problem, fixed)
+    _start_delays(problem, sub, sub_tau, cache, begin, x0)
+    _start_periods(problem, sub, sub_tau, begin, x0, lower, upper)
+    return problem.split_nonlinear(_least_squares(problem, sub, sub_tau, cache, x0, lower, upper, ~held))
 
-    free = ~held
-    # While the delay stays put, so do the columns of the effects without nonlinear parameters (the link
-    # inertias, a rotor inertia): their part of the Gram matrix is computed once. While it moves, only those the
-    # lags leave where they are (a drive's on the drive side) stay put.
+
+def _off_the_bounds(problem: _Problem, x0: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                    held: np.ndarray) -> np.ndarray:
+    """``x0``, each free value at its bound replaced by its default: a previous value at its bound sits on a plateau
+    (a sigmoid at its steepest is a sign function for every sample: its slope no longer moves the residual), where
+    the refinement cannot leave it."""
+    default = np.concatenate(
+        [np.asarray(e.nonlinear_init(problem.signals), dtype=float) for e in problem.effects] or [np.zeros(0)]
+    )
+    at_bound = ~held & ((x0 <= lower + 1e-9 * np.abs(lower)) | (x0 >= upper - 1e-9 * np.abs(upper)))
+    return np.where(at_bound & (lower < upper), default, x0)
+
+
+def _refinement_cache(problem: _Problem, fixed: Mapping[str, np.ndarray]) -> _GramCache | None:
+    """While the delay stays put, so do the columns of the effects without nonlinear parameters (the link
+    inertias, a rotor inertia): their part of the Gram matrix is computed once. While it moves, only those the
+    lags leave where they are (a drive's on the drive side) stay put."""
     delay_moves = any(e.time_shift and e.name not in fixed for e in problem.effects)
     stays_put = any(e.name in problem.static_columns and problem.held_in_time(e) for e in problem.effects)
-    cache = (_GramCache(time_moves=True) if stays_put else None) if delay_moves else _GramCache()
+    return (_GramCache(time_moves=True) if stays_put else None) if delay_moves else _GramCache()
 
+
+def _start_delays(problem: _Problem, sub: _Problem, sub_tau: np.ndarray, cache: _GramCache | None,
+                  begin: Mapping[str, np.ndarray], x0: np.ndarray) -> None:
+    """A delay has local minima at multiples of the signal's periods, and between samples where the
+    interpolation averages white noise away: each one not in ``begin`` starts (in ``x0``, in place) from the best of
+    a grid no coarser than the sampling step."""
     def residual_full(x: np.ndarray) -> np.ndarray:
         fitted = _linear_fit(sub, sub_tau, sub.split_nonlinear(x), iterations=1, cache=cache, bounded=True)
         return (fitted[1] * sub.weights).reshape(-1)
 
-    def with_free(values: np.ndarray) -> np.ndarray:
-        x = x0.copy()
-        x[free] = values
-        return x
-
-    # A delay has local minima at multiples of the signal's periods, and between samples where the
-    # interpolation averages white noise away: start from a grid no coarser than the sampling step.
+    sub_signals = sub.signals
     offset = 0
     for effect, size in zip(problem.effects, problem.nl_sizes, strict=True):
         if effect.time_shift and effect.name not in begin:
@@ -112,8 +122,14 @@ def _refine_nonlinear(
                 costs.append(float(np.sum(residual_full(x) ** 2)))
             x0[offset] = grid[int(np.argmin(costs))]
         offset += size
-    # A period has a local minimum at every other one: start where the residual of the model without the effect
-    # repeats most (Effect.search_start), that model's linear coefficients fitted at the start's other values.
+
+
+def _start_periods(problem: _Problem, sub: _Problem, sub_tau: np.ndarray, begin: Mapping[str, np.ndarray],
+                   x0: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
+    """A period has a local minimum at every other one: each one not in ``begin`` starts (in ``x0``, in place) where
+    the residual of the model without the effect repeats most (Effect.search_start), that model's linear
+    coefficients fitted at the start's other values."""
+    sub_signals = sub.signals
     offset = 0
     for effect, size in zip(problem.effects, problem.nl_sizes, strict=True):
         if effect.searched and effect.name not in begin:
@@ -124,15 +140,26 @@ def _refine_nonlinear(
             x0[offset:offset + size] = np.clip(effect.search_start(sub_signals, rest), lower[offset:offset + size],
                                                upper[offset:offset + size])
         offset += size
+
+
+def _least_squares(problem: _Problem, sub: _Problem, sub_tau: np.ndarray, cache: _GramCache | None, x0: np.ndarray,
+                   lower: np.ndarray, upper: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """The free values refined from ``x0`` by bounded least squares (trust region reflective, the Jacobian by
+    variable projection), smoothing velocities through their logarithm; the held ones as in ``x0``."""
     # Smoothing velocities span decades: optimise their logarithm.
     log_mask = np.concatenate(
-        [np.asarray(e.nonlinear_log_scale(signals), dtype=bool) for e in problem.effects]
+        [np.asarray(e.nonlinear_log_scale(problem.signals), dtype=bool) for e in problem.effects]
     )
 
     def to_z(x: np.ndarray) -> np.ndarray:
         z = x.copy()
         z[log_mask] = np.log(x[log_mask])
         return z
+
+    def with_free(values: np.ndarray) -> np.ndarray:
+        x = x0.copy()
+        x[free] = values
+        return x
 
     z_lower, z_upper = to_z(lower)[free], to_z(upper)[free]
     z0 = np.clip(to_z(x0)[free], z_lower, z_upper)
@@ -148,7 +175,7 @@ def _refine_nonlinear(
         jacobian.residual, z0, jac=jacobian, bounds=(z_lower, z_upper), method="trf", x_scale="jac",
         max_nfev=60, xtol=1e-4, ftol=1e-6,
     )
-    return problem.split_nonlinear(to_x_free(result.x))
+    return to_x_free(result.x)
 
 
 class _ProjectedJacobian:

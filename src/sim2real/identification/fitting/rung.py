@@ -224,79 +224,23 @@ def _consistent_fit(
     with its own columns and lower bounds. Offsets that are not linear (a payload's own inertia) are
     held at the current estimate and updated by fixed-point iteration, as in the unconstrained fit.
     """
-    from sim2real.identification.inertial import (PRIOR_GRID, DesignRows, InfeasibleFit, choose_prior_weight, grid_around,
-                                                  physically_consistent, solve_consistent)
+    from sim2real.identification.inertial import InfeasibleFit
 
-    signals = problem.signals
     blocks, lower, inertial = _consistent_blocks(problem, nonlinear)
     if free_residual is None:
         free_residual = data.tau - problem.predict(theta_free, nonlinear)
     record: dict[str, Any] = {"notes": []}
     if not blocks:
         return theta_free, free_residual, record
-    # In the data term's units (each joint by its floor). On a long log the largest array of the fit: without a
-    # time shift its rows are put together a chunk at a time (DesignRows), never whole; the same bits.
-    weighted: np.ndarray | DesignRows
-    if not problem.retimed(nonlinear):
-        weighted = problem.weighted_rows([b[2] for b in blocks])
-    else:
-        weighted = problem.shift(np.concatenate([b[2] for b in blocks], axis=2), [b[0] for b in blocks],
-                                 [b[2].shape[2] for b in blocks], nonlinear)  # a new array: weighted in place
-        weighted *= problem.weights[None, :, None]
+    weighted = _consistent_design(problem, nonlinear, blocks)
     bounds = np.concatenate(lower)
     floor = float(np.mean(np.asarray(data.noise_floor, dtype=float) ** 2))
-    relative = settings["inertia_regularization"]
-    if relative == "held_out":
-        relative = INERTIA_PRIOR_FALLBACK
-        if inertial is not None:
-            try:
-                start = settings.get(PRIOR_START_SETTING)
-                choice = choose_prior_weight(weighted, (data.tau - problem.base({}, nonlinear)) * problem.weights,
-                                             bounds, inertial, max(floor, 1e-12),
-                                             grid=PRIOR_GRID if start is None else grid_around(float(start)))
-                relative = choice.weight
-                first_grid = (", ".join(f"{g:g}" for g in PRIOR_GRID) if start is None
-                              else "the previous rung's weight and a decade either side")
-                bound = {"weakest": "; at the weakest pull searched: the held-out error still fell as the pull "
-                         "weakened, so the data ask for inertias freer than the search allows",
-                         "strongest": "; at the strongest pull searched: the held-out data see no cost in holding "
-                         "the inertias at CAD"}.get(choice.bound or "", "")
-                record["inertia_prior"] = {
-                    "weight": choice.weight, "grid": choice.grid, "scores": choice.scores,
-                    "inside_searched_range": choice.bound is None,
-                    "chosen_by": f"cross-validation on {choice.blocks} held-out blocks of the fit runs (the strongest "
-                    f"pull towards CAD within 1% of the best held-out error, the search going on past its first grid "
-                    f"({first_grid}) while the scores say so; weights are fractions of the noise floor's variance, "
-                    f"scores held-out RMS in N*m, each joint weighted by its floor){bound}"}
-            except InfeasibleFit:
-                pass  # the rung's own solve below says what failed
-    elif inertial is not None:
-        record["inertia_prior"] = {"weight": float(relative), "chosen_by": "the model.yaml setting "
-                                   "fit.inertia_regularization (a fraction of the noise floor's variance)"}
+    relative, prior = _inertia_prior(problem, data, nonlinear, weighted, bounds, inertial, settings, floor)
+    if prior is not None:
+        record["inertia_prior"] = prior
     weight = float(relative) * max(floor, 1e-12)
-    has_offset = any(type(e).offset is not Effect.offset and e.name != "link_inertia" for e in problem.effects)
-    theta: dict[str, np.ndarray] = {}
-    solve_time = 0.0
     try:
-        for _ in range(3 if has_offset else 1):
-            solution = solve_consistent(weighted, (data.tau - problem.base(theta, nonlinear)) * problem.weights,
-                                        bounds, inertial, weight)
-            solve_time += solution.solve_time_s
-            for effect, cols, _ in blocks:
-                coefficients = solution.coefficients[cols]
-                if effect.name == "link_inertia":
-                    coefficients = effect.set_correction(problem.states[effect.name], coefficients)
-                theta[effect.name] = coefficients
-        for effect in problem.effects:
-            theta.setdefault(effect.name, np.zeros(0))  # a time shift has no linear coefficients
-        if inertial is not None:
-            # The solver's fallback tolerances (ConicForm.solve) can end a hair outside the physical set: a
-            # solution that is not consistent is not one.
-            state = problem.states["link_inertia"]
-            if not physically_consistent(inertial.anchors.reshape(-1) + state["basis"] @ theta["link_inertia"]
-                                         + state["null_offset"]):
-                raise InfeasibleFit(f"the solver's solution ({solution.status}) leaves a body's pseudo-inertia "
-                                    "indefinite")
+        theta, status, solve_time = _solve_physical(problem, data, nonlinear, weighted, bounds, inertial, weight, blocks)
     except InfeasibleFit as exc:
         record["status"] = "infeasible"
         record["notes"].append(
@@ -306,7 +250,99 @@ def _consistent_fit(
         return theta_free, free_residual, record
     del weighted  # before the prediction (a long log's largest array, when it was put together)
     residual = data.tau - problem.predict(theta, nonlinear)
-    record.update({"status": solution.status, "solve_time_s": solve_time})
+    record.update({"status": status, "solve_time_s": solve_time})
+    _contradiction(problem, theta_free, free_residual, residual, floor, record)
+    return theta, residual, record
+
+
+def _consistent_design(problem: _Problem, nonlinear: Mapping[str, np.ndarray],
+                       blocks: Sequence[tuple[Effect, slice, np.ndarray]]) -> Any:
+    """The consistent fit's columns in the data term's units (each joint by its floor). On a long log the largest
+    array of the fit: without a time shift its rows are put together a chunk at a time (DesignRows), never whole; the
+    same bits."""
+    if not problem.retimed(nonlinear):
+        return problem.weighted_rows([b[2] for b in blocks])
+    weighted = problem.shift(np.concatenate([b[2] for b in blocks], axis=2), [b[0] for b in blocks],
+                             [b[2].shape[2] for b in blocks], nonlinear)  # a new array: weighted in place
+    weighted *= problem.weights[None, :, None]
+    return weighted
+
+
+def _inertia_prior(problem: _Problem, data: TorqueData, nonlinear: Mapping[str, np.ndarray], weighted: Any,
+                   bounds: np.ndarray, inertial: Any, settings: Mapping[str, Any],
+                   floor: float) -> tuple[Any, dict[str, Any] | None]:
+    """The pull of the link inertias towards CAD (a fraction of the noise floor's variance: model.yaml's
+    fit.inertia_regularization, or chosen by cross-validation when it says ``held_out``) and its record (None without
+    link inertias, or when the cross-validation found no feasible fit)."""
+    from sim2real.identification.inertial import PRIOR_GRID, InfeasibleFit, choose_prior_weight, grid_around
+
+    relative = settings["inertia_regularization"]
+    if relative != "held_out":
+        if inertial is None:
+            return relative, None
+        return relative, {"weight": float(relative), "chosen_by": "the model.yaml setting "
+                          "fit.inertia_regularization (a fraction of the noise floor's variance)"}
+    if inertial is None:
+        return INERTIA_PRIOR_FALLBACK, None
+    try:
+        start = settings.get(PRIOR_START_SETTING)
+        choice = choose_prior_weight(weighted, (data.tau - problem.base({}, nonlinear)) * problem.weights,
+                                     bounds, inertial, max(floor, 1e-12),
+                                     grid=PRIOR_GRID if start is None else grid_around(float(start)))
+    except InfeasibleFit:
+        return INERTIA_PRIOR_FALLBACK, None  # the rung's own solve says what failed
+    first_grid = (", ".join(f"{g:g}" for g in PRIOR_GRID) if start is None
+                  else "the previous rung's weight and a decade either side")
+    bound = {"weakest": "; at the weakest pull searched: the held-out error still fell as the pull "
+             "weakened, so the data ask for inertias freer than the search allows",
+             "strongest": "; at the strongest pull searched: the held-out data see no cost in holding "
+             "the inertias at CAD"}.get(choice.bound or "", "")
+    return choice.weight, {
+        "weight": choice.weight, "grid": choice.grid, "scores": choice.scores,
+        "inside_searched_range": choice.bound is None,
+        "chosen_by": f"cross-validation on {choice.blocks} held-out blocks of the fit runs (the strongest "
+        f"pull towards CAD within 1% of the best held-out error, the search going on past its first grid "
+        f"({first_grid}) while the scores say so; weights are fractions of the noise floor's variance, "
+        f"scores held-out RMS in N*m, each joint weighted by its floor){bound}"}
+
+
+def _solve_physical(problem: _Problem, data: TorqueData, nonlinear: Mapping[str, np.ndarray], weighted: Any,
+                    bounds: np.ndarray, inertial: Any, weight: float,
+                    blocks: Sequence[tuple[Effect, slice, np.ndarray]]) -> tuple[dict[str, np.ndarray], str, float]:
+    """(theta, the solver's status, its time) of the physically consistent solve; offsets that are not linear (a
+    payload's own inertia) by fixed-point iteration. Raises InfeasibleFit when there is no consistent solution."""
+    from sim2real.identification.inertial import InfeasibleFit, physically_consistent, solve_consistent
+
+    has_offset = any(type(e).offset is not Effect.offset and e.name != "link_inertia" for e in problem.effects)
+    theta: dict[str, np.ndarray] = {}
+    solve_time = 0.0
+    for _ in range(3 if has_offset else 1):
+        solution = solve_consistent(weighted, (data.tau - problem.base(theta, nonlinear)) * problem.weights,
+                                    bounds, inertial, weight)
+        solve_time += solution.solve_time_s
+        for effect, cols, _ in blocks:
+            coefficients = solution.coefficients[cols]
+            if effect.name == "link_inertia":
+                coefficients = effect.set_correction(problem.states[effect.name], coefficients)
+            theta[effect.name] = coefficients
+    for effect in problem.effects:
+        theta.setdefault(effect.name, np.zeros(0))  # a time shift has no linear coefficients
+    if inertial is not None:
+        # The solver's fallback tolerances (ConicForm.solve) can end a hair outside the physical set: a
+        # solution that is not consistent is not one.
+        state = problem.states["link_inertia"]
+        if not physically_consistent(inertial.anchors.reshape(-1) + state["basis"] @ theta["link_inertia"]
+                                     + state["null_offset"]):
+            raise InfeasibleFit(f"the solver's solution ({solution.status}) leaves a body's pseudo-inertia "
+                                "indefinite")
+    return theta, solution.status, solve_time
+
+
+def _contradiction(problem: _Problem, theta_free: dict[str, np.ndarray], free_residual: np.ndarray,
+                   residual: np.ndarray, floor: float, record: dict[str, Any]) -> None:
+    """Whether the unconstrained fit is physical, into ``record``; when it is not and fits clearly better than the
+    physical one, the data contradict a physical model with these effects: a note says so."""
+    signals = problem.signals
     free_physical = _physical(problem, theta_free, signals)
     record["unconstrained_physical"] = free_physical
     # Compared as fitted: in the weighted units of the data term, where white noise at the floors is the arm's floor.
@@ -323,7 +359,6 @@ def _consistent_fit(
             "noise floor). An effect is missing, or the "
             "torque columns' sign or units are wrong"
         )
-    return theta, residual, record
 
 
 def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -> tuple[
