@@ -31,7 +31,8 @@ from sim2real.excitation.config import load_design  # noqa: E402
 from sim2real.excitation.information import Identification, condition_number, identification_effects  # noqa: E402
 from sim2real.identification.fitting import load_nominal  # noqa: E402
 from sim2real.measurements import load_prepared_runs  # noqa: E402
-from sim2real.identification.sysid import load_model_config, run_sysid  # noqa: E402
+from sim2real.identification.model_config import load_model_config  # noqa: E402
+from sim2real.identification.sysid import SysidFiles, run_sysid  # noqa: E402
 
 CASES = {"random (lab)": "real_arm_like", "designed": "real_arm_like_designed",
          "designed (D)": "real_arm_like_d_optimal"}
@@ -119,9 +120,9 @@ def main() -> None:
             step = max(1, len(fit_run.time) // 2000)
             cond = condition_number(ident.matrix(fit_run.q[::step], fit_run.qd[::step], fit_run.qdd[::step]))
             out = Path(tmp) / scenario / Path(holdout).parent.name
-            document = run_sysid("panda", tree / "results/panda/panda.urdf", tree / "configs/panda/robot.yaml",
-                                 tree / "configs/panda/model.yaml", listing, out / "ladder.json",
-                                 out / "params.yaml", out / "calibration.yaml", root=tree)
+            document = run_sysid("panda", SysidFiles(tree / "results/panda/panda.urdf", tree / "configs/panda/robot.yaml",
+                                                     tree / "configs/panda/model.yaml", listing, out / "ladder.json",
+                                                     out / "params.yaml", out / "calibration.yaml", root=tree))
             rung = document["ladder"][-1]
             link = rung["params"]["link_inertia"]
             widths = interval_widths(rung.get("intervals") or {})

@@ -85,7 +85,7 @@ def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiproc
     from sim2real.report import gap as report
     from sim2real.measurements import prepare_for_model, write_prepared_runs
     from sim2real.report.figures import FIGURES
-    from sim2real.identification.sysid import run_sysid
+    from sim2real.identification import sysid
 
     t = Path(tree)
     o = Path(out)
@@ -96,9 +96,12 @@ def one_rule(rule: str, tree: str, measurements: str, out: str, queue: multiproc
     if rule == "prepare_runs":  # once per log: a round reads the prepared runs
         write_prepared_runs(prepared, prepare_for_model(measurements, t / "results/panda/panda.urdf", t))
     elif rule == "sysid":
-        run_sysid("panda", t / "results/panda/panda.urdf", t / "configs/panda/robot.yaml",
-                  t / "configs/panda/model.yaml", prepared, o / "ladder.json", o / "params.yaml",
-                  o / "calibration.yaml", root=t, residuals_npz=o / "residuals.npz")
+        paths = (t / "results/panda/panda.urdf", t / "configs/panda/robot.yaml", t / "configs/panda/model.yaml",
+                 prepared, o / "ladder.json", o / "params.yaml", o / "calibration.yaml")
+        if hasattr(sysid, "SysidFiles"):
+            sysid.run_sysid("panda", sysid.SysidFiles(*paths, root=t, residuals=o / "residuals.npz"))
+        else:  # a commit before SysidFiles
+            sysid.run_sysid("panda", *paths, root=t, residuals_npz=o / "residuals.npz")
     else:
         urdf, mjcf = t / "results/panda/panda.urdf", t / "results/panda/mjcf/panda.xml"
         figures = {k: o / f"{k}.png" for k in FIGURES}

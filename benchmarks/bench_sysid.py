@@ -224,7 +224,7 @@ def _friction_ours(nominal, data, speed: float = SLIDING_SPEED, settings: dict[s
     for index, joint in enumerate(JOINTS):
         rows = sliding_rows(data, index, speed)
         result = fitting.fit(["coulomb_friction"], nominal, data.subset(rows), settings,
-                           signals=subset_signals(signals, rows), nonlinear_fixed=held)
+                           signals=subset_signals(signals, rows), nonlinear=fitting.Nonlinear(held=held))
         values[index] = result.values["coulomb_friction"]["friction"][joint]
         bounds[index] = result.intervals.get("coulomb_friction", {}).get("friction", {}).get(joint, [np.nan] * 2)
     return _friction_with(result, nominal, values), values, bounds
@@ -670,7 +670,7 @@ def section_actuator(ctx: Context) -> None:
                 for uncertainty, bucket in ((False, times), (True, boot)):
                     started = time.perf_counter()
                     result = fitting.fit(effects, None, fit_data, settings, signals=signals["fit"],
-                                         uncertainty=uncertainty, nonlinear_fixed=held)
+                                         uncertainty=uncertainty, nonlinear=fitting.Nonlinear(held=held))
                     bucket.append(time.perf_counter() - started)
             held = result.nonlinear
             rmse = fitting.holdout_metrics(result, None, holdout, signals["holdout"])[0]["torque_rmse"]["overall"]

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 import yaml
 
 from gap_fixtures import build_dev_panda
+from sim2real.identification.fitting import Nonlinear
 from sim2real.identification.effects import EFFECTS, apply_to_spec, calibration_from_params, get_effect, spec_edit_from_params
 from sim2real.errors import InputError
 
@@ -178,9 +179,9 @@ def test_asymmetric_friction_works_as_a_candidate_on_top_of_coulomb_friction(mot
     current = fit(["coulomb_friction"], None, data, signals=signals, uncertainty=False)
     held = {"coulomb_friction": current.nonlinear["coulomb_friction"]}
     added = fit(["coulomb_friction", "asymmetric_friction"], None, data, signals=signals, uncertainty=False,
-                nonlinear_fixed=held)
+                nonlinear=Nonlinear(held=held))
     bias = fit(["coulomb_friction", "torque_bias"], None, data, signals=signals, uncertainty=False,
-               nonlinear_fixed=held)
+               nonlinear=Nonlinear(held=held))
     assert added.fit_rmse["overall"] <= 1.1 * 0.01 < 0.2 * current.fit_rmse["overall"]
     assert added.fit_rmse["overall"] < 0.5 * bias.fit_rmse["overall"]  # an offset is not a constant bias
     values = added.values["asymmetric_friction"]

@@ -186,7 +186,7 @@ def test_the_run_that_separates_confounded_candidates(designed: Path, tmp_path: 
     """Too slow a run cannot tell viscous from Coulomb friction; gap.md names the separating design's target;
     once the lab has played that run and it is added to the fit runs, the diagnosis tells them apart."""
     from sim2real.lab import run_lab_scenario_run
-    from sim2real.identification.sysid import run_sysid
+    from sim2real.identification.sysid import SysidFiles, run_sysid
 
     lab = yaml.safe_load((designed / "configs/panda/lab.yaml").read_text())
     scenario = lab["scenarios"]["slow_viscous"]
@@ -212,8 +212,8 @@ def test_the_run_that_separates_confounded_candidates(designed: Path, tmp_path: 
     for run in ("fit", "holdout"):
         run_lab_scenario_run(mjcf, lab_config, "panda", "slow_viscous", run, tmp_path / f"{run}.parquet")
     ladder = tmp_path / "ladder.json"
-    before = worded(run_sysid("panda", urdf, robot, model, runs("fit", "holdout"), ladder, tmp_path / "p.yaml",
-                              tmp_path / "c.yaml"), "panda")["diagnosis"]
+    before = worded(run_sysid("panda", SysidFiles(urdf, robot, model, runs("fit", "holdout"), ladder,
+                                                  tmp_path / "p.yaml", tmp_path / "c.yaml")), "panda")["diagnosis"]
     assert ["viscous_friction", "coulomb_friction"] in before["confounded"]
     assert f"`snakemake results/panda/excitation/{separating}.csv`" in before["verdict"]
 
@@ -231,8 +231,8 @@ def test_the_run_that_separates_confounded_candidates(designed: Path, tmp_path: 
 
     run_lab_scenario_run(mjcf, lab_config, "panda", "slow_viscous", "separating", tmp_path / "separating.parquet",
                          excitation=outputs["csv"])
-    after = run_sysid("panda", urdf, robot, model, runs("fit", "separating", "holdout"), tmp_path / "ladder2.json",
-                      tmp_path / "p.yaml", tmp_path / "c.yaml")["diagnosis"]
+    after = run_sysid("panda", SysidFiles(urdf, robot, model, runs("fit", "separating", "holdout"),
+                                          tmp_path / "ladder2.json", tmp_path / "p.yaml", tmp_path / "c.yaml"))["diagnosis"]
     assert after["confounded"] == []
     assert after["status"] == "add_effect" and after["candidates"][0]["effect"] == "viscous_friction"
     coulomb = next(c for c in after["candidates"] if c["effect"] == "coulomb_friction")

@@ -106,8 +106,9 @@ def test_a_round_after_one_added_line_refits_only_the_new_rung_and_writes_the_sa
         model = tmp_path / "model.yaml"
         model.write_text(yaml.safe_dump({"effects": effects}) + settings)
         fitted.clear()
-        sysid.run_sysid("panda", PANDA_URDF, tmp_path / "robot.yaml", model, tmp_path / "measurements.yaml",
-                        out / "ladder.json", out / "params.yaml", out / "calibration.yaml", root=tmp_path,
+        sysid.run_sysid("panda", sysid.SysidFiles(PANDA_URDF, tmp_path / "robot.yaml", model,
+                                                  tmp_path / "measurements.yaml", out / "ladder.json",
+                                                  out / "params.yaml", out / "calibration.yaml", root=tmp_path),
                         cache_dir=cache)
         return [(out / name).read_bytes() for name in ("ladder.json", "params.yaml", "calibration.yaml")]
 

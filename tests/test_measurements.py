@@ -456,14 +456,14 @@ def _counting_reads(monkeypatch):
 def test_each_rule_reads_each_run_file_once(tmp_path, monkeypatch):
     """sysid and the gap report, given the list, read every run's table and metadata, and the list, exactly once."""
     from sim2real.report.gap import GapInputs, compute_gap
-    from sim2real.identification.sysid import run_sysid
+    from sim2real.identification.sysid import SysidFiles, run_sysid
 
     urdf, mjcf, listing = _two_logged_runs(tmp_path)
     reads = _counting_reads(monkeypatch)
     once = {"measurements.yaml": 1, "a.csv": 1, "a.yaml": 1, "b.parquet": 1, "b.yaml": 1}
     out = tmp_path / "out"
-    run_sysid("panda", urdf, tmp_path / "robot.yaml", tmp_path / "model.yaml", listing,
-              out / "ladder.json", out / "params.yaml", out / "calibration.yaml", root=tmp_path)
+    run_sysid("panda", SysidFiles(urdf, tmp_path / "robot.yaml", tmp_path / "model.yaml", listing,
+                                  out / "ladder.json", out / "params.yaml", out / "calibration.yaml", root=tmp_path))
     assert reads == once
     reads.clear()
     compute_gap(GapInputs("panda", urdf, mjcf, listing, root=tmp_path))
@@ -475,7 +475,7 @@ def test_prepared_runs_are_read_back_exactly_and_the_rules_read_no_run_file(tmp_
     sysid and the gap report give what they give from the list, without reading or filtering a run again."""
     from sim2real.report.gap import GapInputs, compute_gap
     from sim2real.measurements import prepare_for_model, read_prepared_runs, write_prepared_runs
-    from sim2real.identification.sysid import run_sysid
+    from sim2real.identification.sysid import SysidFiles, run_sysid
 
     urdf, mjcf, listing = _two_logged_runs(tmp_path)
     prepared = prepare_for_model(listing, urdf, root=tmp_path)
@@ -490,8 +490,8 @@ def test_prepared_runs_are_read_back_exactly_and_the_rules_read_no_run_file(tmp_
             assert (a is None and b is None) or (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), item.name
 
     def sysid(source, out):
-        run_sysid("panda", urdf, tmp_path / "robot.yaml", tmp_path / "model.yaml", source, out / "ladder.json",
-                  out / "params.yaml", out / "calibration.yaml", root=tmp_path)
+        run_sysid("panda", SysidFiles(urdf, tmp_path / "robot.yaml", tmp_path / "model.yaml", source,
+                                      out / "ladder.json", out / "params.yaml", out / "calibration.yaml", root=tmp_path))
         return (out / "ladder.json").read_bytes()
 
     from_list = sysid(listing, tmp_path / "list")

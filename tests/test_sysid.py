@@ -260,10 +260,10 @@ def test_real_log_mode_without_commands(tmp_path):
     (tmp_path / "model.yaml").write_text("effects:\n- coulomb_friction\nfit: {bootstrap_replicates: 20, fit_rate_hz: 100}\n")
     (tmp_path / "robot.yaml").write_text(yaml.safe_dump({"armature": {"panda_joint*": 0.1}, "flange": "panda_link8"}))
     out = tmp_path / "out"
-    document = sysid.run_sysid(
-        "panda", PANDA_URDF, tmp_path / "robot.yaml", tmp_path / "model.yaml", tmp_path / "measurements.yaml",
+    document = sysid.run_sysid("panda", sysid.SysidFiles(
+        PANDA_URDF, tmp_path / "robot.yaml", tmp_path / "model.yaml", tmp_path / "measurements.yaml",
         out / "ladder.json", out / "params.yaml", out / "calibration.yaml", root=tmp_path,
-    )
+    ))
     assert document["state_domain"]["status"] == "skipped"
     assert document["state_domain"]["reason"] == "no_commands"  # nothing to replay
     assert "actuation_delay" in [s["effect"] for s in document["diagnosis"]["skipped"]]

@@ -193,10 +193,7 @@ def _rung(effects: Sequence[str], context: FitContext, previous: Mapping[str, np
     """One rung of :func:`fit_ladder` (:func:`fit_on_the_previous`) and, where it is constrained, the holdout
     metrics of the same rung without the constraints: (fit, holdout residual, how its nonlinear parameters were
     carried, unconstrained metrics or None), kept whole by the fit cache."""
-    result, residual, carried = fit_on_the_previous(
-        effects, context.nominal, context.fit_data, context.holdout_data, previous, context.settings,
-        fit_signals=context.fit_signals, holdout_signals=context.holdout_signals, workers=context.workers,
-        refinements=context.refinements)
+    result, residual, carried = fit_on_the_previous(effects, context, previous)
     free = None
     if result.unconstrained is not None and result.consistency:
         free, _ = holdout_metrics(result.unconstrained, context.nominal, context.holdout_data, context.holdout_signals)
@@ -329,55 +326,58 @@ def _drive_side(effect_names: Sequence[str], nominal: NominalModel, runs: Mappin
                       limits=settings.get("diagnosis"), cache=cache)
 
 
-@one_blas_thread
-def run_sysid(
-    robot: str,
-    urdf_path: str | Path,
-    robot_config_path: str | Path,
-    model_config_path: str | Path,
-    measurement_list: str | Path,
-    ladder_json: str | Path,
-    params_yaml: str | Path,
-    calibration_yaml: str | Path,
-    root: str | Path = ".",
-    threads: int = 1,
-    cache_dir: str | Path | None = None,
-    residuals_npz: str | Path | None = None,
-    robot_settings: Mapping[str, Any] | None = None,
-) -> dict[str, Any]:
-    """Files in, files out: the ladder (with diagnosis), the fitted parameters and the calibration; the last
-    rung's residuals (``residuals_npz``, :func:`write_model_residuals`) for the gap report.
-    ``robot_settings``: ``robot_config_path``'s content, when already read (the DAG passes it as params).
+@dataclasses.dataclass(frozen=True)
+class SysidFiles:
+    """The sysid rule's files: the URDF, robot.yaml, model.yaml and the runs (a measurement list, or the runs prepared
+    from it: ``prepare_runs``, ``.npz``; relative paths of a list against ``root``) it reads; ladder.json,
+    params.yaml, calibration.yaml and the last rung's residuals (None: not written, :func:`write_model_residuals`)
+    it writes."""
 
-    ``measurement_list``: the measurement list, or the runs prepared from it (``prepare_runs``, ``.npz``);
-    ``threads``: the diagnosis fits its candidates on that many processes (BLAS on one thread each);
-    ``cache_dir``: where the rungs and diagnoses are kept for the next round (:class:`FitCache`; None: not kept).
+    urdf: str | Path
+    robot_config: str | Path
+    model_config: str | Path
+    measurements: str | Path
+    ladder: str | Path
+    params: str | Path
+    calibration: str | Path
+    root: str | Path = "."
+    residuals: str | Path | None = None
+
+
+@one_blas_thread
+def run_sysid(robot: str, files: SysidFiles, threads: int = 1, cache_dir: str | Path | None = None,
+              robot_settings: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Files in, files out (:class:`SysidFiles`): the ladder (with diagnosis), the fitted parameters and the
+    calibration; the last rung's residuals for the gap report. ``robot_settings``: robot.yaml's content, when already
+    read (the DAG passes it as params); ``threads``: the diagnosis fits its candidates on that many processes (BLAS on
+    one thread each); ``cache_dir``: where the rungs and diagnoses are kept for the next round (:class:`FitCache`;
+    None: not kept).
     """
     from sim2real.identification.effects import calibration_from_params
     from sim2real.files import read_yaml, write_json, write_yaml
     from sim2real.measurements import FIT_ARRAYS, runs_for_model
 
-    model_config = load_model_config(model_config_path)
-    robot_config = dict(robot_settings) if robot_settings is not None else (read_yaml(robot_config_path) or {})
-    runs = runs_for_model(measurement_list, urdf_path, root, FIT_ARRAYS)
+    model_config = load_model_config(files.model_config)
+    robot_config = dict(robot_settings) if robot_settings is not None else (read_yaml(files.robot_config) or {})
+    runs = runs_for_model(files.measurements, files.urdf, files.root, FIT_ARRAYS)
     joints = runs[0].joint_names
     cache = FitCache(cache_dir)
-    nominal = load_nominal(urdf_path, joints, robot_config.get("armature"), robot_config.get("flange"), cache=cache,
+    nominal = load_nominal(files.urdf, joints, robot_config.get("armature"), robot_config.get("flange"), cache=cache,
                            inertia_bands=InertiaBands.of_robot(robot_config))
     by_role: dict[str, list[PreparedRun]] = {"fit": list(runs.fit), "holdout": list(runs.holdout)}
     del runs  # by_role holds the runs alone: fit_model empties it once the sides have what they need
     for role in ("fit", "holdout"):
         if not by_role[role]:
-            raise InputError(measurement_list, "runs", f"no run with role '{role}'",
+            raise InputError(files.measurements, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
     current: dict[str, Any] = {}
     document, results = fit_model(model_config, nominal, by_role, robot, workers=threads, cache=cache,
                                   release_runs=True, current_out=current)
     params = params_document(results, nominal, document["torque_source"], robot)
-    write_json(ladder_json, document)
-    write_yaml(params_yaml, params)
-    write_yaml(calibration_yaml, round_floats(calibration_from_params(params)))
-    if residuals_npz is not None:
-        write_model_residuals(residuals_npz, current)
+    write_json(files.ladder, document)
+    write_yaml(files.params, params)
+    write_yaml(files.calibration, round_floats(calibration_from_params(params)))
+    if files.residuals is not None:
+        write_model_residuals(files.residuals, current)
     cache.prune()
     return document

@@ -257,17 +257,14 @@ def trial_fits(names: Sequence[str], model_effects: Sequence[str], context: fitt
     items = [(name, way) for way in ways for name in names]
     if context.workers > 1 and len(items) > 1:
         import_solver()
-    fits = map_forked(_trial_way, items, context.workers, {
-        "model_effects": list(model_effects), "nominal": context.nominal, "data": context.fit_data,
-        "settings": context.settings, "signals": context.fit_signals, "holdout_data": context.holdout_data,
-        "holdout_signals": context.holdout_signals, "refinements": context.refinements})
+    inputs = {key: value for key, value in fitting.way_inputs([], context).items() if key != "effect_names"}
+    fits = map_forked(_trial_way, items, context.workers, {"model_effects": list(model_effects), **inputs})
     out = {}
     for name in names:
         candidate = [fit for (item_name, _), fit in zip(items, fits, strict=True) if item_name == name]
         result, residual, _ = fitting.better_way(
-            candidate, trial_effects(model_effects, name), context.nominal, context.fit_data, context.holdout_data,
-            {e: v for e, v in previous.items() if e not in replaced_by(name, model_effects)}, context.settings,
-            fit_signals=context.fit_signals, holdout_signals=context.holdout_signals, uncertainty=False)
+            candidate, trial_effects(model_effects, name), context,
+            {e: v for e, v in previous.items() if e not in replaced_by(name, model_effects)}, uncertainty=False)
         out[name] = (result, residual)
     return out
 

@@ -296,12 +296,13 @@ def _learners(j: int, fit_data: Any, fit_column: np.ndarray, holdout_data: Any, 
     return chosen, after, kept.get(chosen, learner), period
 
 
-def _motion_beyond_drift(j: int, drift: str, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any,
-                         holdout_residual: np.ndarray, floor: float, noise_floor_factor: float,
-                         dynamics: tuple[np.ndarray, np.ndarray] | None = None) -> bool:
+def _motion_beyond_drift(j: int, drift: str, residuals: tuple[Any, np.ndarray, Any, np.ndarray], floor: float,
+                         noise_floor_factor: float, dynamics: tuple[np.ndarray, np.ndarray] | None = None) -> bool:
     """Whether the learners still explain joint ``j``'s residual once each run's own ``drift`` (its offset, or its
     smooth function of time) is taken out of every run: a function of the motion beside the drift, not its
-    imitation."""
+    imitation. ``residuals``: the fit data, the rung's residual on it, the holdout data and the rung's residual on
+    it."""
+    fit_data, fit_residual, holdout_data, holdout_residual = residuals
     degree = TIME_DEGREE if drift == "time" else 0
     fit_column = _per_run_fit(fit_residual[:, j], fit_data.time, fit_data.segments, degree)
     holdout_column = _per_run_fit(holdout_residual[:, j], holdout_data.time, holdout_data.segments, degree)
@@ -364,8 +365,8 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
             if drift is not None and shares[drift] >= row["explained_beyond_noise"]:
                 row["beyond_motion"] = {k: round(v, 4) for k, v in shares.items()}
                 row["follows"] = drift
-                row["imitated"] = not _motion_beyond_drift(j, drift, fit_data, fit_residual, holdout_data,
-                                                           holdout_residual, floor, noise_floor_factor, dynamics)
+                row["imitated"] = not _motion_beyond_drift(
+                    j, drift, (fit_data, fit_residual, holdout_data, holdout_residual), floor, noise_floor_factor, dynamics)
         else:
             row["kind"] = "not_motion"
             shares = _beyond_motion(j, fit_data, fit_residual, holdout_data, holdout_residual, floor)

@@ -54,9 +54,9 @@ from sim2real.identification.fitting.nominal import (  # noqa: F401  (re-exporte
     NominalModel, body_ellipsoids, body_hulls, load_nominal, make_signals, resolve_armature,
 )
 from sim2real.identification.fitting.problem import FitResult, subset_signals  # noqa: F401
-from sim2real.identification.fitting.refine import Refinements, refinement_rows  # noqa: F401
+from sim2real.identification.fitting.refine import Nonlinear, Refinements, refinement_rows  # noqa: F401
 from sim2real.identification.fitting.rung import (  # noqa: F401  (re-exported: the package's names)
-    DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, PRIOR_START_SETTING, better_way, fit, fit_on_the_previous, fit_way,
+    DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, PRIOR_START_SETTING, better_way, fit, fit_on_the_previous, way_inputs, fit_way,
     previous_nonlinear, previous_ways,
 )
 from sim2real.identification.fitting.context import FitContext  # noqa: F401

@@ -36,7 +36,7 @@ class FitResult:
     values: dict[str, Any]  # fitted values per effect (total, SI)
     intervals: dict[str, Any]
     fit_rmse: dict[str, Any]
-    notes: list[str] = field(default_factory=list)
+    notes: list[dict[str, Any]] = field(default_factory=list)  # Note documents (sim2real.identification.records)
     consistency: dict[str, Any] = field(default_factory=dict)
     unconstrained: FitResult | None = None  # the same rung without the physical constraints
     after_sensor: bool = False  # the body side behind a link-side sensor: drive effects are the part after it

@@ -42,6 +42,18 @@ class Refinements:
         return self.cache.get_or_compute("refinement", key, compute)
 
 
+@dataclass(frozen=True)
+class Nonlinear:
+    """How a fit reaches its nonlinear parameters: those ``held`` as they are (the diagnosis holds the current model's
+    while it tries a candidate), where the refinement of the others ``starts`` (the ladder passes the previous rung's
+    and refines every nonlinear parameter again, so a rung delivers at least the fall its candidate promised), and
+    where refinements are read back from or kept for the next round (``refinements``)."""
+
+    held: Mapping[str, np.ndarray] | None = None
+    start: Mapping[str, np.ndarray] | None = None
+    refinements: Refinements | None = None
+
+
 def _refine_nonlinear(
     problem: _Problem, tau: np.ndarray, settings: Mapping[str, Any], fixed: Mapping[str, np.ndarray] | None = None,
     start: Mapping[str, np.ndarray] | None = None,

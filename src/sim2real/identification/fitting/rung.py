@@ -18,7 +18,9 @@ from sim2real.identification.fitting.scoring import holdout_metrics, joint_weigh
 from sim2real.identification.fitting.nominal import NominalModel, make_signals
 from sim2real.identification.fitting.linear import _linear_fit
 from sim2real.identification.fitting.problem import FitResult, _Problem, _values
-from sim2real.identification.fitting.refine import Refinements, _refine_nonlinear
+from sim2real.identification.fitting.context import FitContext
+from sim2real.identification.fitting.refine import Nonlinear, Refinements, _refine_nonlinear
+from sim2real.identification.records import Note, NoteKind
 from sim2real.forked import map_forked
 from sim2real.identification.inertial import import_solver
 from sim2real.stats import rmse
@@ -58,21 +60,16 @@ def fit(
     signals: Signals | None = None,
     uncertainty: bool = True,
     consistency: bool = True,
-    nonlinear_fixed: Mapping[str, np.ndarray] | None = None,
-    nonlinear_start: Mapping[str, np.ndarray] | None = None,
-    refinements: Refinements | None = None,
+    nonlinear: Nonlinear = Nonlinear(),
 ) -> FitResult:
     """Fit the model ``nominal + effect_names`` on ``data`` (the fit runs).
 
     ``consistency``: solve the rung as one convex program (:mod:`sim2real.identification.inertial`: link inertias
     physically consistent, friction/armature/payload mass >= 0) and keep the unconstrained fit beside
-    it (``result.unconstrained``); ``uncertainty``: bootstrap intervals; ``nonlinear_fixed``: nonlinear
-    parameters held (the diagnosis holds the current model's while it tries a candidate);
-    ``nonlinear_start``: where the refinement starts (the ladder passes the previous rung's and refines
-    every nonlinear parameter again, so a rung delivers at least the fall its candidate promised);
-    ``signals``: what the judged torque is predicted from (default: the nominal model on ``data``;
-    the drive side passes its own and no nominal model); ``refinements``: where the nonlinear refinement is
-    read back from, or kept for the next round (:class:`sim2real.identification.fitting.refine.Refinements`).
+    it (``result.unconstrained``); ``uncertainty``: bootstrap intervals; ``nonlinear``: the nonlinear parameters
+    held, where the refinement of the others starts, and where refinements are kept
+    (:class:`sim2real.identification.fitting.refine.Nonlinear`); ``signals``: what the judged torque is predicted
+    from (default: the nominal model on ``data``; the drive side passes its own and no nominal model).
     """
     settings = {**DEFAULT_SETTINGS, **(settings or {})}
     if signals is None:
@@ -82,16 +79,21 @@ def fit(
     notes = []
     for effect in effects:
         if effect.needs_commands and data.torque_source != "tau_cmd" and not signals.forward:
-            notes.append(
-                f"{effect.name}: the judged torque is measured ({data.torque_source}); a delay between command "
-                "and applied torque does not show in it, so the torque-domain fit keeps it at 0"
-            )
+            notes.append(Note(NoteKind.DELAY_NOT_SEEN, effect=effect.name,
+                              figures={"torque_source": data.torque_source}).as_document())
     states = {e.name: e.prepare(signals) for e in effects}
     weights = joint_weights(data.noise_floor, str(settings.get("joint_weighting", "noise_floor")))
     problem = _Problem(effects, signals, states, weights)
-    refine = functools.partial(_refine_nonlinear, problem, data.tau, settings, nonlinear_fixed, nonlinear_start)
-    nonlinear = refine() if refinements is None else refinements.get_or_compute(
-        effect_names, settings, nonlinear_fixed, nonlinear_start, refine)
+    refine = functools.partial(_refine_nonlinear, problem, data.tau, settings, nonlinear.held, nonlinear.start)
+    refined = refine() if nonlinear.refinements is None else nonlinear.refinements.get_or_compute(
+        effect_names, settings, nonlinear.held, nonlinear.start, refine)
+    return _rung_fit(effect_names, problem, data, settings, refined, notes, uncertainty, consistency)
+
+
+def _rung_fit(effect_names: Sequence[str], problem: _Problem, data: TorqueData, settings: Mapping[str, Any],
+              nonlinear: dict[str, np.ndarray], notes: list[Any], uncertainty: bool, consistency: bool) -> FitResult:
+    """:func:`fit` at its refined nonlinear parameters: the linear fit, its consistent form and its intervals."""
+    effects, signals, states = problem.effects, problem.signals, problem.states
     theta, residual, sizes = _linear_fit(problem, data.tau, nonlinear)
     unconstrained = FitResult(
         effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=copy.deepcopy(states),
@@ -115,21 +117,10 @@ def fit(
     )
 
 
-def fit_on_the_previous(
-    effect_names: Sequence[str],
-    nominal: NominalModel | None,
-    fit_data: TorqueData,
-    holdout_data: TorqueData,
-    previous: Mapping[str, np.ndarray] | None,
-    settings: Mapping[str, Any] | None = None,
-    *,
-    fit_signals: Signals | None = None,
-    holdout_signals: Signals | None = None,
-    uncertainty: bool = True,
-    workers: int = 1,
-    refinements: Refinements | None = None,
-) -> tuple[FitResult, np.ndarray, str]:
-    """A model fitted on top of the previous one: (fit, holdout residual, how its nonlinear parameters were set).
+def fit_on_the_previous(effect_names: Sequence[str], context: FitContext, previous: Mapping[str, np.ndarray] | None,
+                        uncertainty: bool = True) -> tuple[FitResult, np.ndarray, str]:
+    """A model fitted on top of the previous one, on ``context``'s fit runs and judged on its holdout runs: (fit,
+    holdout residual, how its nonlinear parameters were set).
 
     Two ways to carry the previous model's nonlinear parameters (friction slopes and offsets, a delay):
     refine them all again from there, so that a smoothing refined before the rotor inertia was in the
@@ -137,24 +128,22 @@ def fit_on_the_previous(
     the new effect should explain. The fit runs alone cannot tell which generalises (the refinement
     always lowers the fit residual); the one whose holdout residual is smaller, each joint in units of
     its own floor, is kept. The diagnosis and the ladder use this same rule, so a rung delivers what
-    its diagnosis promised. ``"refined"`` also when there is nothing to hold. ``workers``: with two, both
-    ways are fitted side by side (:func:`sim2real.forked.map_forked`); ``refinements``: :func:`fit`'s.
+    its diagnosis promised. ``"refined"`` also when there is nothing to hold. With two ``context.workers``, both
+    ways are fitted side by side (:func:`sim2real.forked.map_forked`).
     """
     previous = previous_nonlinear(previous)
-    if fit_signals is None:
-        assert nominal is not None
-        fit_signals = make_signals(nominal, fit_data)
-    if holdout_signals is None:
-        assert nominal is not None
-        holdout_signals = make_signals(nominal, holdout_data)
     ways = previous_ways(previous, uncertainty)
-    if workers > 1 and len(ways) > 1:
+    if context.workers > 1 and len(ways) > 1:
         import_solver()
-    fits = map_forked(fit_way, ways, workers, {
-        "effect_names": effect_names, "nominal": nominal, "data": fit_data, "settings": settings, "signals": fit_signals,
-        "holdout_data": holdout_data, "holdout_signals": holdout_signals, "refinements": refinements})
-    return better_way(fits, effect_names, nominal, fit_data, holdout_data, previous, settings,
-                      fit_signals=fit_signals, holdout_signals=holdout_signals, uncertainty=uncertainty)
+    fits = map_forked(fit_way, ways, context.workers, way_inputs(effect_names, context))
+    return better_way(fits, effect_names, context, previous, uncertainty)
+
+
+def way_inputs(effect_names: Sequence[str], context: FitContext) -> dict[str, Any]:
+    """The keyword arguments of :func:`fit_way` for ``effect_names`` on ``context``."""
+    return {"effect_names": effect_names, "nominal": context.nominal, "data": context.fit_data,
+            "settings": context.settings, "signals": context.fit_signals, "holdout_data": context.holdout_data,
+            "holdout_signals": context.holdout_signals, "refinements": context.refinements}
 
 
 def previous_nonlinear(previous: Mapping[str, np.ndarray] | None) -> dict[str, np.ndarray]:
@@ -163,31 +152,21 @@ def previous_nonlinear(previous: Mapping[str, np.ndarray] | None) -> dict[str, n
 
 
 def previous_ways(previous: Mapping[str, np.ndarray], uncertainty: bool) -> list[dict[str, Any]]:
-    """The ways of :func:`fit_on_the_previous` as keyword arguments of :func:`fit`: refined from ``previous``
+    """The ways of :func:`fit_on_the_previous` (:func:`fit_way`'s ``way``): refined from ``previous``
     (:func:`previous_nonlinear`), and held at it when there is anything to hold."""
-    ways: list[dict[str, Any]] = [{"uncertainty": uncertainty, "nonlinear_start": previous}]
+    ways: list[dict[str, Any]] = [{"uncertainty": uncertainty, "start": previous}]
     if previous:
-        ways.append({"uncertainty": False, "nonlinear_fixed": previous})
+        ways.append({"uncertainty": False, "held": previous})
     return ways
 
 
-def better_way(
-    fits: Sequence[tuple[FitResult, np.ndarray]],
-    effect_names: Sequence[str],
-    nominal: NominalModel | None,
-    fit_data: TorqueData,
-    holdout_data: TorqueData,
-    previous: Mapping[str, np.ndarray],
-    settings: Mapping[str, Any] | None,
-    *,
-    fit_signals: Signals,
-    holdout_signals: Signals,
-    uncertainty: bool,
-) -> tuple[FitResult, np.ndarray, str]:
+def better_way(fits: Sequence[tuple[FitResult, np.ndarray]], effect_names: Sequence[str], context: FitContext,
+               previous: Mapping[str, np.ndarray], uncertainty: bool) -> tuple[FitResult, np.ndarray, str]:
     """Of the fits of :func:`previous_ways`, each with its holdout residual (:func:`fit_way`), the one whose
     residual is smaller, each joint in units of its own floor (:func:`fit_on_the_previous`); held and asked for
     ``uncertainty``, it is fitted again with it."""
-    weights = joint_weights(holdout_data.noise_floor, str({**DEFAULT_SETTINGS, **(settings or {})}["joint_weighting"]))
+    holdout = context.holdout_data
+    weights = joint_weights(holdout.noise_floor, str({**DEFAULT_SETTINGS, **(context.settings or {})}["joint_weighting"]))
 
     def score(residual: np.ndarray) -> float:
         return float(np.sum((residual * weights) ** 2))
@@ -199,18 +178,21 @@ def better_way(
     if score(held_residual) >= score(residual):
         return refined, residual, "refined"
     if uncertainty:
-        held = fit(effect_names, nominal, fit_data, settings, signals=fit_signals, uncertainty=True,
-                   nonlinear_fixed=previous)
-        _, held_residual = holdout_metrics(held, nominal, holdout_data, holdout_signals)  # the fit returned's, to the bit
+        held = fit(effect_names, context.nominal, context.fit_data, context.settings, signals=context.fit_signals,
+                   uncertainty=True, nonlinear=Nonlinear(held=previous))
+        # the fit returned's, to the bit
+        _, held_residual = holdout_metrics(held, context.nominal, holdout, context.holdout_signals)
     return held, held_residual, "held"
 
 
 def fit_way(way: Mapping[str, Any], holdout_data: TorqueData, holdout_signals: Signals | None,
-            **inputs: Any) -> tuple[FitResult, np.ndarray]:
-    """:func:`fit` with one way of carrying the previous nonlinear parameters (:func:`fit_on_the_previous`), and
-    its holdout residual."""
-    result = fit(**inputs, **way)
+            refinements: Refinements | None = None, **inputs: Any) -> tuple[FitResult, np.ndarray]:
+    """:func:`fit` with one way of carrying the previous nonlinear parameters (:func:`fit_on_the_previous`; ``way``:
+    ``uncertainty`` and the parameters ``held`` or refined from their ``start``), and its holdout residual."""
+    nonlinear = Nonlinear(held=way.get("held"), start=way.get("start"), refinements=refinements)
+    result = fit(**inputs, uncertainty=way["uncertainty"], nonlinear=nonlinear)
     return result, holdout_metrics(result, inputs["nominal"], holdout_data, holdout_signals)[1]
+
 
 
 def _consistent_fit(
@@ -243,10 +225,7 @@ def _consistent_fit(
         theta, status, solve_time = _solve_physical(problem, data, nonlinear, weighted, bounds, inertial, weight, blocks)
     except InfeasibleFit as exc:
         record["status"] = "infeasible"
-        record["notes"].append(
-            f"physical consistency: {exc}; the rung keeps the UNCONSTRAINED fit, which may be non-physical. "
-            "Check the torque signs and units of the runs and the URDF's inertials"
-        )
+        record["notes"].append(Note(NoteKind.CONSISTENCY_INFEASIBLE, figures={"reason": str(exc)}).as_document())
         return theta_free, free_residual, record
     del weighted  # before the prediction (a long log's largest array, when it was put together)
     residual = data.tau - problem.predict(theta, nonlinear)
@@ -280,8 +259,7 @@ def _inertia_prior(problem: _Problem, data: TorqueData, nonlinear: Mapping[str, 
     if relative != "held_out":
         if inertial is None:
             return relative, None
-        return relative, {"weight": float(relative), "chosen_by": "the model.yaml setting "
-                          "fit.inertia_regularization (a fraction of the noise floor's variance)"}
+        return relative, {"weight": float(relative), "chosen_by": {"method": "setting"}}
     if inertial is None:
         return INERTIA_PRIOR_FALLBACK, None
     try:
@@ -291,19 +269,11 @@ def _inertia_prior(problem: _Problem, data: TorqueData, nonlinear: Mapping[str, 
                                      grid=PRIOR_GRID if start is None else grid_around(float(start)))
     except InfeasibleFit:
         return INERTIA_PRIOR_FALLBACK, None  # the rung's own solve says what failed
-    first_grid = (", ".join(f"{g:g}" for g in PRIOR_GRID) if start is None
-                  else "the previous rung's weight and a decade either side")
-    bound = {"weakest": "; at the weakest pull searched: the held-out error still fell as the pull "
-             "weakened, so the data ask for inertias freer than the search allows",
-             "strongest": "; at the strongest pull searched: the held-out data see no cost in holding "
-             "the inertias at CAD"}.get(choice.bound or "", "")
-    return choice.weight, {
-        "weight": choice.weight, "grid": choice.grid, "scores": choice.scores,
-        "inside_searched_range": choice.bound is None,
-        "chosen_by": f"cross-validation on {choice.blocks} held-out blocks of the fit runs (the strongest "
-        f"pull towards CAD within 1% of the best held-out error, the search going on past its first grid "
-        f"({first_grid}) while the scores say so; weights are fractions of the noise floor's variance, "
-        f"scores held-out RMS in N*m, each joint weighted by its floor){bound}"}
+    # how it was chosen, as data (sim2real.report.verdicts.chosen_by_text words it)
+    chosen_by = {"method": "cross_validation", "blocks": choice.blocks,
+                 "first_grid": list(PRIOR_GRID) if start is None else "around_previous", "bound": choice.bound}
+    return choice.weight, {"weight": choice.weight, "grid": choice.grid, "scores": choice.scores,
+                           "inside_searched_range": choice.bound is None, "chosen_by": chosen_by}
 
 
 def _solve_physical(problem: _Problem, data: TorqueData, nonlinear: Mapping[str, np.ndarray], weighted: Any,
@@ -352,13 +322,9 @@ def _contradiction(problem: _Problem, theta_free: dict[str, np.ndarray], free_re
     if not free_physical and fit_now > 1.1 * fit_free and fit_now - fit_free > 0.1 * noise:
         # The data pull the model out of the physical set: say so, never hide it behind the nominal model.
         record["contradiction"] = True
-        record["notes"].append(
-            f"physical consistency: the data contradict a physical model with these effects: the unconstrained fit "
-            f"needs non-physical values ({_violations(problem, theta_free, signals)}) and fits the fit runs to "
-            f"{fit_free:.3g} against {fit_now:.3g} for the best physical fit (RMS in N*m, each joint weighted by its "
-            "noise floor). An effect is missing, or the "
-            "torque columns' sign or units are wrong"
-        )
+        record["notes"].append(Note(NoteKind.CONSISTENCY_CONTRADICTED, figures={
+            "violations": _violations(problem, theta_free, signals), "free_rmse": fit_free,
+            "physical_rmse": fit_now}).as_document())
 
 
 def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -> tuple[
@@ -402,8 +368,9 @@ def _physical(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals)
     return not _violations(problem, theta, signals)
 
 
-def _violations(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals) -> str:
-    """What is non-physical in a solution, in words ('' when nothing)."""
+def _violations(problem: _Problem, theta: dict[str, np.ndarray], signals: Signals) -> list[dict[str, Any]]:
+    """What is non-physical in a solution, effect by effect (empty when nothing): a link inertia's bodies whose
+    pseudo-inertia is indefinite, or how many of an effect's values lie below their physical bound."""
     from sim2real.identification.effects.link_inertia import correction_anchors
     from sim2real.identification.inertial import min_eigenvalues
 
@@ -418,11 +385,11 @@ def _violations(problem: _Problem, theta: dict[str, np.ndarray], signals: Signal
             eig = min_eigenvalues(anchors.reshape(-1) + state["basis"] @ coefficients + state["null_offset"])
             bad = [signals.nominal["body_links"][b] for b in np.flatnonzero(eig <= 0)]
             if bad:
-                found.append(f"link_inertia: non-physical inertia of {', '.join(bad)}")
+                found.append({"effect": "link_inertia", "bodies": bad})
             continue
         low = effect.theta_lower(signals, coefficients.size)
         below = np.flatnonzero(coefficients < low - 1e-9)
         if below.size:
-            found.append(f"{effect.name}: {below.size} value(s) below their physical bound")
-    return "; ".join(found)
+            found.append({"effect": effect.name, "below_bound": int(below.size)})
+    return found
 
