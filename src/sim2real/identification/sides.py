@@ -54,7 +54,7 @@ SIDE_MODES = ("separate", "commands_only", "sensor_only")
 
 # The drive side is fitted on every sample: a delay of a few ms is a few samples. Its nonlinear refinement
 # (the delay, friction slopes) runs on up to two minutes at 1 kHz; a longer log's on 5 s windows spread over it
-# at the log's own step (fitting.problem.refinement_rows), so its memory does not grow with the log.
+# at the log's own step (fitting.refine.refinement_rows), so its memory does not grow with the log.
 DRIVE_FIT_SETTINGS: dict[str, Any] = {"fit_rate_hz": None, "refine_max_samples": 120_000, "refine_windows_s": 5.0}
 
 

@@ -246,7 +246,7 @@ def fit_model(model: ModelConfig, nominal: NominalModel, runs: Mapping[str, Sequ
     diagnoses fit their candidates on; ``cache``: fits of earlier rounds (:func:`fit_ladder`);
     ``release_runs``: empty the lists of ``runs`` once both sides have what they need of them (the caller
     holds no other reference: a 10-minute log's runs at 1 kHz are hundreds of MB the body side does not need);
-    ``current_out``: filled with the body side's data and last rung's residual by role (:func:`model_residuals`).
+    ``current_out``: filled with the body side's data and last rung's residual by role (:func:`~sim2real.identification.documents.write_model_residuals`).
     """
     settings = model.as_settings()
     effect_names = list(model.effects)

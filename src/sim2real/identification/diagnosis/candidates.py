@@ -24,7 +24,7 @@ tenth of the noise floor are listed as ``confounded``: these data cannot tell th
 A verdict the user can trust says when it is not a clean decision:
 
 * **ties** (``tied``): a decisive candidate named on the same joints as the best whose holdout residual is
-  the best one's within the spread of their paired difference over blocks of the holdout (:func:`tied`) is
+  the best one's within the spread of their paired difference over blocks of the holdout (:func:`~sim2real.identification.diagnosis.caveats.tied`) is
   not told apart from it on these runs; the verdict says so, recommends the physically plausible, simpler one
   (or none: status ``not_told_apart``) and names the separating run the experiment design builds;
 * **inertias**: each candidate is fitted with the link inertias it needs; the bodies it leaves beyond
@@ -233,7 +233,7 @@ def candidates_to_try(model_effects: Sequence[str], torque_source: str, forward:
 def _trial_way(item: tuple[str, Mapping[str, Any]], model_effects: Sequence[str], **inputs: Any,
                ) -> tuple[fitting.FitResult, np.ndarray] | None:
     """One way (:func:`sim2real.identification.fitting.previous_ways`) of fitting the candidate ``item[0]`` on the current model,
-    and its holdout residual (:func:`sim2real.identification.fitting.rung._fit_way`)."""
+    and its holdout residual (:func:`sim2real.identification.fitting.rung.fit_way`)."""
     name, way = item
     replaced = replaced_by(name, model_effects)
     # the held or starting nonlinear parameters of the lines the candidate replaces have no place in its model

@@ -206,7 +206,7 @@ def troubles(candidate: Mapping[str, Any]) -> list[dict[str, Any]]:
 
 def recommend(candidates: list[dict[str, Any]], ties: list[dict[str, Any]],
                ) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
-    """The candidate to add among the best and those tied with it: the first in the ranking (:func:`_rank`: the
+    """The candidate to add among the best and those tied with it: the first in the ranking (:func:`~sim2real.identification.diagnosis.candidates._rank`: the
     best holdout residual, nested effects by parsimony) that is physically plausible (no inertia bent beyond
     plausible, no trade with the model); None when the best is tied and none of the tied is plausible. A best
     candidate that nothing ties is recommended, its trouble said beside it (:func:`caveat_notes`): early in the loop
