@@ -37,8 +37,10 @@ BOUND_TEXT = {"mass_lower": "mass at its band's lower edge", "mass_upper": "mass
 LOOK_AT_WINDOWS = " Look at the worst windows in the gap report."
 
 
-def bounds_text(bodies: Mapping[str, Sequence[str]]) -> str:
-    return "; ".join(f"{name} ({', '.join(BOUND_TEXT[b] for b in bounds)})" for name, bounds in bodies.items())
+def bounds_text(bodies: Mapping[str, Sequence[str]] | Sequence[Sequence[Any]]) -> str:
+    """Bodies held at their bounds, with which: a mapping, or (body, bounds) pairs in the bodies' order."""
+    pairs = bodies.items() if isinstance(bodies, Mapping) else bodies
+    return "; ".join(f"{name} ({', '.join(BOUND_TEXT[b] for b in bounds)})" for name, bounds in pairs)
 
 
 def separating_runs(first: str, others: Sequence[str], robot: str) -> str:
@@ -85,7 +87,7 @@ def _not_told_apart(d: Diagnosis, robot: str) -> str:
 
 
 def _at_noise_floor(d: Diagnosis, robot: str) -> str:
-    x_now = {j: row["x_floor"] for j, row in d.per_joint.items()}
+    x_now = {j: row["x_floor"] for j, row in d.ordered(d.per_joint).items()}
     worst = max(x_now, key=x_now.get) if x_now else "-"  # type: ignore[arg-type]
     return (f"Nothing to add on {SIDE_TEXT[d.side]}: every joint's holdout residual is within {d.noise_floor_factor}x its "
             f"own noise floor (worst {worst} {floor_multiple(max(x_now.values()) if x_now else 0)}; "
@@ -240,7 +242,7 @@ def verdict(d: Diagnosis, robot: str) -> str:
     is named, then the notes the other side gives it."""
     own = [n for n in d.notes if n.kind not in NOTE_KEYS]
     across = [n for n in d.notes if n.kind in NOTE_KEYS]
-    ceiling = ceiling_text(d.model_free, robot) if d.model_free is not None else ""
+    ceiling = ceiling_text(d.model_free, robot, d.joints) if d.model_free is not None else ""
     text = HEADLINE[d.status](d, robot)
     if d.status == Status.UNEXPLAINED and not ceiling:
         text += LOOK_AT_WINDOWS
@@ -419,11 +421,13 @@ def _still_sentence(per_joint: Mapping[str, Any], joints: Sequence[str]) -> str:
             f"{1 - CLOSE_TO_RUNG:.0%} of the last rung on {', '.join(joints)}. " + "; ".join(parts) + ".")
 
 
-def ceiling_text(ceiling: Mapping[str, Any], robot: str) -> str:
+def ceiling_text(ceiling: Mapping[str, Any], robot: str, joints: Sequence[str] = ()) -> str:
     """What the model-free ceiling says (:func:`sim2real.identification.diagnosis.model_free_ceiling`): joints where
     the library lacks a function of the motion, joints where the motion only imitates a drift, and joints where
-    nothing of the motion explains the rest, with what it follows and what to do about offsets."""
-    per_joint = ceiling["per_joint"]
+    nothing of the motion explains the rest, with what it follows and what to do about offsets. ``joints``: their
+    order (default: the document's)."""
+    per_joint = {j: ceiling["per_joint"][j] for j in ([j for j in joints if j in ceiling["per_joint"]]
+                                                       or ceiling["per_joint"])}
     imitated = imitated_joints(per_joint)
     motion = [j for j, r in per_joint.items() if r["kind"] == "motion" and j not in imitated]
     still = [j for j, r in per_joint.items() if r["kind"] == "not_motion"]
@@ -437,13 +441,13 @@ def ceiling_text(ceiling: Mapping[str, Any], robot: str) -> str:
     return " ".join(sentences)
 
 
-def ceiling_section(ceiling: Mapping[str, Any], robot: str) -> dict[str, Any]:
+def ceiling_section(ceiling: Mapping[str, Any], robot: str, joints: Sequence[str] = ()) -> dict[str, Any]:
     """gap.json's ``model_free``: the ceiling's document with its words (``text``, the features in words)."""
     out = copy.deepcopy(dict(ceiling))
     for row in out["per_joint"].values():
         if "gains_most_with" in row:
             row["gains_most_with"] = [feature_text(f) for f in row["gains_most_with"]]
-    out["text"] = ceiling_text(ceiling, robot)
+    out["text"] = ceiling_text(ceiling, robot, joints)
     return out
 
 
@@ -505,7 +509,7 @@ def sides_section(links: Mapping[str, Any]) -> dict[str, Any]:
 
 # --- the documents ---------------------------------------------------------------------------------------------------
 
-DATA_ONLY = ("notes", "noise_rmse", "noise_floor_factor", "min_explained")
+DATA_ONLY = ("notes", "noise_rmse", "noise_floor_factor", "min_explained", "joints")
 
 
 def diagnosis_section(document: Mapping[str, Any], robot: str) -> dict[str, Any]:
@@ -522,7 +526,7 @@ def diagnosis_section(document: Mapping[str, Any], robot: str) -> dict[str, Any]
             evidence["implausible_bodies"] = [implausible_text(b) for b in evidence["implausible_bodies"]]
     out["skipped"] = [{"effect": n.effect, "reason": skip_reason(n)} for n in d.skipped]
     if d.model_free is not None:
-        out["model_free"] = ceiling_section(d.model_free, robot)
+        out["model_free"] = ceiling_section(d.model_free, robot, d.joints)
     for note in d.notes:
         if note.kind in NOTE_KEYS:
             out[NOTE_KEYS[note.kind]] = NOTE_TEXT[note.kind](note, robot).strip()

@@ -466,7 +466,7 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
         noise_floor_ratio=round(now.ratio, 4) if np.isfinite(now.ratio) else None, noise_rmse=now.noise,
         noise_floor_factor=limits["noise_floor_factor"], min_explained=limits["min_explained"],
         per_joint=_per_joint_status(joints, now, ranked), above_floor=tuple(above), skipped=tuple(skipped),
-        failed=tuple(sorted(failed)), notes=tuple(notes))
+        failed=tuple(sorted(failed)), notes=tuple(notes), joints=tuple(joints))
 
 
 def _typed(candidate: Mapping[str, Any]) -> Candidate:

@@ -197,8 +197,8 @@ def troubles(candidate: Mapping[str, Any]) -> list[dict[str, Any]]:
     if evidence.get("implausible_bodies"):
         reasons.append({"kind": "implausible", "bodies": list(evidence["implausible_bodies"])})
     pushed = (evidence.get("bounds") or {}).get("pushes")
-    if pushed:
-        reasons.append({"kind": "bounds", "bodies": {name: list(b) for name, b in pushed.items()}})
+    if pushed:  # pairs, in the order of the bodies (a document's mappings are sorted by name)
+        reasons.append({"kind": "bounds", "bodies": [[name, list(b)] for name, b in pushed.items()]})
     for trade in evidence.get("trades_with", []):
         reasons.append({"kind": "trade", **trade})
     return reasons

@@ -57,7 +57,8 @@ class Diagnosis:
     candidate that comes closest there; ``skipped``: the candidates not tried, each a :class:`Note` of why;
     ``notes``: what the verdict says beside its headline, in order; ``model_free``: the model-free ceiling's
     document (:func:`sim2real.identification.diagnosis.model_free_ceiling`), on a side judged against the motion;
-    ``noise_rmse``, ``noise_floor_factor``, ``min_explained``: the figures the headline quotes."""
+    ``noise_rmse``, ``noise_floor_factor``, ``min_explained``: the figures the headline quotes; ``joints``: their
+    order (:meth:`ordered`)."""
 
     side: Side
     status: Status
@@ -75,6 +76,7 @@ class Diagnosis:
     failed: tuple[str, ...] = ()
     notes: tuple[Note, ...] = ()
     model_free: Mapping[str, Any] | None = field(default=None)
+    joints: tuple[str, ...] = ()  # the joints in the robot's order (a document's mappings are sorted by name)
 
     @property
     def best(self) -> Candidate | None:
@@ -86,6 +88,11 @@ class Diagnosis:
 
     def note(self, kind: NoteKind) -> Note | None:
         return next((n for n in self.notes if n.kind == kind), None)
+
+    def ordered(self, per_joint: Mapping[str, Any]) -> dict[str, Any]:
+        """``per_joint`` in the robot's joint order (a JSON document's keys are sorted by name)."""
+        order = [j for j in self.joints if j in per_joint] or list(per_joint)
+        return {j: per_joint[j] for j in order}
 
     def with_notes(self, *notes: Note | None) -> Diagnosis:
         """The same diagnosis with ``notes`` (None: none) said after its own."""
@@ -103,7 +110,7 @@ class Diagnosis:
             "min_explained": self.min_explained,
             "per_joint": {j: dict(row) for j, row in self.per_joint.items()}, "above_floor": list(self.above_floor),
             "skipped": [n.as_document() for n in self.skipped], "failed": list(self.failed),
-            "notes": [n.as_document() for n in self.notes],
+            "notes": [n.as_document() for n in self.notes], "joints": list(self.joints),
         }
         if self.model_free is not None:
             out["model_free"] = dict(self.model_free)
@@ -121,6 +128,7 @@ class Diagnosis:
             above_floor=tuple(document["above_floor"]),
             skipped=tuple(Note.from_document(n) for n in document["skipped"]), failed=tuple(document["failed"]),
             notes=tuple(Note.from_document(n) for n in document["notes"]), model_free=document.get("model_free"),
+            joints=tuple(document.get("joints") or ()),
         )
 
 
