@@ -76,7 +76,7 @@ from gap_fixtures import PANDA_JOINTS, build_dev_panda  # noqa: E402
 from toolbox import HAVE_TOOLBOX, log_step, ms  # noqa: E402
 
 from sim2real.assets.arm import arm_spec  # noqa: E402
-from sim2real.identification import sysid  # noqa: E402
+from sim2real.identification import fitting, sysid  # noqa: E402
 from sim2real.identification.fitting import subset_signals  # noqa: E402
 from sim2real.lab import (  # noqa: E402
     load_lab_config, run_lab_scenario_run, scenario_runs, simulate_run, write_truth,

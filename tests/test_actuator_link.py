@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from sysid_lab import FAST_FIT, Lab, model_config, overall
+from sysid_lab import Lab, model_config, overall
 
 from sim2real.report.figures import FIGURES
 
@@ -226,7 +226,7 @@ def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
     assert model.actuator_biasprm[motor, 0] == pytest.approx(bias) and abs(bias) < 0.05  # none hidden
 
 
-def typed(document: dict, side: str) -> "Diagnosis":
+def typed(document: dict, side: str):
     """A diagnosis as data (:class:`sim2real.identification.diagnosis.Diagnosis`) from the few fields a test gives:
     its status, candidates and per-joint rows."""
     from sim2real.identification.diagnosis import Diagnosis

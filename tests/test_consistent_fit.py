@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from sim2real.identification import fitting
-from sim2real.identification import sysid
 from sim2real.identification.effects.link_inertia import correction_anchors
 from sim2real.identification.inertial import inside_ellipsoids, physically_consistent, pseudo_inertia
 from sysid_lab import FAST_FIT, Lab, overall, side_ladder

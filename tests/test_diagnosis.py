@@ -7,7 +7,7 @@ import dataclasses
 import pytest
 from threadpoolctl import threadpool_limits
 
-from sim2real.identification import fitting, sysid
+from sim2real.identification import fitting
 from sim2real.stats import rmse
 from sysid_lab import FAST_FIT, WORKERS, Lab, overall, side_ladder
 

@@ -17,7 +17,6 @@ import pytest
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
 from sysid_lab import side_ladder
 from sim2real.identification import fitting
-from sim2real.identification import sysid
 from sim2real.identification.diagnosis.caveats import (
     bound_changes, caveat_notes, implausible_bodies, nested_pair, recommend, tied,
 )

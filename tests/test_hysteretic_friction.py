@@ -13,7 +13,6 @@ from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
 from sysid_lab import side_ladder
 from sim2real.identification import fitting
 from sim2real.identification.fitting import RunSamples
-from sim2real.identification import sysid
 from sim2real.identification.effects import apply_to_spec, get_effect
 from sim2real.identification.effects.hysteretic_friction import dahl_state
 

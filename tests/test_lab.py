@@ -594,7 +594,6 @@ DEMO_EFFECTS = ["link_inertia", "asymmetric_friction", "stribeck_friction", "rot
 def _last_rung_x_floor(lab, measurements: Path) -> tuple[list, np.ndarray]:
     """The demo's model (:data:`DEMO_EFFECTS`) fitted on a measurement list: (its prepared runs, the last rung's
     holdout residual per joint x its floor)."""
-    from sim2real.identification import sysid
     from sim2real.measurements import load_prepared_runs, noise_floor_of
     from sysid_lab import FAST_FIT, side_ladder
 
@@ -773,7 +772,7 @@ def test_a_torque_sensor_that_lags_is_named_and_the_loop_ends_at_its_floor(share
 
     from sim2real.identification import sysid
     from sim2real.identification.documents import params_document
-    from sysid_lab import FAST_FIT, WORKERS, model_config
+    from sysid_lab import WORKERS, model_config
 
     lab = shared_lab
     clean = yaml.safe_load(lab.measurement_list("real_arm_like").read_text())["runs"]

@@ -296,7 +296,7 @@ def test_a_drive_line_can_be_kept_on_one_link_and_only_a_drive_line(tmp_path):
     assert config.sides == {"asymmetric_friction": "actuator"}
     assert config.as_settings() == {"effects": ["link_inertia", "asymmetric_friction", "rotor_inertia"],
                                     "links": {"asymmetric_friction": "actuator"}, "fit": {}, "diagnosis": {}}
-    refused = {"- link_inertia: actuator": r"effects/0.*fitted on one link only.*write '- link_inertia'",
+    refused = {"- link_inertia: actuator": r"effects/0.*fitted on one side only.*write '- link_inertia'",
                "- asymmetric_friction: motor": "effects",
                "- asymmetric_friction\n- asymmetric_friction: body": "listed twice"}
     for lines, match in refused.items():

@@ -46,7 +46,6 @@ each joint still above its floor and the candidate that comes closest there (``p
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -62,7 +61,7 @@ from sim2real.identification.diagnosis.lags import after_other_shape, other_shap
 from sim2real.identification.diagnosis.result import Candidate, Diagnosis
 from sim2real.identification.diagnosis.screens import screen_ripples
 from sim2real.identification.effects import EFFECTS
-from sim2real.identification.effects.base import per_joint_dict
+from sim2real.identification.effects.base import Signals, per_joint_dict
 from sim2real.identification.inertial import import_solver
 from sim2real.identification.records import Note, NoteKind, Side, Status
 

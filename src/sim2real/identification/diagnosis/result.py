@@ -6,11 +6,11 @@ Its document (:meth:`Diagnosis.as_document`, ladder.json's ``diagnosis``) holds 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from sim2real.identification.records import Note, NoteKind, Side, Status
+from sim2real.identification.records import Note, Side, Status
 
 
 @dataclass(frozen=True)
@@ -86,9 +86,6 @@ class Diagnosis:
     def candidate(self, effect: str) -> Candidate | None:
         return next((c for c in self.candidates if c.effect == effect), None)
 
-    def note(self, kind: NoteKind) -> Note | None:
-        return next((n for n in self.notes if n.kind == kind), None)
-
     def ordered(self, per_joint: Mapping[str, Any]) -> dict[str, Any]:
         """``per_joint`` in the robot's joint order (a JSON document's keys are sorted by name)."""
         order = [j for j in self.joints if j in per_joint] or list(per_joint)
@@ -138,7 +135,3 @@ def candidate_named(diagnosis: Diagnosis | None) -> Candidate | None:
         return None
     return diagnosis.best
 
-
-def effects_named(diagnoses: Sequence[Diagnosis | None]) -> list[str]:
-    """The effects the given diagnoses ask to add, in order."""
-    return [c.effect for c in map(candidate_named, diagnoses) if c is not None]
