@@ -54,7 +54,7 @@ import numpy as np
 from sim2real.forked import map_forked
 from sim2real.identification import fitting
 from sim2real.identification.diagnosis.caveats import (
-    NESTED_IN, SPANNED_BY, bound_changes, caveat_notes, implausible_bodies, recommend, ties, trades_with_model,
+    NESTED_IN, SPANNED_BY, bound_changes, caveat_notes, effect_term, implausible_bodies, recommend, ties, trades_with_model,
 )
 from sim2real.identification.diagnosis.current import CurrentResidual
 from sim2real.identification.diagnosis.lags import after_other_shape, other_shapes, same_lag, screen_lags, shapes_note
@@ -119,14 +119,8 @@ def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: 
                       signals: Signals, unit: np.ndarray) -> np.ndarray | None:
     """RMS per joint of what the effect ``name`` itself adds to the prediction, x each joint's floor
     (None for an effect without linear coefficients: a delay acts through the whole prediction)."""
-    import dataclasses
-
-    coefficients = np.asarray(result.theta.get(name, []), dtype=float)
-    if not coefficients.size:
-        return None
-    without = dataclasses.replace(result, theta={**result.theta, name: np.zeros_like(coefficients)})
-    term = fitting.predict(result, nominal, data, signals) - fitting.predict(without, nominal, data, signals)
-    return np.sqrt(np.mean((term / unit) ** 2, axis=0))
+    term = effect_term(result, name, nominal, data, signals)
+    return None if term is None else np.sqrt(np.mean((term / unit) ** 2, axis=0))
 
 
 def add_line(effect: str) -> str:

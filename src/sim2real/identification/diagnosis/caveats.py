@@ -56,7 +56,7 @@ TRADE_CORRELATION = -0.5
 TIE_JOINT_OVERLAP = 0.5
 
 
-def _term(result: fitting.FitResult, name: str, nominal: Any, data: fitting.TorqueData, signals: Signals,
+def effect_term(result: fitting.FitResult, name: str, nominal: Any, data: fitting.TorqueData, signals: Signals,
           ) -> np.ndarray | None:
     """What the effect ``name`` adds to ``result``'s prediction on ``data`` (None: no linear coefficients)."""
     import dataclasses
@@ -75,13 +75,13 @@ def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name
     by at most :data:`TRADE_NET` of the own term. On these runs they are confounded: the candidate's fall is the
     model's effect relabelled. Each with the size of its move (x the own term's RMS) and its correlation with the
     own term, in floor units on the holdout; empty when the candidate adds a term of its own."""
-    own = _term(trial, name, nominal, data, signals)
+    own = effect_term(trial, name, nominal, data, signals)
     if own is None:
         return []
     for effect in current.effects:
         # a line the candidate replaces (diagnosis.candidates.replaced_by) hands it its term by design: what the
         # candidate adds of its own is its term less that one
-        replaced = _term(current, effect, nominal, data, signals) if effect not in trial.effects else None
+        replaced = effect_term(current, effect, nominal, data, signals) if effect not in trial.effects else None
         if replaced is not None:
             own = own - replaced
     own = own / unit
@@ -92,7 +92,8 @@ def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name
     for effect in current.effects:
         if effect not in trial.effects:
             continue
-        after, before = _term(trial, effect, nominal, data, signals), _term(current, effect, nominal, data, signals)
+        after = effect_term(trial, effect, nominal, data, signals)
+        before = effect_term(current, effect, nominal, data, signals)
         if after is not None and before is not None:
             moves[effect] = (after - before) / unit
     net = own + sum(moves.values(), np.zeros_like(own))
