@@ -19,7 +19,7 @@ from sim2real.measurements.prepare import (  # noqa: F401
     load_prepared_runs, prepare_for_model, prepare_run, prepare_runs, with_command_floor,
 )
 from sim2real.measurements.records import (  # noqa: F401
-    FilterSettings, GapPiece, GapRecord, IncompleteRows, LoggingGap, RunMeta, SpikeRecord, StepRange,
+    FilterSettings, GapPiece, GapRecord, HeldRecord, IncompleteRows, LoggingGap, RunMeta, SpikeRecord, StepRange,
 )
 from sim2real.measurements.runs import (  # noqa: F401
     DEFAULT_TORQUE_SENSOR, SIGNAL_KINDS, TORQUE_SENSORS, MeasurementEntry, PreparedRun, Run, RunSet, TorqueSensor,

@@ -6,7 +6,11 @@
    A lone sample of a position or a torque far from both its neighbours (:func:`lone_spikes`: an encoder's or a
    bus's error, a flipped bit) is replaced by the median of the three; the run's ``filter.spikes`` counts them.
 1. Consecutive samples with identical positions (a logger faster than the state) are dropped:
-   they carry a stale state, and keeping them would put steps into the differentiated signals.
+   they carry a stale state, and keeping them would put steps into the differentiated signals. A position column
+   that repeats while the rest of the row changes (:func:`held_columns`: one joint's, or every joint's while the
+   torque changes, a position updated slower than the log) is taken at its own update instants, its held samples
+   treated as missing: differentiated as logged, a hold would read as a stop and a jump. The run's
+   ``filter.held`` counts them.
 2. Everything is linearly interpolated onto a uniform grid (median time step, or ``sample_rate_hz``).
 3. Positions are low-pass filtered with a zero-phase Butterworth filter (``scipy.signal.sosfiltfilt``),
    velocities and accelerations are obtained by central differences of the filtered positions
@@ -32,7 +36,10 @@ import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.measurements.noise import command_white_noise, white_noise_sigma
-from sim2real.measurements.records import FilterSettings, GapPiece, GapRecord, LoggingGap, SpikeRecord, StepRange
+from sim2real.measurements.signs import check_torque_signs
+from sim2real.measurements.records import (
+    FilterSettings, GapPiece, GapRecord, HeldRecord, LoggingGap, SpikeRecord, StepRange,
+)
 from sim2real.measurements.runs import (
     DEFAULT_CUTOFF_HZ, DEFAULT_FILTER_ORDER, DEFAULT_TORQUE_SENSOR, MAX_GRID_PER_SAMPLE, MIN_SAMPLES, PreparedRun, Run,
     RunSet, check_run, file_row, read_runs,
@@ -90,6 +97,42 @@ def _median_of_three(x: np.ndarray) -> np.ndarray:
     return np.maximum(np.minimum(before, here), np.minimum(np.maximum(before, here), after))
 
 
+# A position column is held when, in more than this share of the rows, it repeats the row before while the rest of the
+# row changes (another position, a torque): a signal updated slower than the log (a fieldbus at a quarter of the
+# logger's rate). A joint's encoder stepping through a slow turn or a reversal repeats a handful of rows, far below.
+HELD_FRACTION = 0.05
+
+
+def held_samples(q: np.ndarray, torque: np.ndarray | None) -> np.ndarray:
+    """(N, n) bool: the rows of each position column of ``q`` (raw, (N, n)) that repeat the row before while something
+    else of the row changes (another position or a torque); the first row never."""
+    repeats = np.zeros(q.shape, dtype=bool)
+    repeats[1:] = q[1:] == q[:-1]
+    others = np.zeros(q.shape[0], dtype=bool)
+    if torque is not None:
+        others[1:] = np.any(torque[1:] != torque[:-1], axis=1)
+    moved = ~repeats
+    moved[0] = False
+    moving = moved.sum(axis=1)
+    # the rest of the row changed: a torque, or a position of another column
+    rest_changed = others[:, None] | ((moving[:, None] - moved) > 0)
+    return repeats & rest_changed
+
+
+def held_columns(run: Run) -> dict[int, np.ndarray]:
+    """The position columns of ``run`` held in more than :data:`HELD_FRACTION` of its rows (:func:`held_samples`): by
+    column, the rows where its value changed (its update instants, the first row included)."""
+    torque = run.tau if run.tau is not None else run.tau_cmd
+    held = held_samples(run.q, torque)
+    columns = np.flatnonzero(held.sum(axis=0) > HELD_FRACTION * run.q.shape[0])
+    updates = {}
+    for j in columns.tolist():
+        changed = np.ones(run.q.shape[0], dtype=bool)
+        changed[1:] = run.q[1:, j] != run.q[:-1, j]
+        updates[j] = changed
+    return updates
+
+
 def split_at_gaps(run: Run, max_step_s: float) -> list[Run]:
     """``run`` cut at every step between stamps longer than ``max_step_s``: its pieces in time order, named
     ``<run>#1``, ``<run>#2``, ... (the run itself, unchanged, when it has no gap)."""
@@ -117,15 +160,18 @@ def prepare_run(
 ) -> PreparedRun:
     """Dedup, resample to a uniform grid, zero-phase filter q, differentiate: see the module docstring."""
     run, spikes = _replace_spikes(run)
-    # 1. drop stale repeats: a row whose positions equal the previous row's
+    # 1. drop stale repeats: a row whose positions equal the previous row's; a column held while others change is
+    # taken at its own update instants
     keep = np.concatenate([[True], ~np.all(run.q[1:] == run.q[:-1], axis=1)])
+    updates = held_columns(run)
     raw_steps = np.diff(run.time)
     # 2. uniform grid
     rate = sample_rate_hz or run.meta.sample_rate_hz or 1.0 / float(np.median(raw_steps))
     dt = 1.0 / float(rate)
     grid = _uniform_grid(run, rate, dt, raw_steps)
     # 3. filtered positions, their derivatives
-    q_f, qd_f, qdd_f, velocity_source = _filtered_motion(run, grid, keep, rate, cutoff_hz, order, use_measured_qd)
+    q_f, qd_f, qdd_f, velocity_source = _filtered_motion(run, grid, (keep, updates), rate, cutoff_hz, order,
+                                                         use_measured_qd)
     # 4. trim the filter's transient at both ends (a few time constants of the cutoff)
     trim = _trim_samples(cutoff_hz, dt)
     n = grid.size
@@ -141,6 +187,7 @@ def prepare_run(
                               max=float(raw_steps.max() * 1e3)),
         repeated_samples_dropped=int(np.count_nonzero(~keep)), trimmed_s_each_end=float(trim * dt),
         spikes=SpikeRecord(SPIKE_SCALES, spikes) if spikes else None, incomplete_rows=run.incomplete,
+        held=_held_record(run, updates),
     )
     raw_torque = run.tau if run.tau is not None else run.tau_cmd
     assert raw_torque is not None
@@ -153,6 +200,14 @@ def prepare_run(
         else DEFAULT_TORQUE_SENSOR,
         entry=run.entry, **torques,
     )
+
+
+def _held_record(run: Run, updates: Mapping[int, np.ndarray]) -> HeldRecord | None:
+    """What :func:`held_columns` found, by joint: each held column's rows that were no update."""
+    if not updates:
+        return None
+    return HeldRecord({"q": {run.joint_names[j]: int(np.count_nonzero(~changed[1:])) for j, changed in updates.items()}},
+                      of=int(run.q.shape[0]))
 
 
 def _replace_spikes(run: Run) -> tuple[Run, dict[str, dict[str, int]]]:
@@ -193,15 +248,20 @@ def _resample(grid: np.ndarray, x: np.ndarray | None, t_src: np.ndarray, rows: n
 
 
 def _filtered_motion(
-    run: Run, grid: np.ndarray, keep: np.ndarray, rate: float, cutoff_hz: float, order: int, use_measured_qd: bool,
+    run: Run, grid: np.ndarray, samples: tuple[np.ndarray, Mapping[int, np.ndarray]], rate: float, cutoff_hz: float,
+    order: int, use_measured_qd: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-    """The positions on the grid (step ``1 / rate``, from the samples ``keep``), low-pass filtered, their velocity and
-    acceleration, and where the velocity came from."""
+    """The positions on the grid (step ``1 / rate``, from the rows ``samples[0]`` keeps, a held column from its own
+    update instants ``samples[1][column]``), low-pass filtered, their velocity and acceleration, and where the velocity
+    came from."""
     from scipy import signal
 
     dt = 1.0 / float(rate)
-
+    keep, updates = samples
     q_grid = _resample(grid, run.q, run.time[keep], keep)
+    for j, changed in updates.items():
+        # between two updates the column's true value moved on: interpolated, never a stop and a jump
+        q_grid[:, j] = np.interp(grid, run.time[changed], run.q[changed, j])
     nyquist = 0.5 * rate
     if cutoff_hz >= nyquist:
         raise InputError(run.path, "filter cutoff", f"{cutoff_hz} Hz is not below the Nyquist frequency {nyquist} Hz",
@@ -331,7 +391,8 @@ def prepare_for_model(
     """Every run of a measurement list read, checked against the URDF's joints and limits, and prepared.
 
     A run column naming a joint the URDF lacks is refused in the run's own terms (the file to edit is the
-    run). Returns the prepared runs, as :func:`load_prepared_runs`.
+    run), and so is a run whose measured torque is the negative of the URDF's on some joint
+    (:func:`~sim2real.measurements.signs.check_torque_signs`). Returns the prepared runs, as :func:`load_prepared_runs`.
     """
     from sim2real.assets.dynamics import RigidBodyModel
 
@@ -345,4 +406,5 @@ def prepare_for_model(
     probe = RigidBodyModel(urdf_path, runs[0].joint_names)
     limits = {j: (float(lo), float(hi)) for j, lo, hi in zip(probe.joint_names, probe.lower, probe.upper, strict=True)}
     prepared = prepare_runs(runs, probe.joint_names, limits)
+    check_torque_signs(prepared, probe, root)
     return dataclasses.replace(prepared, runs=tuple(with_command_floor(piece) for piece in prepared))

@@ -28,10 +28,14 @@ class RunMeta:
     control_mode: Literal["torque", "position"]
     sample_rate_hz: float | None = None
     torque_sensor: TorqueSensor | None = None
+    # per joint, +1 or -1: what the logged ``tau.<joint>`` is multiplied by to follow the URDF's joint axis (a sensor
+    # or driver that reports the reaction torque); a joint not named keeps its sign
+    torque_sign: Mapping[str, int] | None = None
     notes: str | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
 
-    _NAMED: ClassVar[tuple[str, ...]] = ("robot", "source", "control_mode", "sample_rate_hz", "torque_sensor", "notes")
+    _NAMED: ClassVar[tuple[str, ...]] = ("robot", "source", "control_mode", "sample_rate_hz", "torque_sensor",
+                                         "torque_sign", "notes")
 
     @classmethod
     def from_document(cls, document: Mapping[str, Any]) -> RunMeta:
@@ -61,6 +65,25 @@ class SpikeRecord:
 
     scales: float
     replaced: Mapping[str, Mapping[str, int]]
+
+
+@dataclass(frozen=True)
+class HeldRecord:
+    """The columns whose samples a logger held (:func:`sim2real.measurements.prepare.held_samples`): a value repeated
+    from the row before while the rest of the row changed, a signal updated slower than the log. ``held[kind][joint]``,
+    how many of ``of`` rows, for the columns held often enough to matter; each such column was rebuilt from its update
+    instants (the samples where its value changed) before anything was filtered or differentiated."""
+
+    held: Mapping[str, Mapping[str, int]]
+    of: int
+
+    def as_document(self) -> dict[str, Any]:
+        return {"held": {kind: dict(joints) for kind, joints in self.held.items()}, "of": self.of,
+                "rebuilt_from": "update instants"}
+
+    @classmethod
+    def from_document(cls, document: Mapping[str, Any]) -> HeldRecord:
+        return cls({kind: dict(joints) for kind, joints in document["held"].items()}, document["of"])
 
 
 @dataclass(frozen=True)
@@ -105,7 +128,7 @@ class GapRecord:
 @dataclass(frozen=True)
 class FilterSettings:
     """What :func:`sim2real.measurements.prepare.prepare_run` did to a run: the grid, the filter, the derivatives,
-    and the records of what it found (spikes, incomplete rows, logging gaps; None where there was none)."""
+    and the records of what it found (spikes, incomplete rows, logging gaps, held samples; None where there was none)."""
 
     order: int
     cutoff_hz: float
@@ -117,6 +140,7 @@ class FilterSettings:
     spikes: SpikeRecord | None = None
     incomplete_rows: IncompleteRows | None = None
     gaps: GapRecord | None = None
+    held: HeldRecord | None = None
     type: str = "butterworth low-pass, zero-phase (scipy.signal.sosfiltfilt)"
     applied_to: str = "q (torque is not filtered)"
     acceleration: str = "central differences of the velocity"
@@ -147,6 +171,8 @@ class FilterSettings:
                 "pieces": [{"name": p.name, "from_s": p.from_s, "to_s": p.to_s, "kept": p.kept} for p in record.pieces],
                 "run": record.run,
             }
+        if self.held is not None:
+            document["held"] = self.held.as_document()
         return document
 
     @classmethod
@@ -164,6 +190,7 @@ class FilterSettings:
             gaps=None if record is None else GapRecord(
                 record["max_step_s"], tuple(LoggingGap(**g) for g in record["gaps"]),
                 tuple(GapPiece(**p) for p in record["pieces"]), record["run"]),
+            held=None if "held" not in document else HeldRecord.from_document(document["held"]),
             type=document["type"], applied_to=document["applied_to"], acceleration=document["acceleration"],
             resampling=document["resampling"],
         )

@@ -261,7 +261,7 @@ def read_run(path: str | Path) -> Run:
     contact = table["contact"].astype(bool).to_numpy() if has_contact else None
     return Run(
         name=path.stem, path=path, joint_names=list(joints), time=time, q=q, qd=block("qd"),
-        tau=block("tau"), tau_cmd=block("tau_cmd"), q_cmd=block("q_cmd"), meta=meta, contact=contact,
+        tau=_signed_torque(path, meta, joints, block("tau")), tau_cmd=block("tau_cmd"), q_cmd=block("q_cmd"), meta=meta, contact=contact,
         **({"rows": kept, "incomplete": IncompleteRows(
             dropped=int(incomplete.sum()), of=int(incomplete.size),
             first_row=_row_label(path, int(np.flatnonzero(incomplete)[0])))} if incomplete.any() else {}),
@@ -277,6 +277,23 @@ def _read_meta(path: Path) -> RunMeta:
             "write <stem>.yaml with robot, source (real|synthetic) and control_mode (torque|position)",
         )
     return RunMeta.from_document(read_validated_yaml(meta_path, "measurement.schema.yaml"))
+
+
+def _signed_torque(path: Path, meta: RunMeta, joints: Sequence[str], tau: np.ndarray | None) -> np.ndarray | None:
+    """The measured torque ``tau`` with each joint's metadata ``torque_sign`` applied (a joint not named keeps its
+    sign); a sign for a joint the run does not log, or for a run without ``tau``, is refused."""
+    if not meta.torque_sign:
+        return tau
+    meta_path = path.with_suffix(".yaml")
+    unknown = [j for j in meta.torque_sign if j not in joints]
+    if unknown:
+        raise InputError(meta_path, f"torque_sign.{unknown[0]}", f"'{unknown[0]}' is not a joint of the run "
+                         f"({path.name} logs {', '.join(joints)})", "name the joints as the run's q.<joint> columns do")
+    if tau is None:
+        raise InputError(meta_path, "torque_sign", f"{path.name} logs no measured torque (tau.<joint>) to sign",
+                         "leave torque_sign out: the commanded torque tau_cmd is taken as logged")
+    signs = np.array([float(meta.torque_sign.get(j, 1)) for j in joints])
+    return tau * signs
 
 
 def _columns_by_kind(path: Path, columns: Sequence[str]) -> tuple[dict[str, list[str]], bool]:

@@ -289,7 +289,23 @@ def _runs_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
               f"acceleration: {f['acceleration']}; {f['applied_to']}; "
               f"{f['trimmed_s_each_end']:g} s trimmed at each end"
               f"{' of each piece' if any('gaps' in r['filter'] for r in runs) else ''}.", ""]
-    return lines + _incomplete_lines(runs) + _gaps_lines(runs) + _spike_lines(runs)
+    return lines + _incomplete_lines(runs) + _gaps_lines(runs) + _spike_lines(runs) + _held_lines(runs)
+
+
+def _held_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The position columns each run's logger held (sim2real.measurements.prepare.held_columns) and what the
+    preparation did about them; nothing when no column was held."""
+    rows = [f"- {r['name']}: " + "; ".join(
+        f"`{kind}` " + ", ".join(f"{joint} {count} of {r['filter']['held']['of']} rows "
+                                 f"({count / r['filter']['held']['of']:.0%})" for joint, count in joints.items())
+        for kind, joints in r["filter"]["held"]["held"].items()) + "."
+        for r in runs if "held" in r["filter"]]
+    if not rows:
+        return []
+    return ["Held samples (a column repeating the row before while the rest of the row changes: a signal updated "
+            "slower than the log). Each such column was taken at its own update instants, its held samples treated "
+            "as missing, before it was filtered and differentiated: a hold never reads as the joint stopping.", "",
+            *rows, ""]
 
 
 def _torque_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> list[str]:
