@@ -5,6 +5,7 @@ import glob
 import os
 
 import sim2real.assets.collision as _sim2real_collision
+import sim2real.assets.meshes as _sim2real_meshes
 import sim2real.assets.robot_config as _sim2real_robot_config
 import sim2real.excitation.names as _sim2real_design_names
 import sim2real.excitation.config as _sim2real_excitation_config
@@ -159,6 +160,21 @@ def mesh_uri(kind):
         return robot_meshes(wildcards.robot)[kind][wildcards.name]
 
     return uri
+
+
+_MESH_LINKS_CACHE = {}
+
+
+def mesh_links(kind):
+    """The links that use the {name} mesh of ``kind`` (named by a mesh job's error)."""
+    def links(wildcards):
+        urdf = checkpoints.urdf.get(robot=wildcards.robot, variant="").output[0]
+        key = (urdf, os.path.getmtime(urdf))
+        if key not in _MESH_LINKS_CACHE:
+            _MESH_LINKS_CACHE[key] = _sim2real_meshes.mesh_links(urdf)
+        return _MESH_LINKS_CACHE[key][kind][wildcards.name]
+
+    return links
 
 
 def mesh_source(kind):

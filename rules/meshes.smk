@@ -1,4 +1,5 @@
-# Mesh conversion, one job per mesh file: visual DAE -> OBJ per material + parts.json, collision STL copy.
+# Mesh conversion, one job per mesh file: a visual mesh (DAE, OBJ, STL, glTF/GLB, ...) -> OBJ per material +
+# parts.json, a collision mesh -> binary STL.
 # The list of meshes comes from the nominal URDF via checkpoints.urdf.get(); a mesh job's only input is
 # its source mesh file (and its URI as a param), so URDF edits that keep the mesh URIs rerun no mesh job.
 
@@ -25,6 +26,7 @@ rule visual_mesh:
         runtime=2,
     params:
         uri=mesh_uri("visual"),
+        links=mesh_links("visual"),
     script:
         "../scripts/convert_visual_mesh.py"
 
@@ -47,5 +49,6 @@ rule collision_mesh:
         runtime=1,
     params:
         uri=mesh_uri("collision"),
+        links=mesh_links("collision"),
     script:
         "../scripts/convert_collision_mesh.py"
