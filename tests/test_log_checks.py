@@ -3,6 +3,8 @@ position columns held by a logger slower than the log (stated, taken at their up
 
 from __future__ import annotations
 
+import collections
+
 import numpy as np
 import pytest
 import yaml
@@ -114,3 +116,57 @@ def test_a_log_without_holds_says_nothing_of_them(tmp_path):
     document = {"name": "clean", "role": "fit", "torque_source": "tau", "samples": 1, "duration_s": 5.0,
                 "has_commands": False, "filter": prepared.filter.as_document()}
     assert "Held samples" not in "\n".join(_runs_lines([document]))
+
+
+def _still_wrist_runs(tmp_path):
+    """Two runs of the Panda whose wrist (panda_joint7) barely moves (0.02 rad) while the other joints sweep, the
+    torque the URDF's plus Coulomb friction on every joint and noise; their list, model.yaml (the friction in the
+    model) and robot.yaml."""
+    from sim2real.assets.dynamics import RigidBodyModel
+    from sysid_synthetic import fourier_trajectory
+
+    model = RigidBodyModel(PANDA_URDF, PANDA_JOINTS, armature={j: 0.1 for j in PANDA_JOINTS})
+    runs = []
+    for name, seed in (("fit", 1), ("holdout", 2)):
+        t, q, qd, qdd = fourier_trajectory(model, 6.0, 200.0, seed)
+        centre = q[:, 6].mean()
+        scale = 0.02 / np.ptp(q[:, 6])
+        q[:, 6], qd[:, 6], qdd[:, 6] = centre + scale * (q[:, 6] - centre), scale * qd[:, 6], scale * qdd[:, 6]
+        tau = model.inverse_dynamics(q, qd, qdd) + 0.4 * np.tanh(qd / 0.02)
+        tau += np.random.default_rng(seed).normal(scale=0.05, size=tau.shape)
+        write_run(tmp_path / f"{name}.csv", t, PANDA_JOINTS, {"q": q, "tau": tau}, META)
+        runs.append({"name": name, "path": f"{name}.csv", "role": name})
+    listing = tmp_path / "measurements.yaml"
+    listing.write_text(yaml.safe_dump({"runs": runs}))
+    (tmp_path / "model.yaml").write_text("effects: [coulomb_friction]\n"
+                                         "fit: {bootstrap_replicates: 5, fit_rate_hz: 100, refine_max_samples: 500}\n")
+    (tmp_path / "robot.yaml").write_text(yaml.safe_dump({"armature": {"panda_joint*": 0.1}, "flange": "panda_link8"}))
+    return listing
+
+
+def test_a_joint_that_barely_moves_is_named_not_judged_and_its_drive_is_not_fitted(tmp_path):
+    from sim2real.identification.sysid import SysidFiles, run_sysid
+    from sim2real.measurements.motion import MIN_RANGE_RAD, still_joints
+    from sim2real.report.gap import GapInputs, compute_gap
+    from sim2real.report.markdown import render_gap_markdown
+
+    listing = _still_wrist_runs(tmp_path)
+    prepared = prepare_for_model(listing, PANDA_URDF, root=tmp_path)
+    still = still_joints(prepared.fit)
+    assert list(still) == ["panda_joint7"] and 0.015 < still["panda_joint7"] < MIN_RANGE_RAD
+    out = tmp_path / "out"
+    ladder = run_sysid("panda", SysidFiles(PANDA_URDF, tmp_path / "robot.yaml", tmp_path / "model.yaml", listing,
+                                           out / "ladder.json", out / "params.yaml", out / "calibration.yaml",
+                                           root=tmp_path, residuals=out / "residuals.npz"))
+    fitted = ladder["ladder"][-1]["params"]["coulomb_friction"]["friction"]
+    assert fitted["panda_joint7"] == 0.0  # held at the URDF's (none): never fitted on the wrist's noise
+    assert all(0.3 < fitted[j] < 0.5 for j in PANDA_JOINTS[:6])  # the joints that move: 0.4 N*m found
+    assert ladder["settings"]["fit"]["still_joints"] == ["panda_joint7"]
+    gap, _ = compute_gap(GapInputs("panda", PANDA_URDF, None, listing, root=tmp_path, ladder=out / "ladder.json",
+                                   residuals=out / "residuals.npz"))
+    assert gap["not_judged"]["joints"]["panda_joint7"]["range_rad"] == pytest.approx(still["panda_joint7"])
+    assert gap["not_judged"]["needs_rad"] == MIN_RANGE_RAD
+    text = render_gap_markdown(gap, collections.defaultdict(lambda: "figure.svg"))
+    assert (f"Not judged: panda_joint7 barely moves in the fit runs ({still['panda_joint7']:.2g} rad at most within "
+            "one run): its drive friction and rotor inertia are held at the URDF's rather than fitted on noise") in text
+    assert "record a fit run that sweeps it over at least 0.1 rad." in text

@@ -32,13 +32,14 @@ from sim2real.identification.diagnosis.across import across_sides
 from sim2real.identification.documents import params_document, round_floats, write_model_residuals
 from sim2real.identification.effects import get_effect
 from sim2real.identification.fitting import (
-    DEFAULT_SETTINGS, PRIOR_START_SETTING, FitContext, FitResult, NominalModel, Refinements, RunSamples, TorqueData,
-    fit_on_the_previous, floor_units, holdout_metrics, load_nominal, predict, stack_runs,
+    DEFAULT_SETTINGS, PRIOR_START_SETTING, STILL_JOINTS_SETTING, FitContext, FitResult, NominalModel, Refinements,
+    RunSamples, TorqueData, fit_on_the_previous, floor_units, holdout_metrics, load_nominal, predict, stack_runs,
 )
 from sim2real.identification.inertial.bands import InertiaBands
 from sim2real.identification.model_config import ModelConfig, load_model_config
 from sim2real.identification.records import Note, NoteKind, SensorPlacement, Side
 from sim2real.measurements import PreparedRun, noise_floor_of, torque_sensor_of
+from sim2real.measurements.motion import still_joints
 from sim2real.stats import rmse
 
 
@@ -250,7 +251,7 @@ def fit_model(model: ModelConfig, nominal: NominalModel, runs: Mapping[str, Sequ
     """
     settings = model.as_settings()
     effect_names = list(model.effects)
-    fit_settings = {**DEFAULT_SETTINGS, **settings["fit"]}
+    fit_settings = {**DEFAULT_SETTINGS, **settings["fit"], **_still_setting(runs["fit"])}
     split = _sides_of(runs, model, robot)
     body_effects = split.body_effects(effect_names)
     body_data = {role: stack_runs([RunSamples.of(run, noise_floor_of(run)) for run in runs[role]],
@@ -302,6 +303,13 @@ def _model_document(robot: str, body: SideLadder, drive: SideLadder | None, spli
     return document
 
 
+def _still_setting(fit_runs: Sequence[PreparedRun]) -> dict[str, list[str]]:
+    """The fit setting that holds the drive parameters of the joints that barely move in the fit runs
+    (:func:`sim2real.measurements.motion.still_joints`) at the nominal model's; nothing when every joint moves."""
+    still = still_joints(fit_runs)
+    return {STILL_JOINTS_SETTING: list(still)} if still else {}
+
+
 class _Done:
     """A result already computed, asked for as a :class:`sim2real.forked.Forked` one is."""
 
@@ -320,7 +328,8 @@ def _drive_side(effect_names: Sequence[str], nominal: NominalModel, runs: Mappin
     data = {role: sides.drive_data(runs[role], joints) for role in ("fit", "holdout")}
     signals = {role: sides.drive_signals(*data[role], nominal) for role in data}
     context = FitContext(nominal, data["fit"][0], data["holdout"][0], signals["fit"], signals["holdout"],
-                         {**DEFAULT_SETTINGS, **settings.get("fit", {}), **sides.DRIVE_FIT_SETTINGS})
+                         {**DEFAULT_SETTINGS, **settings.get("fit", {}), **sides.DRIVE_FIT_SETTINGS,
+                          **_still_setting(runs["fit"])})
     return fit_ladder(sides.effects_of_side(effect_names, Side.DRIVE, split.sensor, split.kept_on), context,
                       side=Side.DRIVE, candidates=sides.candidates_of_side(Side.DRIVE, split.sensor, split.kept_on),
                       limits=settings.get("diagnosis"), cache=cache)

@@ -7,7 +7,7 @@ from typing import Any
 
 from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR
 from sim2real.report.regimes import REGIME_LABELS
-from sim2real.report.verdicts import BOUND_TEXT, bounds_text
+from sim2real.report.verdicts import BOUND_TEXT, bounds_text, not_judged_text
 
 # Where the runs' tau is measured (run metadata `torque_sensor`), as gap.md says it.
 SENSOR_TEXT = {
@@ -259,6 +259,8 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
     model = gap["metrics"].get("model")
     lines = [f"# Reality gap: {gap['robot']}", ""]
     lines += _runs_lines(gap["runs"])
+    if "not_judged" in gap:
+        lines += [not_judged_text(gap["not_judged"]), ""]
     lines += _torque_domain_lines(gap, model)
     lines += _state_domain_lines(gap, model)
     lines += _where_lines(gap, model)

@@ -46,10 +46,15 @@ class _Problem:
     """Columns and targets of one model on one data set, for a given nonlinear parameter vector."""
 
     def __init__(self, effects: list[Effect], signals: Signals, states: dict[str, dict[str, Any]],
-                 weights: np.ndarray | None = None, reuse_design: bool = False) -> None:
+                 weights: np.ndarray | None = None, reuse_design: bool = False,
+                 still_joints: Sequence[str] = ()) -> None:
         self.effects = effects
         self.signals = signals
         self.states = states
+        # The joints that barely move in the fit runs (sim2real.measurements.motion): their drives' own parameters
+        # (friction, rotor inertia) are held at the nominal model's, their columns zero on those joints' rows.
+        self.still_joints = tuple(j for j in signals.joint_names if j in set(still_joints))
+        self.still_rows = np.array([signals.joint_names.index(j) for j in self.still_joints], dtype=int)
         # Per-joint weights of the data term (joint_weights): the fit solves in units of each joint's floor.
         self.weights = np.ones(signals.n) if weights is None else np.asarray(weights, dtype=float)
         # An effect estimated on every run itself (a sensor's drift, Effect.per_run): each run's polynomials in its
@@ -60,8 +65,8 @@ class _Problem:
         self.static_columns: dict[str, np.ndarray] = {}
         for effect in effects:
             if not effect.time_shift and not effect.nonlinear:
-                self.static_columns[effect.name] = self.per_run_removed(
-                    effect.columns(signals, states[effect.name], np.array([]))[0])
+                self.static_columns[effect.name] = self.without_still(effect, self.per_run_removed(
+                    effect.columns(signals, states[effect.name], np.array([]))[0]))
         self.nl_sizes = [len(e.nonlinear_init(signals)) for e in effects]
         # reuse_design: each design() writes the moving columns into the last one's array, the static ones stay
         # (the refinement asks for hundreds; a caller must be done with one design before it asks for the next)
@@ -100,6 +105,16 @@ class _Problem:
         """``values`` (samples first) as the model's lags move the prediction (:func:`effects.timing.retime`)."""
         return retime(values, self.signals.time, self.signals.segments, self.delay(nonlinear), self.lag(nonlinear))
 
+    def without_still(self, effect: Effect, cols: np.ndarray) -> np.ndarray:
+        """A drive effect's columns (N, n, k) with the still joints' rows zero: their own parameters, which act on
+        their joint alone, are then not fitted (the solve leaves a column it cannot see at zero, the nominal value);
+        every other effect's columns as they are."""
+        if not self.still_rows.size or not effect.drive:
+            return cols
+        cols = cols.copy()
+        cols[:, self.still_rows, :] = 0.0
+        return cols
+
     def block(self, effect: Effect, nonlinear: dict[str, np.ndarray]) -> np.ndarray:
         """One effect's columns (N, n, k) at the given nonlinear parameters (before the time shift)."""
         cols = self.static_columns.get(effect.name)
@@ -109,8 +124,8 @@ class _Problem:
             if kept is not None and kept[0] == key:
                 cols = kept[1]
             else:
-                cols = self.per_run_removed(
-                    effect.columns(self.signals, self.states[effect.name], nonlinear[effect.name])[0])
+                cols = self.without_still(effect, self.per_run_removed(
+                    effect.columns(self.signals, self.states[effect.name], nonlinear[effect.name])[0]))
                 if cols.nbytes <= KEPT_BLOCK_BYTES and not self.reuse_design:  # the refinement's move every step
                     self._kept[effect.name] = (key, cols)
         if self.signals.forward and effect.drive:

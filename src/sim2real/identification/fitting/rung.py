@@ -51,6 +51,10 @@ INERTIA_PRIOR_FALLBACK = 1e-3
 # a rung that adds one effect rarely moves it by more than a decade); absent, the search starts on PRIOR_GRID.
 PRIOR_START_SETTING = "inertia_prior_start"
 
+# The joints that barely move in the fit runs (sim2real.measurements.motion.still_joints), absent when every joint
+# moves: their drives' own parameters are held at the nominal model's (_Problem.without_still).
+STILL_JOINTS_SETTING = "still_joints"
+
 
 def fit(
     effect_names: Sequence[str],
@@ -83,7 +87,7 @@ def fit(
                               figures={"torque_source": data.torque_source}).as_document())
     states = {e.name: e.prepare(signals) for e in effects}
     weights = joint_weights(data.noise_floor, str(settings.get("joint_weighting", "noise_floor")))
-    problem = _Problem(effects, signals, states, weights)
+    problem = _Problem(effects, signals, states, weights, still_joints=settings.get(STILL_JOINTS_SETTING) or ())
     refine = functools.partial(_refine_nonlinear, problem, data.tau, settings, nonlinear.held, nonlinear.start)
     refined = refine() if nonlinear.refinements is None else nonlinear.refinements.get_or_compute(
         effect_names, settings, nonlinear.held, nonlinear.start, refine)
@@ -235,7 +239,7 @@ def _consistent_fit(
 
 
 def _consistent_design(problem: _Problem, nonlinear: Mapping[str, np.ndarray],
-                       blocks: Sequence[tuple[Effect, slice, np.ndarray]]) -> Any:
+                       blocks: Sequence[tuple[Effect, slice, np.ndarray, np.ndarray | None]]) -> Any:
     """The consistent fit's columns in the data term's units (each joint by its floor). On a long log the largest
     array of the fit: without a time shift its rows are put together a chunk at a time (DesignRows), never whole; the
     same bits."""
@@ -278,7 +282,8 @@ def _inertia_prior(problem: _Problem, data: TorqueData, nonlinear: Mapping[str, 
 
 def _solve_physical(problem: _Problem, data: TorqueData, nonlinear: Mapping[str, np.ndarray], weighted: Any,
                     bounds: np.ndarray, inertial: Any, weight: float,
-                    blocks: Sequence[tuple[Effect, slice, np.ndarray]]) -> tuple[dict[str, np.ndarray], str, float]:
+                    blocks: Sequence[tuple[Effect, slice, np.ndarray, np.ndarray | None]],
+                    ) -> tuple[dict[str, np.ndarray], str, float]:
     """(theta, the solver's status, its time) of the physically consistent solve; offsets that are not linear (a
     payload's own inertia) by fixed-point iteration. Raises InfeasibleFit when there is no consistent solution."""
     from sim2real.identification.inertial import InfeasibleFit, physically_consistent, solve_consistent
@@ -290,10 +295,14 @@ def _solve_physical(problem: _Problem, data: TorqueData, nonlinear: Mapping[str,
         solution = solve_consistent(weighted, (data.tau - problem.base(theta, nonlinear)) * problem.weights,
                                     bounds, inertial, weight)
         solve_time += solution.solve_time_s
-        for effect, cols, _ in blocks:
+        for effect, cols, _, kept in blocks:
             coefficients = solution.coefficients[cols]
             if effect.name == "link_inertia":
                 coefficients = effect.set_correction(problem.states[effect.name], coefficients)
+            if kept is not None:  # the columns left out (a still joint's) at zero: the nominal value
+                placed = np.zeros(kept.size)
+                placed[kept] = coefficients
+                coefficients = placed
             theta[effect.name] = coefficients
     for effect in problem.effects:
         theta.setdefault(effect.name, np.zeros(0))  # a time shift has no linear coefficients
@@ -328,10 +337,12 @@ def _contradiction(problem: _Problem, theta_free: dict[str, np.ndarray], free_re
 
 
 def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -> tuple[
-        list[tuple[Effect, slice, np.ndarray]], list[np.ndarray], Any]:
-    """The consistent fit's columns (effect, its coefficients, its columns), each effect's lower bounds and the
-    link inertias' block (:class:`sim2real.identification.inertial.InertialBlock`, None without link_inertia): what
-    :func:`sim2real.identification.inertial.solve_consistent` builds its program of."""
+        list[tuple[Effect, slice, np.ndarray, np.ndarray | None]], list[np.ndarray], Any]:
+    """The consistent fit's columns (effect, its coefficients, its columns, which of the effect's columns these are:
+    None, all), each effect's lower bounds and the link inertias' block
+    (:class:`sim2real.identification.inertial.InertialBlock`, None without link_inertia): what
+    :func:`sim2real.identification.inertial.solve_consistent` builds its program of. A still joint's drive columns
+    (:meth:`_Problem.without_still`) are left out: the program would leave a column it cannot see anywhere."""
     from sim2real.identification.effects.link_inertia import correction_anchors
     from sim2real.identification.inertial import InertialBlock, pseudo_inertia
     from sim2real.identification.inertial.bands import InertiaBands, body_bounds
@@ -342,6 +353,7 @@ def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -
     for effect in problem.effects:
         if effect.time_shift or effect.per_run:
             continue
+        kept = None
         if effect.name == "link_inertia":
             cols = problem.per_run_removed(signals.regressor)
             anchors = correction_anchors(signals.nominal)
@@ -357,8 +369,12 @@ def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -
             problem.states[effect.name]["null_offset"] = np.zeros(cols.shape[2])
         else:
             cols = problem.block(effect, nonlinear)
-            lower.append(np.asarray(effect.theta_lower(signals, cols.shape[2]), dtype=float))
-        blocks.append((effect, slice(start, start + cols.shape[2]), cols))
+            bounds_of = np.asarray(effect.theta_lower(signals, cols.shape[2]), dtype=float)
+            if problem.still_rows.size and effect.drive:
+                kept = np.any(cols != 0.0, axis=(0, 1))
+                cols, bounds_of = cols[:, :, kept], bounds_of[kept]
+            lower.append(bounds_of)
+        blocks.append((effect, slice(start, start + cols.shape[2]), cols, kept))
         start += cols.shape[2]
     return blocks, lower, inertial
 
