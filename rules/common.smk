@@ -167,6 +167,7 @@ _MESH_LINKS_CACHE = {}
 
 def mesh_links(kind):
     """The links that use the {name} mesh of ``kind`` (named by a mesh job's error)."""
+
     def links(wildcards):
         urdf = checkpoints.urdf.get(robot=wildcards.robot, variant="").output[0]
         key = (urdf, os.path.getmtime(urdf))

@@ -193,7 +193,7 @@ def read_visual_parts(path: str | Path, label: str, where: str | None = None) ->
     return read_trimesh_parts(path, label, where)
 
 
-def link_mesh(path: str | Path) -> trimesh.Trimesh:
+def urdf_mesh(path: str | Path) -> trimesh.Trimesh:
     """One triangle mesh of a URDF's mesh file in its link's frame, read as trimesh reads it (a glTF file turned onto
     the link frame's Z-up, as :func:`read_trimesh_parts` turns it): the geometry the fit's inertia bands bound."""
     import trimesh

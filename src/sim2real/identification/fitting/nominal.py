@@ -89,14 +89,14 @@ def _collision_meshes(urdf_path: Path, link: ET.Element) -> list[_MeshPart] | No
 
 def _collision_points(parts: Sequence[_MeshPart] | None) -> np.ndarray | None:
     """Vertices of a link's collision meshes in the link frame (None when a mesh cannot be read)."""
-    from sim2real.assets.meshes import link_mesh
+    from sim2real.assets.meshes import urdf_mesh
 
     if parts is None:
         return None
     points = []
     for part in parts:
         try:
-            loaded = link_mesh(part.path)  # a glTF turned Z-up, as the assets place it
+            loaded = urdf_mesh(part.path)  # a glTF turned Z-up, as the assets place it
         except Exception:  # noqa: BLE001 - an unreadable mesh only drops the optional, stronger constraint
             return None
         points.append(np.asarray(loaded.vertices) * np.asarray(part.scale) @ pin.rpy.rpyToMatrix(np.asarray(part.rpy)).T
