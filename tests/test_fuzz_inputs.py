@@ -368,6 +368,34 @@ LIMITS = {j: (-2.9, 2.9) for j in PANDA_JOINTS}
 RUN_META = {"robot": "panda", "source": "real", "control_mode": "torque", "sample_rate_hz": 200.0, "torque_sensor": "link"}
 
 
+SIGNED_META = {**RUN_META, "torque_sign": {"panda_joint2": -1, "panda_joint3": 1}}
+
+
+@fuzz(200)
+@given(meta=st.one_of(st.just(SIGNED_META), broken(SIGNED_META, st.sampled_from(
+    [-1, 1, -1.0, 2, "panda_joint1", "panda_joint9", {"panda_joint1": -1}, {"elbow": -1}, {"panda_joint1": 0}]))))
+def test_run_metadata_torque_sign(tmp_path_factory: pytest.TempPathFactory, meta: Any) -> None:
+    """A run's metadata with its ``torque_sign`` broken: read with every named joint's torque multiplied by its sign
+    (1 or -1), or refused naming the metadata file."""
+    import pandas as pd
+
+    from sim2real.measurements import read_run
+
+    folder = tmp_path_factory.mktemp("signed")
+    table = good_run(400)
+    pd.DataFrame(table).to_csv(folder / "run.csv", index=False)
+    dump(folder / "run.yaml", meta)
+
+    def valid(run: Any) -> None:
+        signs = run.meta.torque_sign or {}
+        assert set(signs) <= set(run.joint_names) and all(sign in (1, -1) for sign in signs.values())
+        for i, joint in enumerate(run.joint_names):
+            assert np.allclose(run.tau[:, i], signs.get(joint, 1) * table[f"tau.{joint}"])
+
+    holds(lambda: read_run(folder / "run.csv"), folder / "run.yaml", [folder / "run.csv", folder / "run.yaml"],
+          valid=valid)
+
+
 @fuzz(600)
 @given(edits=st.lists(st.tuples(TABLE_EDIT, st.integers(0, 10**6), st.floats(-1e3, 1e3)), min_size=1, max_size=3),
        meta=st.one_of(st.just(RUN_META), st.just(RUN_META), st.just(RUN_META), broken(RUN_META)),
