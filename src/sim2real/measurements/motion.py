@@ -15,11 +15,15 @@ import numpy as np
 
 from sim2real.measurements.runs import PreparedRun
 
-# The range a joint must sweep within one fit run to be judged (rad, or m for a prismatic joint): a friction's
-# velocity law and a rotor's inertia need the joint to reverse and accelerate over more than its encoder's and the
-# filter's error. The lab's excitations sweep each joint over 0.6 rad and more; a joint held by a brake or a
-# controller's stiffness wanders by hundredths.
+# The range a joint must sweep within one fit run to be judged (rad, or m for a prismatic joint), when the other joints
+# move more: a friction's velocity law and a rotor's inertia need the joint to reverse and accelerate. The lab's
+# excitations sweep each joint over 0.6 rad and more; a joint held by a brake or a controller's stiffness, or one an
+# excitation forgot, wanders by hundredths (a real KUKA log: 0.02 and 0.04 rad, its other joints a radian).
 MIN_RANGE_RAD = 0.1
+# ... and it must sweep at least this share of the median joint's range: an arm excited slowly on purpose (the lab's
+# slow_viscous: every joint 0.07 to 0.3 rad in 8 s) still identifies each joint's friction, none of its joints being
+# left behind the others.
+MIN_SHARE_OF_MEDIAN = 0.25
 
 
 def joint_ranges(fit_runs: Sequence[PreparedRun]) -> dict[str, float]:
@@ -29,16 +33,27 @@ def joint_ranges(fit_runs: Sequence[PreparedRun]) -> dict[str, float]:
     return {joint: float(r) for joint, r in zip(fit_runs[0].joint_names, ranges, strict=True)}
 
 
+def needed_range(ranges: dict[str, float]) -> float:
+    """The range a joint needs to be judged beside the others' ``ranges`` (:data:`MIN_RANGE_RAD`,
+    :data:`MIN_SHARE_OF_MEDIAN`)."""
+    return min(MIN_RANGE_RAD, MIN_SHARE_OF_MEDIAN * float(np.median(list(ranges.values()))))
+
+
 def still_joints(fit_runs: Sequence[PreparedRun]) -> dict[str, float]:
-    """The joints that move less than :data:`MIN_RANGE_RAD` in every fit run, with their range (:func:`joint_ranges`),
-    in the runs' joint order; empty when every joint moves (or there is no fit run)."""
+    """The joints that move less than they need (:func:`needed_range`) in every fit run, with their range
+    (:func:`joint_ranges`), in the runs' joint order; empty when every joint moves (or there is no fit run)."""
     if not fit_runs:
         return {}
-    return {joint: r for joint, r in joint_ranges(fit_runs).items() if r < MIN_RANGE_RAD}
+    ranges = joint_ranges(fit_runs)
+    needed = needed_range(ranges)
+    return {joint: r for joint, r in ranges.items() if r < needed}
 
 
-def not_judged_document(still: dict[str, float]) -> dict[str, object]:
+def not_judged_document(fit_runs: Sequence[PreparedRun]) -> dict[str, object] | None:
     """gap.json's ``not_judged``: each still joint's range (:func:`still_joints`), the range it would need, and what
-    the fit holds of it."""
-    return {"joints": {joint: {"range_rad": r} for joint, r in still.items()}, "needs_rad": MIN_RANGE_RAD,
-            "held_at_nominal": ["drive friction", "rotor inertia"]}
+    the fit holds of it; None when every joint moves."""
+    still = still_joints(fit_runs)
+    if not still:
+        return None
+    return {"joints": {joint: {"range_rad": r} for joint, r in still.items()},
+            "needs_rad": needed_range(joint_ranges(fit_runs)), "held_at_nominal": ["drive friction", "rotor inertia"]}

@@ -41,7 +41,7 @@ from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.errors import InputError
 from sim2real.files import relative_path, validate, write_json
 from sim2real.measurements import PreparedRun, RunSet, measured_after_drive, noise_floor_of, runs_for_model
-from sim2real.measurements.motion import not_judged_document, still_joints
+from sim2real.measurements.motion import not_judged_document
 from sim2real.report.metrics import TorqueComparison, per_joint_dict, torque_metrics
 from sim2real.report.regimes import where_it_fails
 from sim2real.report.replay import ReplayModels, ladder_position_rmse, model_armature, state_domain
@@ -178,9 +178,9 @@ def _gap_head(robot: str, joints: list[str], prepared: RunSet[PreparedRun],
                    "method": "white part of the raw torque from second differences (MAD), per joint; "
                              "a model that explains everything else has about this RMSE"}
     gap: dict[str, Any] = {"robot": robot, "joints": joints, "noise_floor": noise_floor}
-    still = still_joints(prepared.fit)
-    if still:  # the joints the fit runs barely move: not judged, their drives held at the URDF's
-        gap["not_judged"] = not_judged_document(still)
+    not_judged = not_judged_document(prepared.fit)
+    if not_judged is not None:  # the joints the fit runs barely move: not judged, their drives held at the URDF's
+        gap["not_judged"] = not_judged
     sections = worded(precomputed, robot) if precomputed else {}
     for key in ("ladder", "diagnosis", "actuator", "links"):
         if key in sections:
