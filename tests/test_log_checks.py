@@ -128,7 +128,7 @@ def _still_wrist_runs(tmp_path):
     model = RigidBodyModel(PANDA_URDF, PANDA_JOINTS, armature={j: 0.1 for j in PANDA_JOINTS})
     runs = []
     for name, seed in (("fit", 1), ("holdout", 2)):
-        t, q, qd, qdd = fourier_trajectory(model, 6.0, 200.0, seed)
+        t, q, qd, qdd = fourier_trajectory(model, 4.0, 200.0, seed)
         centre = q[:, 6].mean()
         scale = 0.02 / np.ptp(q[:, 6])
         q[:, 6], qd[:, 6], qdd[:, 6] = centre + scale * (q[:, 6] - centre), scale * qd[:, 6], scale * qdd[:, 6]

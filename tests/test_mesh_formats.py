@@ -14,7 +14,9 @@ import yaml
 from pxr import Usd, UsdGeom, UsdShade
 
 from sim2real.assets.collision import CoacdSettings, MeshSettings, decompose, load_source_mesh
-from sim2real.assets.meshes import BuiltMeshes, convert_collision_mesh, convert_visual_mesh, mesh_links, read_parts
+from sim2real.assets.meshes import (
+    DEFAULT_RGBA, BuiltMeshes, convert_collision_mesh, convert_visual_mesh, mesh_links, read_parts,
+)
 from sim2real.assets.mjcf import build_mjcf
 from sim2real.assets.urdf import mesh_names, resolve_package_uri
 from sim2real.assets.usd import build_usd
@@ -131,6 +133,19 @@ def test_the_converted_meshes_are_byte_identical_on_rebuild(tiny, tmp_path):
     convert_visual_mesh(uri, tmp_path / "b" / "arm", uri)
     for path in sorted((tmp_path / "a" / "arm").iterdir()):
         assert path.read_bytes() == (tmp_path / "b" / "arm" / path.name).read_bytes()
+
+
+def test_face_colors_become_one_part_each_and_an_uncolored_stl_the_default(tmp_path):
+    box = trimesh.creation.box((0.1, 0.1, 0.1))
+    box.visual.face_colors = np.tile([255, 0, 0, 255], (len(box.faces), 1))
+    box.visual.face_colors[:4] = [0, 255, 0, 255]
+    box.export(tmp_path / "painted.ply")
+    record = convert_visual_mesh(tmp_path / "painted.ply", tmp_path / "out" / "painted", "painted.ply")
+    assert [tuple(p["rgba"]) for p in record["parts"]] == [(0.0, 1.0, 0.0, 1.0), (1.0, 0.0, 0.0, 1.0)]
+    assert [len(trimesh.load(tmp_path / "out" / "painted" / p["file"], force="mesh").faces) for p in record["parts"]] == [4, 8]
+    box.export(tmp_path / "plain.stl")
+    record = convert_visual_mesh(tmp_path / "plain.stl", tmp_path / "out" / "plain", "plain.stl")
+    assert [tuple(p["rgba"]) for p in record["parts"]] == [DEFAULT_RGBA]
 
 
 @pytest.mark.parametrize(("file", "content", "problem"), [

@@ -7,7 +7,7 @@ each visual mesh becomes one OBJ per material and a ``parts.json`` that carries 
     {"source": "<package uri>", "parts": [{"file": "<name>_<i>.obj", "material": "<name>", "rgba": [r, g, b, a]}]}
 
 A color is kept where the format carries one: a Collada or MTL material's diffuse color, a glTF material's base
-color, an OBJ/PLY's face or vertex colors (one part per color); a mesh without one gets :data:`DEFAULT_RGBA`.
+color, a PLY's (or OBJ's) face or vertex colors (one part per color); a mesh without one gets :data:`DEFAULT_RGBA`.
 Outputs are deterministic (fixed number format, sorted vertex table) and written atomically.
 """
 
@@ -171,7 +171,8 @@ def _rgba(color: object) -> tuple[float, float, float, float]:
 
 def _face_groups(mesh: object, name: str) -> list[tuple[str, tuple[float, float, float, float], np.ndarray]]:
     """The faces of a trimesh mesh by color: (material name, rgba, face indices). A material's main color (an MTL's
-    diffuse, a glTF's base color, a texture's mean), else one group per face color, else :data:`DEFAULT_RGBA`."""
+    diffuse, a glTF's base color factor; a texture's image is not sampled: MuJoCo would need its UVs), else one group
+    per face (or vertex) color, else :data:`DEFAULT_RGBA`."""
     visual = getattr(mesh, "visual", None)
     count = len(mesh.faces)  # type: ignore[attr-defined]
     every = np.arange(count)
