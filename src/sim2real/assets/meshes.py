@@ -152,7 +152,8 @@ def read_trimesh_parts(path: str | Path, label: str, where: str | None = None) -
         faces = np.asarray(getattr(mesh, "faces", np.empty((0, 3))), dtype=np.int64)
         if faces.size == 0:
             continue  # a point cloud or a path: no surface
-        vertices = np.asarray(mesh.vertices, dtype=float) @ np.asarray(transform)[:3, :3].T + np.asarray(transform)[:3, 3]
+        placement = np.asarray(transform, dtype=float)
+        vertices = np.asarray(mesh.vertices, dtype=float) @ placement[:3, :3].T + placement[:3, 3]
         for material, rgba, rows in _face_groups(mesh, str(geometry_name)):
             part = parts.setdefault((material, rgba), _Part(material, rgba))
             part.triangles.append(vertices[faces[rows]] @ rotation.T)
@@ -166,7 +167,8 @@ def _rgba(color: object) -> tuple[float, float, float, float]:
     """An 8-bit RGBA (trimesh's colors) as four fractions, rounded as Collada's are."""
     values = np.asarray(color, dtype=float).ravel()[:4] / 255.0
     values = np.concatenate([values, np.ones(4 - values.size)])
-    return (round(float(values[0]), 6), round(float(values[1]), 6), round(float(values[2]), 6), round(float(values[3]), 6))
+    red, green, blue, alpha = (round(float(v), 6) for v in values)
+    return (red, green, blue, alpha)
 
 
 def _face_groups(mesh: object, name: str) -> list[tuple[str, tuple[float, float, float, float], np.ndarray]]:

@@ -207,8 +207,8 @@ def _held_record(run: Run, updates: Mapping[int, np.ndarray]) -> HeldRecord | No
     """What :func:`held_columns` found, by joint: each held column's rows that were no update."""
     if not updates:
         return None
-    return HeldRecord({"q": {run.joint_names[j]: int(np.count_nonzero(~changed[1:])) for j, changed in updates.items()}},
-                      of=int(run.q.shape[0]))
+    held = {run.joint_names[j]: int(np.count_nonzero(~changed[1:])) for j, changed in updates.items()}
+    return HeldRecord({"q": held}, of=int(run.q.shape[0]))
 
 
 def _replace_spikes(run: Run) -> tuple[Run, dict[str, dict[str, int]]]:

@@ -261,7 +261,8 @@ def read_run(path: str | Path) -> Run:
     contact = table["contact"].astype(bool).to_numpy() if has_contact else None
     return Run(
         name=path.stem, path=path, joint_names=list(joints), time=time, q=q, qd=block("qd"),
-        tau=_signed_torque(path, meta, joints, block("tau")), tau_cmd=block("tau_cmd"), q_cmd=block("q_cmd"), meta=meta, contact=contact,
+        tau=_signed_torque(path, meta, joints, block("tau")),
+        tau_cmd=block("tau_cmd"), q_cmd=block("q_cmd"), meta=meta, contact=contact,
         **({"rows": kept, "incomplete": IncompleteRows(
             dropped=int(incomplete.sum()), of=int(incomplete.size),
             first_row=_row_label(path, int(np.flatnonzero(incomplete)[0])))} if incomplete.any() else {}),

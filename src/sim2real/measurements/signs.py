@@ -40,7 +40,8 @@ def torque_agreement(runs: Sequence[PreparedRun], model: InverseDynamics) -> tup
     their motion (NaN where either does not vary), and the RMS of the measured torque plus the model's over that of
     the measured minus the model's (below 1: the model fits the torque better turned round)."""
     step = max(1, sum(run.time.size for run in runs) // SIGN_SAMPLES)
-    q, qd, qdd, tau = (np.concatenate([getattr(run, name)[::step] for run in runs]) for name in ("q", "qd", "qdd", "tau"))
+    q, qd, qdd, tau = (np.concatenate([getattr(run, name)[::step] for run in runs])
+                       for name in ("q", "qd", "qdd", "tau"))
     predicted = model.inverse_dynamics(q, qd, qdd)
     turned, logged = np.sqrt(np.mean((tau + predicted) ** 2, axis=0)), np.sqrt(np.mean((tau - predicted) ** 2, axis=0))
     measured, predicted = tau - tau.mean(axis=0), predicted - predicted.mean(axis=0)
