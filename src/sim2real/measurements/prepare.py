@@ -107,17 +107,17 @@ HELD_FRACTION = 0.15
 def held_samples(q: np.ndarray, torque: np.ndarray | None) -> np.ndarray:
     """(N, n) bool: the rows of each position column of ``q`` (raw, (N, n)) that repeat the row before while something
     else of the row changes (another position or a torque); the first row never."""
-    repeats = np.zeros(q.shape, dtype=bool)
-    repeats[1:] = q[1:] == q[:-1]
-    others = np.zeros(q.shape[0], dtype=bool)
+    moved = np.zeros(q.shape, dtype=bool)
+    moved[1:] = q[1:] != q[:-1]
+    torque_moved = np.zeros(q.shape[0], dtype=bool)
     if torque is not None:
-        others[1:] = np.any(torque[1:] != torque[:-1], axis=1)
-    moved = ~repeats
-    moved[0] = False
-    moving = moved.sum(axis=1)
-    # the rest of the row changed: a torque, or a position of another column
-    rest_changed = others[:, None] | ((moving[:, None] - moved) > 0)
-    return repeats & rest_changed
+        torque_moved[1:] = np.any(torque[1:] != torque[:-1], axis=1)
+    # the rest of the row changed: a torque, or a position of another column (small integers: a 10-minute log at
+    # 1 kHz is millions of rows)
+    others_moved = (moved.sum(axis=1, dtype=np.int16)[:, None] - moved) > 0
+    held = ~moved & (torque_moved[:, None] | others_moved)
+    held[0] = False
+    return held
 
 
 def held_columns(run: Run) -> dict[int, np.ndarray]:
