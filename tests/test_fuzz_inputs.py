@@ -371,7 +371,7 @@ RUN_META = {"robot": "panda", "source": "real", "control_mode": "torque", "sampl
 SIGNED_META = {**RUN_META, "torque_sign": {"panda_joint2": -1, "panda_joint3": 1}}
 
 
-@fuzz(200)
+@fuzz(100)
 @given(meta=st.one_of(st.just(SIGNED_META), broken(SIGNED_META, st.sampled_from(
     [-1, 1, -1.0, 2, "panda_joint1", "panda_joint9", {"panda_joint1": -1}, {"elbow": -1}, {"panda_joint1": 0}]))))
 def test_run_metadata_torque_sign(tmp_path_factory: pytest.TempPathFactory, meta: Any) -> None:
