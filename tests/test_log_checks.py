@@ -162,6 +162,8 @@ def test_a_joint_that_barely_moves_is_named_not_judged_and_its_drive_is_not_fitt
     assert fitted["panda_joint7"] == 0.0  # held at the URDF's (none): never fitted on the wrist's noise
     assert all(0.3 < fitted[j] < 0.5 for j in PANDA_JOINTS[:6])  # the joints that move: 0.4 N*m found
     assert ladder["settings"]["fit"]["still_joints"] == ["panda_joint7"]
+    rows = ladder["diagnosis"]["per_joint"]
+    assert rows["panda_joint7"]["judged"] is False and all("judged" not in rows[j] for j in PANDA_JOINTS[:6])
     gap, _ = compute_gap(GapInputs("panda", PANDA_URDF, None, listing, root=tmp_path, ladder=out / "ladder.json",
                                    residuals=out / "residuals.npz"))
     assert gap["not_judged"]["joints"]["panda_joint7"]["range_rad"] == pytest.approx(still["panda_joint7"])

@@ -179,7 +179,8 @@ def _diagnose_side(effect_names: Sequence[str], context: FitContext, holdout_res
     """The diagnosis of one side (:func:`sim2real.identification.diagnosis.diagnose`) and, on a side judged against
     the motion, its model-free ceiling (:func:`sim2real.identification.diagnosis.model_free_ceiling`): when no effect
     is named, what kind of thing is left."""
-    diagnosis = diagnose(effect_names, context, holdout_residual, side=side, **options)
+    diagnosis = _still_rows_marked(diagnose(effect_names, context, holdout_residual, side=side, **options),
+                                   context.settings.get(STILL_JOINTS_SETTING) or ())
     if side == Side.DRIVE:
         return diagnosis  # predicted forward from the command: the motion is not what it is a function of
     ceiling = model_free_ceiling(context.fit_data, fit_residual, context.holdout_data, holdout_residual,
@@ -301,6 +302,15 @@ def _model_document(robot: str, body: SideLadder, drive: SideLadder | None, spli
         # The metadata put the drive before the sensor; the model the user follows fits it after it.
         document["links"]["drive_after_sensor"] = contradicted
     return document
+
+
+def _still_rows_marked(diagnosis: Diagnosis, still: Sequence[str]) -> Diagnosis:
+    """``diagnosis`` with the per-joint rows of the joints the fit runs barely move marked ``judged: false``: their
+    drives were held at the nominal model's (:func:`_still_setting`), and the report names them as not judged."""
+    if not still:
+        return diagnosis
+    return dataclasses.replace(diagnosis, per_joint={
+        joint: {**row, "judged": False} if joint in still else row for joint, row in diagnosis.per_joint.items()})
 
 
 def _still_setting(fit_runs: Sequence[PreparedRun]) -> dict[str, list[str]]:
