@@ -8,6 +8,8 @@ the shoulder's (its inertials), a tool on the flange the URDF leaves bare, Gaz f
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pandas as pd
@@ -22,6 +24,7 @@ from sim2real.assets.usd import build_usd
 from sim2real.assets.usd_validation import compliance_errors
 from sim2real.errors import InputError
 from sim2real.identification.fitting.nominal import body_hulls
+from sim2real.lab import run_lab_scenario_run
 from sysid_lab import Lab
 
 JOINTS = [f"iiwa_joint_{i}" for i in range(1, 8)]
@@ -65,12 +68,25 @@ def test_the_lab_arm_logs_like_an_iiwa_over_fri(lab: Lab) -> None:
     listing = yaml.safe_load(lab.measurement_list(SCENARIO).read_text())
     fit = next(run for run in listing["runs"] if run["role"] == "fit")
     table = pd.read_csv(fit["path"])
-    meta = yaml.safe_load(open(fit["path"].replace(".csv", ".yaml")))
+    meta = yaml.safe_load(Path(fit["path"]).with_suffix(".yaml").read_text())
     assert meta["torque_sensor"] == "link" and meta["sample_rate_hz"] == 500.0
     assert not any(c.startswith("qd.") for c in table.columns), "FRI reports no joint velocity"
     torque = table[[f"tau.{j}" for j in JOINTS]]
     # the wrist turns a 1.2 kg link about its own axis, the shoulder holds the arm
     assert torque[f"tau.{JOINTS[1]}"].abs().mean() > 50 * torque[f"tau.{JOINTS[6]}"].abs().mean()
+
+
+@pytest.mark.parametrize(("scenario", "rate_hz"), [("real_arm_like_200hz", 200.0), ("real_arm_like_1khz", 1000.0)])
+def test_the_lab_arm_runs_at_either_end_of_the_fri_rates(lab: Lab, tmp_path: Path, scenario: str, rate_hz: float) -> None:
+    config = yaml.safe_load(lab.lab_config.read_text())
+    config["scenarios"][scenario]["duration_s"] = 1.0
+    short = tmp_path / "lab.yaml"
+    short.write_text(yaml.safe_dump(config))
+    run_lab_scenario_run(lab.mjcf, short, "iiwa14", scenario, "fit", tmp_path / "fit.csv")
+    meta = yaml.safe_load((tmp_path / "fit.yaml").read_text())
+    assert meta["sample_rate_hz"] == rate_hz and meta["torque_sensor"] == "link"
+    steps = np.diff(pd.read_csv(tmp_path / "fit.csv")["time"].to_numpy())
+    assert np.median(steps) == pytest.approx(1.0 / rate_hz, rel=0.01)
 
 
 def test_primitives_give_usd_and_mjcf_and_hulls_holding_each_links_centre_of_mass(tmp_path, repo_root) -> None:
