@@ -40,6 +40,23 @@ def build_dev_ur5(directory: Path) -> tuple[Path, Path]:
     return _build_dev(directory, "ur_description", "urdf/ur5_robot.urdf", "ur5")
 
 
+def build_dev_iiwa14(directory: Path) -> tuple[Path, Path]:
+    """The shipped iiwa 14 (robots/iiwa14, primitives only, bare flange) as URDF and the MJCF MuJoCo makes of it."""
+    from sim2real.assets.urdf import build_urdf
+
+    repo = Path(__file__).resolve().parents[1]
+    directory.mkdir(parents=True, exist_ok=True)
+    urdf = directory / "iiwa14.urdf"
+    build_urdf(repo / "robots/iiwa14/iiwa14.urdf.xacro", urdf, {"tool": "none"})
+    return urdf, _mjcf_of(urdf, directory / "iiwa14.xml")
+
+
+def _mjcf_of(urdf: Path, mjcf: Path) -> Path:
+    model = mujoco.MjModel.from_xml_path(str(urdf))
+    mujoco.mj_saveLastXML(str(mjcf), model)
+    return mjcf
+
+
 def _build_dev(directory: Path, description: str, urdf_file: str, robot: str) -> tuple[Path, Path]:
     base = description_dir(description)
     text = (base / urdf_file).read_text(encoding="utf-8")
@@ -48,10 +65,7 @@ def _build_dev(directory: Path, description: str, urdf_file: str, robot: str) ->
     directory.mkdir(parents=True, exist_ok=True)
     urdf = directory / f"{robot}.urdf"
     urdf.write_text(text, encoding="utf-8")
-    model = mujoco.MjModel.from_xml_path(str(urdf))
-    mjcf = directory / f"{robot}.xml"
-    mujoco.mj_saveLastXML(str(mjcf), model)
-    return urdf, mjcf
+    return urdf, _mjcf_of(urdf, directory / f"{robot}.xml")
 
 
 def short_lab_config(directory: Path, duration_s: float = 6.0, robot: str = "panda") -> Path:

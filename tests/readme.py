@@ -42,6 +42,8 @@ COVERAGE: list[tuple[str, str, str]] = [
     (r"python benchmarks/(bench_collision_usd|bench_sysid|bench_fleet|bench_real_arm_loop|bench_excitation|bench_loop|bench_cold_build|bench_pinned_spread|fuzz_inputs)\.py", HELP,
      "minutes at their smallest setting: their command line is checked (--help)"),
     (r"python benchmarks/(bench_dr|bench_resources)\.py", RUN, "seconds, on the built results"),
+    (r"snakemake results/arm3/gap\.json", SKIP,
+     "docs/new-robot.md's example arm: tests/test_new_robot.py writes it into a copy of the project and runs these"),
     (r"(\.venv/bin/)?snakemake [^|;&]*", RUN, "Snakemake targets"),
     (r"cat results/\S+", RUN, "a built report"),
 ]

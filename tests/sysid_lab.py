@@ -18,7 +18,7 @@ import pandas as pd
 import yaml
 from threadpoolctl import threadpool_limits
 
-from gap_fixtures import build_dev_panda, build_dev_ur5, short_lab_config
+from gap_fixtures import build_dev_iiwa14, build_dev_panda, build_dev_ur5, short_lab_config
 from sim2real.identification import fitting
 from sim2real.identification import sides, sysid
 from sim2real.identification.fitting import FitContext
@@ -36,11 +36,11 @@ LAB_DURATION_S = 8.0
 WORKERS = min(2, os.cpu_count() or 1)
 
 
-DEV_ARMS = {"panda": build_dev_panda, "ur5": build_dev_ur5}
+DEV_ARMS = {"panda": build_dev_panda, "ur5": build_dev_ur5, "iiwa14": build_dev_iiwa14}
 
 
 class Lab:
-    """A dev arm (``robot``: a Panda or a UR5; its URDF + the MJCF MuJoCo makes of it), its short lab config
+    """A dev arm (``robot``: a Panda, a UR5 or the shipped iiwa 14; its URDF + the MJCF MuJoCo makes of it), its short lab config
     (configs/<robot>/lab.yaml), runs on demand."""
 
     def __init__(self, directory: Path, robot: str = "panda") -> None:

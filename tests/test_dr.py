@@ -419,6 +419,8 @@ def test_snakemake_builds_dr_json_and_summary_reproducibly(tmp_path: Path, mjcf:
                      "configs/panda/measurements.yaml", "configs/panda/model.yaml"]:
         (tmp_path / relative).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(REPO / relative, tmp_path / relative)
+    # the robots whose stand-in MJCF this test has (the shipped list names others)
+    (tmp_path / "configs/config.yaml").write_text(yaml.safe_dump({"robots": list(mjcf)}))
     for robot, path in mjcf.items():
         (tmp_path / f"results/{robot}/mjcf").mkdir(parents=True)
         shutil.copy(path, tmp_path / f"results/{robot}/mjcf/{robot}.xml")

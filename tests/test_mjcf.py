@@ -16,12 +16,14 @@ from sim2real.assets.meshes import BuiltMeshes, convert_collision_mesh, convert_
 from sim2real.assets.mjcf import build_mjcf
 from sim2real.assets.urdf import build_urdf, mesh_names, resolve_package_uri
 
-ROBOTS = ["panda", "ur5"]
+ROBOTS = ["panda", "ur5", "iiwa14"]
 MJCF_RTOL = 1e-5  # MuJoCo's XML writer keeps 6 significant digits
 EXPECTED_ACTUATORS = {
     "panda": [*(f"panda_joint{i}" for i in range(1, 8)), "panda_finger_joint1"],
     "ur5": ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"],
+    "iiwa14": [f"iiwa_joint_{i}" for i in range(1, 8)],
 }
+PRIMITIVES = {mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_SPHERE}
 
 
 class Built:
@@ -148,15 +150,18 @@ def test_visual_and_collision_classes_and_colors(built: dict[str, Built], robot:
     visual = [g for g in robot_geoms if model.geom_group[g] == 2]
     collision = [g for g in robot_geoms if model.geom_group[g] == 3]
     assert visual and collision and len(visual) + len(collision) == len(robot_geoms)
+    # the iiwa 14 is drawn with primitives: each takes its URDF material's color
+    shapes = PRIMITIVES if robot == "iiwa14" else {mujoco.mjtGeom.mjGEOM_MESH}
     for g in visual:
         assert model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0
-        assert model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH and model.geom_matid[g] >= 0
+        assert int(model.geom_type[g]) in {int(s) for s in shapes} and model.geom_matid[g] >= 0
     colors = {tuple(np.round(model.mat_rgba[model.geom_matid[g]], 3)) for g in visual}
     assert len(colors) >= 2  # real per-material colors, not one default
     for g in collision:
         assert model.geom_contype[g] == 1 and model.geom_conaffinity[g] == 1
+    shape = "visual/geometry/*" if robot == "iiwa14" else "visual/geometry/mesh"
     bodies_with_visual_mesh = {
-        link.get("name") for link in built[robot].urdf_root.findall("link") if link.find("visual/geometry/mesh") is not None
+        link.get("name") for link in built[robot].urdf_root.findall("link") if link.find(shape) is not None
     }
     assert bodies_with_visual_mesh == {model.body(model.geom_bodyid[g]).name for g in visual}
 

@@ -46,6 +46,7 @@ class UrdfGeometry:
     element: ET.Element  # the <geometry> child: mesh, box, cylinder, sphere
     pos: tuple[float, float, float]
     quat: tuple[float, float, float, float]
+    material: tuple[str, tuple[float, ...]] | None = None  # a visual's URDF material: name, rgba
 
 
 def _floats(text: str | None, default: Sequence[float]) -> tuple[float, ...]:
@@ -66,8 +67,30 @@ def rpy_to_quat(rpy: Sequence[float]) -> tuple[float, float, float, float]:
     )
 
 
+def _urdf_materials(root: ET.Element) -> dict[str, tuple[float, ...]]:
+    """The URDF's named top-level materials that carry a color: name -> rgba."""
+    return {
+        material.get("name", ""): _floats(material.find("color").get("rgba"), (0.5, 0.5, 0.5, 1))  # type: ignore[union-attr]
+        for material in root.findall("material")
+        if material.find("color") is not None
+    }
+
+
+def _visual_material(element: ET.Element, named: Mapping[str, tuple[float, ...]]) -> tuple[str, tuple[float, ...]] | None:
+    """A visual's material as (name, rgba): its own color, or the top-level material it names; None without one."""
+    material = element.find("material")
+    if material is None:
+        return None
+    name = material.get("name", "")
+    color = material.find("color")
+    if color is not None:
+        return name, _floats(color.get("rgba"), (0.5, 0.5, 0.5, 1))
+    return (name, named[name]) if name in named else None
+
+
 def urdf_geometries(root: ET.Element) -> list[UrdfGeometry]:
     out = []
+    named = _urdf_materials(root)
     for link in root.findall("link"):
         for kind in ("visual", "collision"):
             for element in link.findall(kind):
@@ -77,7 +100,9 @@ def urdf_geometries(root: ET.Element) -> list[UrdfGeometry]:
                 origin = element.find("origin")
                 xyz = _floats(origin.get("xyz") if origin is not None else None, (0, 0, 0))
                 rpy = _floats(origin.get("rpy") if origin is not None else None, (0, 0, 0))
-                out.append(UrdfGeometry(link.get("name", ""), kind, geometry[0], xyz, rpy_to_quat(rpy)))  # type: ignore[arg-type]
+                material = _visual_material(element, named) if kind == "visual" else None
+                out.append(UrdfGeometry(link.get("name", ""), kind, geometry[0], xyz, rpy_to_quat(rpy),  # type: ignore[arg-type]
+                                        material))
     return out
 
 
@@ -233,10 +258,18 @@ def _add_geometry(
         else:
             geom_type, size = _primitive(element, urdf_path, where)
             is_visual = geometry.kind == "visual"
+            # A primitive visual takes its URDF material's color, as a mesh's parts take theirs.
+            colored = {}
+            if is_visual and geometry.material is not None:
+                material_id, rgba = geometry.material
+                if material_id not in materials_added:
+                    spec.add_material(name=material_id, rgba=list(rgba))
+                    materials_added.add(material_id)
+                colored = {"material": material_id}
             body.add_geom(
                 visual_class if is_visual else collision_class,
                 name=geom_name(geometry.link, geometry.kind), type=geom_type, size=size,
-                **_placement(geometry),
+                **_placement(geometry), **colored,
             )
 
 

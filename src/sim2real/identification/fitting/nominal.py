@@ -56,16 +56,33 @@ def _urdf_link_parameters(urdf_path: Path) -> dict[str, np.ndarray]:
 
 @dataclass(frozen=True)
 class _MeshPart:
-    """One collision mesh of a link: its file, and the scale and placement the URDF gives it."""
+    """One collision shape of a link: its mesh file (or, for a URDF primitive, ``primitive``: its tag and sizes),
+    and the scale and placement the URDF gives it."""
 
-    path: Path
+    path: Path | None
     scale: tuple[float, float, float]
     xyz: tuple[float, float, float]
     rpy: tuple[float, float, float]
+    primitive: tuple[str, tuple[float, ...]] | None = None
+
+
+# A URDF primitive's sizes, in the order trimesh.creation takes them: box extents, cylinder radius and length,
+# sphere radius.
+_PRIMITIVE_SIZES = {"box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",)}
+
+
+def _primitive(geometry: ET.Element) -> tuple[str, tuple[float, ...]] | None:
+    """A collision's primitive (tag, sizes), None when it is none of box, cylinder, sphere."""
+    for tag, keys in _PRIMITIVE_SIZES.items():
+        shape = geometry.find(tag)
+        if shape is not None:
+            return tag, tuple(float(v) for key in keys for v in shape.get(key, "0").split())
+    return None
 
 
 def _collision_meshes(urdf_path: Path, link: ET.Element) -> list[_MeshPart] | None:
-    """A link's collision meshes as the URDF names them (None when a collision is not a mesh)."""
+    """A link's collision shapes as the URDF names them: meshes and primitives (an arm written with cylinders has
+    hulls as one written with meshes); None when a shape can be neither read nor made."""
     from sim2real.assets.urdf import resolve_package_uri
 
     def triple(element: ET.Element | None, key: str, default: str) -> tuple[float, float, float]:
@@ -74,32 +91,55 @@ def _collision_meshes(urdf_path: Path, link: ET.Element) -> list[_MeshPart] | No
 
     parts = []
     for collision in link.findall("collision"):
+        origin = collision.find("origin")
+        placement = (triple(origin, "xyz", "0 0 0"), triple(origin, "rpy", "0 0 0"))
         mesh = collision.find("geometry/mesh")
         if mesh is None:
-            return None  # primitives are rare on arms; without a mesh the body keeps the plain LMI
+            geometry = collision.find("geometry")
+            primitive = _primitive(geometry) if geometry is not None else None
+            if primitive is None:
+                return None
+            parts.append(_MeshPart(None, (1.0, 1.0, 1.0), *placement, primitive=primitive))
+            continue
         try:
             path = Path(resolve_package_uri(mesh.get("filename", ""), source=urdf_path))
         except Exception:  # noqa: BLE001 - an unresolvable mesh only drops the optional, stronger constraint
             return None
-        origin = collision.find("origin")
-        parts.append(_MeshPart(path, triple(mesh, "scale", "1 1 1"), triple(origin, "xyz", "0 0 0"),
-                               triple(origin, "rpy", "0 0 0")))
+        parts.append(_MeshPart(path, triple(mesh, "scale", "1 1 1"), *placement))
     return parts
 
 
-def _collision_points(parts: Sequence[_MeshPart] | None) -> np.ndarray | None:
-    """Vertices of a link's collision meshes in the link frame (None when a mesh cannot be read)."""
+def _part_vertices(part: _MeshPart) -> np.ndarray:
+    """A shape's vertices in its own frame: the mesh file's (a glTF turned Z-up, as the assets place it), or the
+    primitive's surface (a cylinder of 32 sides inside the true one by 0.5 % of its radius at most, a sphere of 162
+    vertices by 1.8 %)."""
+    import trimesh
+
     from sim2real.assets.meshes import urdf_mesh
 
+    if part.primitive is None:
+        return np.asarray(urdf_mesh(part.path).vertices)
+    tag, sizes = part.primitive
+    if tag == "box":
+        made = trimesh.creation.box(extents=sizes)
+    elif tag == "cylinder":
+        made = trimesh.creation.cylinder(radius=sizes[0], height=sizes[1], sections=32)
+    else:
+        made = trimesh.creation.icosphere(subdivisions=2, radius=sizes[0])
+    return np.asarray(made.vertices)
+
+
+def _collision_points(parts: Sequence[_MeshPart] | None) -> np.ndarray | None:
+    """Vertices of a link's collision shapes in the link frame (None when a mesh cannot be read)."""
     if parts is None:
         return None
     points = []
     for part in parts:
         try:
-            loaded = urdf_mesh(part.path)  # a glTF turned Z-up, as the assets place it
+            vertices = _part_vertices(part)
         except Exception:  # noqa: BLE001 - an unreadable mesh only drops the optional, stronger constraint
             return None
-        points.append(np.asarray(loaded.vertices) * np.asarray(part.scale) @ pin.rpy.rpyToMatrix(np.asarray(part.rpy)).T
+        points.append(vertices * np.asarray(part.scale) @ pin.rpy.rpyToMatrix(np.asarray(part.rpy)).T
                       + np.asarray(part.xyz))
     return np.vstack(points) if points else None
 
@@ -132,6 +172,9 @@ def _mesh_contents(urdf_path: Path, body_links: Sequence[str]) -> list[Any]:
     out: list[Any] = []
     for parts in _body_meshes(urdf_path, body_links):
         for part in parts or []:
+            if part.path is None:
+                out.append((part.xyz, part.rpy, part.primitive))
+                continue
             out.append((part.scale, part.xyz, part.rpy,
                         part.path.read_bytes() if part.path.is_file() else f"missing:{part.path.name}"))
         out.append(parts is None)
