@@ -29,6 +29,7 @@ EFFECTS = (
     "torque_gain",
     "actuator_gain",
     "command_bias",
+    "base_mount",
 )
 
 
