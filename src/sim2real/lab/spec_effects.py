@@ -78,7 +78,7 @@ def _apply_spec_effects(spec: mujoco.MjSpec, joints: Sequence[str], effects: Map
 
 def _base_mount(spec: mujoco.MjSpec, effects: Mapping[str, Any], path: Path | None, truth: dict[str, Any]) -> None:
     """``base_mount`` ``{tilt_x_deg, tilt_y_deg}``: the real arm's base turned by ``tilt_x_deg`` about the world's x,
-    then ``tilt_y_deg`` about its own y: gravity, seen from the base, is the world's turned back (the lab turns the
+    then ``tilt_y_deg`` about the world's y (a URDF origin's rpy): gravity, seen from the base, is the world's turned back (the lab turns the
     gravity vector of its torque-driven arm, whose base is the world). Recorded in ``truth`` (degrees)."""
     mount = effects.get("base_mount")
     if not mount:
@@ -89,7 +89,7 @@ def _base_mount(spec: mujoco.MjSpec, effects: Mapping[str, Any], path: Path | No
                          "give tilt_x_deg and tilt_y_deg in degrees, e.g. {tilt_x_deg: 1.5, tilt_y_deg: -1.0}")
     a, b = np.radians(angles)
     magnitude = float(np.linalg.norm(spec.option.gravity))
-    spec.option.gravity = magnitude * np.array([np.sin(b) * np.cos(a), -np.sin(a), -np.cos(a) * np.cos(b)])
+    spec.option.gravity = magnitude * np.array([np.sin(b), -np.sin(a) * np.cos(b), -np.cos(a) * np.cos(b)])
     truth["base_mount"] = {"tilt_x_deg": float(angles[0]), "tilt_y_deg": float(angles[1])}
 
 

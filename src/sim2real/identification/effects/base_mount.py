@@ -3,14 +3,15 @@
 An arm is not always bolted level: on a mobile base, on a plate that bends, on a wall. The URDF's world says "z up";
 the real gravity, seen from the base, is
 
-    g_base = |g| (sin b cos a, -sin a, -cos a cos b)
+    g_base = |g| (sin b, -sin a cos b, -cos a cos b)
 
-for a base turned by ``a`` about the world's x and then ``b`` about its own y (R = Rx(a) Ry(b), g_base = R^T g_world).
+for a base turned by ``a`` about the world's x and then ``b`` about the world's y (R = Ry(b) Rx(a), a URDF origin's
+``rpy = (a, b, 0)``; g_base = R^T g_world).
 Gravity torque is linear in the gravity vector for given inertials: with ``G`` (N, n, 3) the nominal model's
 generalized gravity under unit gravity along the base's x, y and z
 (:meth:`sim2real.assets.dynamics.RigidBodyModel.unit_gravity`), the torque the tilt adds to the level model is
 
-    |g| [ sin b cos a G_x - sin a G_y + (1 - cos a cos b) G_z ]
+    |g| [ sin b G_x - sin a cos b G_y + (1 - cos a cos b) G_z ]
 
 Linear in (b, a) to first order: the columns are ``|g| G_x`` (coefficient ``b``) and ``-|g| G_y`` (``a``); the rest
 (second order in the angles, 0.06 % of the gravity torque at 2 degrees) is the offset at the current estimate, as a
@@ -47,15 +48,16 @@ ANGLES = ("tilt_x", "tilt_y")  # a (about x), b (about y), radians
 
 
 def gravity_direction(tilt_x: float, tilt_y: float) -> np.ndarray:
-    """The unit gravity vector in the base frame of a base turned by ``tilt_x`` about x, then ``tilt_y`` about y."""
+    """The unit gravity vector in the base frame of a base turned by ``tilt_x`` about the world's x, then ``tilt_y``
+    about the world's y (URDF ``rpy = (tilt_x, tilt_y, 0)``)."""
     a, b = float(tilt_x), float(tilt_y)
-    return np.array([np.sin(b) * np.cos(a), -np.sin(a), -np.cos(a) * np.cos(b)])
+    return np.array([np.sin(b), -np.sin(a) * np.cos(b), -np.cos(a) * np.cos(b)])
 
 
 def mount_angles(gravity: np.ndarray) -> tuple[float, float]:
     """(tilt_x, tilt_y) of a gravity vector in the base frame (:func:`gravity_direction`'s inverse)."""
     gx, gy, gz = (float(v) for v in gravity)
-    return float(np.arctan2(-gy, np.hypot(gx, gz))), float(np.arctan2(gx, -gz))
+    return float(np.arctan2(-gy, -gz)), float(np.arctan2(gx, np.hypot(gy, gz)))
 
 
 def _columns(unit_gravity: np.ndarray) -> np.ndarray:
@@ -86,7 +88,7 @@ class BaseMount(Effect):
                  "pose alone, on every joint that carries load, joint 1 included")
     parameters = (
         ParameterSpec("tilt_x", "rad", -0.5, 0.5, False, "a: the base turned about the world's x"),
-        ParameterSpec("tilt_y", "rad", -0.5, 0.5, False, "b: then about its own y"),
+        ParameterSpec("tilt_y", "rad", -0.5, 0.5, False, "b: then about the world's y"),
     )
     joint_local = False
     # a tilt needs only the poses, which any excitation of the gravity torque visits
@@ -119,7 +121,7 @@ class BaseMount(Effect):
         if a == 0.0 and b == 0.0:
             return None
         g = signals.unit_gravity
-        return STANDARD_GRAVITY * ((np.sin(b) * np.cos(a) - b) * g[:, :, 0] - (np.sin(a) - a) * g[:, :, 1]
+        return STANDARD_GRAVITY * ((np.sin(b) - b) * g[:, :, 0] - (np.sin(a) * np.cos(b) - a) * g[:, :, 1]
                                    + (1.0 - np.cos(a) * np.cos(b)) * g[:, :, 2])
 
     values_stacked = True
