@@ -184,7 +184,7 @@ def _diagnose_side(effect_names: Sequence[str], context: FitContext, holdout_res
     ceiling = model_free_ceiling(context.fit_data, fit_residual, context.holdout_data, holdout_residual,
                                  float(options["limits"]["noise_floor_factor"]), workers=context.workers,
                                  model_effects=effect_names,
-                                 gravity=context.nominal.dynamics.gravity if context.nominal else None)
+                                 nominal_dynamics=context.nominal.dynamics if context.nominal else None)
     return dataclasses.replace(diagnosis, model_free=ceiling)
 
 
