@@ -17,6 +17,7 @@ EFFECTS = (
     "coulomb_friction",
     "hysteretic_friction",
     "load_friction",
+    "warming_friction",
     "cogging",
     "cable_spring",
     "torque_drift",
