@@ -186,3 +186,43 @@ def _check_usd(urdf: Path, collision: dict, out: Path, nominal: RigidBodyModel, 
 def _local(position, rotation, Gf) -> np.ndarray:
     """A joint's local frame (position, quaternion) as a 4x4 matrix in column form."""
     return np.array(Gf.Matrix4d().SetTransform(Gf.Rotation(Gf.Quatd(rotation)), Gf.Vec3d(position))).T
+
+
+def test_domain_randomization_turns_the_base_around_the_identified_mount_and_covers_it(tmp_path):
+    """dr.yaml's base_tilt randomizes the calibrated MJCF's root body around the identified mount (the world's
+    gravity stays level), and the coverage check finds the identified angles, with their intervals, inside it."""
+    from gap_fixtures import build_dev_panda
+    from sim2real import dr
+    from sim2real.assets.mount import turn_base_body
+    from sim2real.dr.coverage import check_coverage, read_identified
+    from sim2real.dr.parameters import base_tilt, root_body
+
+    urdf, _ = build_dev_panda(tmp_path)
+    spec = mujoco.MjSpec.from_file(str(urdf))
+    spec.compiler.fusestatic = False  # as the MJCF builder keeps every URDF link: the base is a body of its own
+    tilt = np.radians(TILT_DEG)
+    turn_base_body(spec, *tilt)  # as the calibrated MJCF carries the mount
+    base = spec.compile()
+    config = {"physics_randomization": {"base_tilt": {"mode": "reset", "distribution": "uniform", "operation": "add",
+                                                       "range": [-0.005, 0.005]}},
+              "curriculum": {"levels": [{"name": "full", "scale": 1.0}], "default_level": "full"}}
+    resolved = dr.resolve_config(config, base, config_path="dr.yaml")
+    target = resolved["physics"][0]["targets"][0]
+    assert target["name"] == "panda_link0" and target["nominal"] == pytest.approx(tilt, abs=1e-9)
+    identified = read_identified({"effects": {"base_mount": {"tilt_x": float(tilt[0]), "tilt_y": float(tilt[1])}},
+                                  "intervals": {"base_mount": {"tilt_x": [tilt[0] - 1e-3, tilt[0] + 1e-3],
+                                                               "tilt_y": [tilt[1] - 1e-3, tilt[1] + 1e-3]}}})
+    records = check_coverage(resolved, identified)
+    assert len(records) == 2 and all(r["covered"] for r in records), records
+    narrow = {**config, "physics_randomization": {"base_tilt": {**config["physics_randomization"]["base_tilt"],
+                                                                "range": [-5e-4, 5e-4]}}}
+    assert not any(r["covered"] for r in check_coverage(dr.resolve_config(narrow, base, config_path="dr.yaml"),
+                                                        identified))
+    randomizer = dr.DomainRandomizer(resolved, base, seed=3)
+    drawn = []
+    for _ in range(5):
+        model = randomizer.reset()
+        np.testing.assert_allclose(model.opt.gravity, [0.0, 0.0, -9.81])
+        drawn.append(base_tilt(model.body_quat[root_body(model)]) - tilt)
+    drawn = np.array(drawn)
+    assert np.all(np.abs(drawn) <= 0.005 + 1e-12) and np.ptp(drawn, axis=0).min() > 1e-4, drawn
