@@ -133,6 +133,22 @@ class RigidBodyModel:
             out[k] = pin.computeGeneralizedGravity(self.model, self.data, pq[k])
         return out[:, self.pinocchio_index]
 
+    def unit_gravity(self, q: np.ndarray) -> np.ndarray:
+        """(N, n, 3) the generalized gravity (the torque that holds the arm still) under unit gravity along the base
+        frame's x, y and z: gravity torque is linear in the gravity vector, so under ``g`` it is this times ``g``
+        (the nominal model's own is this times ``(0, 0, -9.81)``)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        pq = self._to_pin(q)
+        zero = np.zeros_like(pq.T)
+        out = np.empty((q.shape[0], self.n, 3))
+        model = pin.Model(self.model)  # a copy: the gravity of the model every other call uses stays as it is
+        for axis in range(3):
+            model.gravity.linear = np.eye(3)[axis]
+            tau = np.empty((q.shape[1], q.shape[0]), order="F")
+            pin.rneaInParallel(1, pin.ModelPool(model, 1), pq.T, zero, zero, tau)
+            out[:, :, axis] = tau.T[:, self.pinocchio_index]
+        return out
+
     def inertial_parameters(self) -> np.ndarray:
         """Dynamic parameters (10 per body, Pinocchio order) of the moving bodies, shape (n_bodies*10,)."""
         return np.concatenate([self.model.inertias[i].toDynamicParameters() for i in range(1, self.model.njoints)])

@@ -54,6 +54,7 @@ class IdentifiedValue:
     value: float
     interval: tuple[float, float]  # confidence interval (value, value when none given)
     relative: bool = False  # a factor of the element's nominal value (a motor gain), not an absolute value
+    component: int = 0  # which of the channel's values per element (a base tilt's: 0 about x, 1 about y)
 
 
 def _as_value(entry: Any) -> tuple[float, tuple[float, float]] | None:
@@ -85,7 +86,11 @@ SYSID_QUANTITIES: dict[tuple[str, str], str] = {
     ("actuation_lag", "time_constant"): "lag",
     # A motor gain scales its actuator's gainprm[0] (a servo's kp), which the kp channel randomizes.
     ("actuator_gain", "gain"): "kp",
+    # The calibrated MJCF's root body is turned by the identified mount (effects.base_mount).
+    ("base_mount", "tilt_x"): "base_tilt",
+    ("base_mount", "tilt_y"): "base_tilt",
 }
+SYSID_COMPONENTS = {("base_mount", "tilt_y"): 1}  # the channel's value per element that a quantity is
 RELATIVE_QUANTITIES = {("actuator_gain", "gain")}  # identified as a factor of the nominal value
 
 
@@ -110,7 +115,8 @@ def _read_sysid_effects(params: Mapping[str, Any]) -> list[IdentifiedValue]:
                 ci = quantity_intervals.get(element) if isinstance(quantity_intervals, Mapping) else quantity_intervals
                 interval = (float(min(ci)), float(max(ci))) if isinstance(ci, list) and len(ci) == 2 else (float(value), float(value))
                 found.append(IdentifiedValue(f"{effect}.{quantity}", channel, str(element), float(value), interval,
-                                             (str(effect), str(quantity)) in RELATIVE_QUANTITIES))
+                                             (str(effect), str(quantity)) in RELATIVE_QUANTITIES,
+                                             SYSID_COMPONENTS.get((str(effect), str(quantity)), 0)))
     return found
 
 
@@ -171,8 +177,8 @@ def check_coverage(resolved: Mapping[str, Any], identified: Sequence[IdentifiedV
                 names = {target["name"], target.get("joint")}
                 if item.element != GLOBAL_ELEMENT and item.element not in names:
                     continue
-                lo, hi = target["range"][0]
-                scale = float(target["nominal"][0]) if item.relative else 1.0
+                lo, hi = target["range"][item.component]
+                scale = float(target["nominal"][item.component]) if item.relative else 1.0
                 value, interval = item.value * scale, sorted((item.interval[0] * scale, item.interval[1] * scale))
                 covered = lo <= interval[0] and interval[1] <= hi
                 records.append(

@@ -54,6 +54,9 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("action_lag", "lag", "lag_range", "actuator", "s", 1, 0.0, False, "abs",
               "action lag (a first-order filter's time constant)"),
     Parameter("gravity", "gravity", "range", "model", "m/s^2", 3, None, False, "add", "gravity"),
+    # The base's mount (effects.base_mount): its tilt about the world's x, then y, of the robot's root body.
+    Parameter("base_tilt", "base_tilt", "range", "model", "rad", 2, None, False, "add",
+              "base tilt (about the world's x, then y)"),
 )
 PARAMETER_BY_CHANNEL = {p.channel: p for p in PARAMETERS}
 SELECTOR_KEY = {"body": "body_names", "geom": "geom_names", "joint": "joint_names", "actuator": "actuator_names"}
@@ -109,7 +112,45 @@ def get_values(model: mujoco.MjModel, channel: str, ids: np.ndarray) -> np.ndarr
         return model.actuator_dynprm[ids, 0][:, None].copy()
     if channel == "gravity":
         return np.asarray(model.opt.gravity, dtype=float)[None, :].copy()
+    if channel == "base_tilt":
+        return np.array([base_tilt(model.body_quat[ids[0]])])
     raise KeyError(channel)
+
+
+def root_body(model: mujoco.MjModel) -> int:
+    """The robot's root body: the world's first child (the base_tilt channel's element)."""
+    children = np.flatnonzero(model.body_parentid[1:] == 0) + 1
+    return int(children[0]) if children.size else 0
+
+
+def _tilt_quat(tilt_x: float, tilt_y: float) -> np.ndarray:
+    """The turn about the world's x by ``tilt_x``, then about its y by ``tilt_y`` (a URDF rpy (x, y, 0))."""
+    about_x = np.array([np.cos(tilt_x / 2), np.sin(tilt_x / 2), 0.0, 0.0])
+    about_y = np.array([np.cos(tilt_y / 2), 0.0, np.sin(tilt_y / 2), 0.0])
+    out = np.zeros(4)
+    mujoco.mju_mulQuat(out, about_y, about_x)
+    return out
+
+
+def base_tilt(quat: np.ndarray) -> np.ndarray:
+    """(tilt_x, tilt_y) of a body's orientation: where its z axis points, as :func:`_tilt_quat` turns it."""
+    matrix = np.zeros(9)
+    mujoco.mju_quat2Mat(matrix, np.asarray(quat, dtype=float))
+    z = matrix.reshape(3, 3)[:, 2]  # R = Ry(b) Rx(a): z axis = (sin b cos a, -sin a, cos b cos a)
+    return np.array([np.arctan2(-z[1], np.hypot(z[0], z[2])), np.arctan2(z[0], z[2])])
+
+
+def _set_base_tilt(model: mujoco.MjModel, base: mujoco.MjModel, body: int, tilt: np.ndarray) -> None:
+    """Turn ``body`` about the world's origin to ``tilt``, keeping whatever else the base's own orientation holds
+    (its turn about z)."""
+    nominal = np.asarray(base.body_quat[body], dtype=float)
+    undo, turn = np.zeros(4), np.zeros(4)
+    mujoco.mju_negQuat(undo, _tilt_quat(*base_tilt(nominal)))
+    mujoco.mju_mulQuat(turn, _tilt_quat(float(tilt[0]), float(tilt[1])), undo)  # from the nominal tilt to this one
+    out, pos = np.zeros(4), np.zeros(3)
+    mujoco.mju_mulQuat(out, turn, nominal)
+    mujoco.mju_rotVecQuat(pos, np.asarray(base.body_pos[body], dtype=float), turn)
+    model.body_quat[body], model.body_pos[body] = out, pos
 
 
 def set_values(model: mujoco.MjModel, base: mujoco.MjModel, channel: str, ids: np.ndarray, values: np.ndarray) -> None:
@@ -149,6 +190,8 @@ def set_values(model: mujoco.MjModel, base: mujoco.MjModel, channel: str, ids: n
         model.actuator_dynprm[ids, 0] = values[:, 0]
     elif channel == "gravity":
         model.opt.gravity[:] = values[0]
+    elif channel == "base_tilt":
+        _set_base_tilt(model, base, int(ids[0]), values[0])
     else:
         raise KeyError(channel)
 
@@ -157,7 +200,7 @@ def set_values(model: mujoco.MjModel, base: mujoco.MjModel, channel: str, ids: n
 _FILTERS = (int(mujoco.mjtDyn.mjDYN_FILTER), int(mujoco.mjtDyn.mjDYN_FILTEREXACT))
 
 # Channels whose change alters quantities MuJoCo precomputes at qpos0 (mj_setConst).
-CONST_CHANNELS = frozenset({"mass", "com_offset", "armature"})
+CONST_CHANNELS = frozenset({"mass", "com_offset", "armature", "base_tilt"})
 
 
 def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:

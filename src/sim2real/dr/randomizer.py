@@ -152,7 +152,10 @@ class DomainRandomizer:
         obj = {"body": mujoco.mjtObj.mjOBJ_BODY, "geom": mujoco.mjtObj.mjOBJ_GEOM, "joint": mujoco.mjtObj.mjOBJ_JOINT,
                "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR}.get(parameter.element)
         names = [t["name"] for t in c["targets"]]
-        ids = np.zeros(1, dtype=int) if obj is None else self._ids(obj, names, f"dr.json physics '{c['term']}/{c['channel']}'")
+        where = f"dr.json physics '{c['term']}/{c['channel']}'"
+        if parameter.channel == "base_tilt":  # a model channel whose element is the root body, by name
+            obj = mujoco.mjtObj.mjOBJ_BODY
+        ids = np.zeros(1, dtype=int) if obj is None else self._ids(obj, names, where)
         nominal = get_values(self.base_model, parameter.channel, ids)
         return _Channel(
             name=f"{c['term']}/{c['channel']}",

@@ -20,6 +20,7 @@ import numpy as np
 
 from sim2real.dr.config import DeclaredTerm, curriculum_levels, declared_noise, declared_physics, validate_config
 from sim2real.dr.parameters import (
+    root_body,
     AFFINE,
     NOISE_TERMS,
     PARAMETERS,
@@ -120,8 +121,11 @@ def _physics_elements(
     mjcf_label: str,
     base_key: str,
 ) -> list[tuple[int, str]]:
-    """The channel's selector -> the elements it names (the model's gravity for a model channel)."""
+    """The channel's selector -> the elements it names (the model's gravity, or its root body, for a model channel)."""
     if parameter.element == "model":
+        if parameter.channel == "base_tilt":
+            body = root_body(model)
+            return [(body, mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, body) or "base")]
         return [(0, "gravity")]
     selector_key = SELECTOR_KEY[parameter.element]
     patterns = term_cfg.get(selector_key, ["*"])

@@ -77,7 +77,8 @@ class Identification:
         tau_nominal = dynamics.inverse_dynamics(q, qd, qdd) if needs_nominal else np.zeros_like(q)
         return Signals(joint_names=list(dynamics.joint_names), time=np.arange(count, dtype=float), q=q, qd=qd,
                        qdd=qdd, tau_nominal=tau_nominal, segments=[slice(0, count)],
-                       regressor_fn=lambda: dynamics.regressor(q, qd, qdd), nominal=self.nominal.info)
+                       regressor_fn=lambda: dynamics.regressor(q, qd, qdd), nominal=self.nominal.info,
+                       gravity_fn=lambda: dynamics.unit_gravity(q))
 
     @property
     def width(self) -> int:

@@ -71,7 +71,8 @@ class Separation:
         signals = Signals(joint_names=list(dynamics.joint_names), time=np.arange(count, dtype=float), q=q, qd=qd,
                           qdd=qdd, tau_nominal=dynamics.inverse_dynamics(q, qd, qdd) if needs_nominal
                           else np.zeros_like(q), segments=[slice(0, count)],
-                          regressor_fn=lambda: dynamics.regressor(q, qd, qdd), nominal=self.nominal.info)
+                          regressor_fn=lambda: dynamics.regressor(q, qd, qdd), nominal=self.nominal.info,
+                       gravity_fn=lambda: dynamics.unit_gravity(q))
         terms = [effect.columns(signals, {}, nonlinear)[0] @ linear for effect, linear, nonlinear in self.effects]
         return (terms[0] - terms[1]) * self.row_weight
 

@@ -17,6 +17,7 @@ EFFECTS = (
     "coulomb_friction",
     "hysteretic_friction",
     "load_friction",
+    "warming_friction",
     "cogging",
     "cable_spring",
     "torque_drift",
@@ -29,6 +30,7 @@ EFFECTS = (
     "torque_gain",
     "actuator_gain",
     "command_bias",
+    "base_mount",
 )
 
 

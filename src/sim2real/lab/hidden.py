@@ -83,6 +83,9 @@ def passive_friction(qd: np.ndarray, friction: Mapping[str, Any]) -> np.ndarray 
     if friction.get("load_level") is not None:
         loaded = friction["load_level"] * np.tanh(qd / LOAD_SMOOTHING_RAD_S)
         out = loaded if out is None else out + loaded
+    if friction.get("warm_level") is not None:
+        warming = friction["warm_level"] * np.tanh(qd / LOAD_SMOOTHING_RAD_S)
+        out = warming if out is None else out + warming
     if friction.get("dahl") is not None:
         level, _ = friction["dahl"]
         memory = level * friction["dahl_state"]
@@ -159,6 +162,33 @@ def _cogging(effects: Mapping[str, Any], joints: Sequence[str], path: Path | Non
     period = np.where(amplitude != 0, period, 1.0)  # joints without a ripple keep a harmless period
     truth["cogging"] = {"amplitude": dict(zip(joints, amplitude.tolist())), "period_rad": dict(zip(joints, period.tolist()))}
     return amplitude, period
+
+
+def _warming_friction(effects: Mapping[str, Any], joints: Sequence[str], path: Path | None,
+                      truth: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """``warming_friction``'s (level N*m, ease, time constant s), or None: a dry friction that eases as the joint
+    warms, level * (1 + ease * exp(-t / time_constant_s)) from each run's start (the grease thins as it warms), applied
+    as level(t) * tanh(qd / :data:`LOAD_SMOOTHING_RAD_S`); recorded in ``truth``."""
+    hidden = effects.get("warming_friction")
+    if not hidden:
+        return None
+    where = "warming_friction"
+    level = _per_joint(hidden["level"], joints, f"{where}/level", path)
+    ease = _per_joint(hidden.get("ease", 0.5), joints, f"{where}/ease", path)
+    constant = float(hidden.get("time_constant_s", 10.0))
+    if np.any(level < 0) or np.any(ease < 0) or not constant > 0:
+        raise InputError(path, where, "a level or an ease is negative, or the time constant is not positive",
+                         "give levels >= 0 N*m, eases >= 0 (the cold level's excess over the warm one, as a fraction) "
+                         "and a time constant > 0 s")
+    truth[where] = {"level": dict(zip(joints, level.tolist())), "ease": dict(zip(joints, ease.tolist())),
+                    "time_constant_s": constant}
+    return level, ease, constant
+
+
+def warming_level(elapsed: float, warming: tuple[np.ndarray, np.ndarray, float]) -> np.ndarray:
+    """The warming friction's level per joint ``elapsed`` seconds into the run."""
+    level, ease, constant = warming
+    return level * (1.0 + ease * np.exp(-elapsed / constant))
 
 
 def cogging_torque(q: np.ndarray, cogging: tuple[np.ndarray, np.ndarray]) -> np.ndarray:

@@ -17,8 +17,8 @@ from sim2real.files import write_yaml
 from sim2real.filters import first_order_lag
 from sim2real.lab.config import EFFECTS, _per_joint, lab_scenario, read_excitation
 from sim2real.lab.hidden import (
-    _cable_spring, _cogging, _hysteretic_friction, _joint_friction, _load_friction, _torque_drift, cable_spring_torque,
-    cogging_torque, dahl_step, load_friction_level, passive_friction,
+    _cable_spring, _cogging, _hysteretic_friction, _joint_friction, _load_friction, _torque_drift, _warming_friction,
+    cable_spring_torque, cogging_torque, dahl_step, load_friction_level, passive_friction, warming_level,
 )
 from sim2real.lab.spec_effects import _apply_spec_effects, _gains_and_biases
 
@@ -129,6 +129,7 @@ class _Hidden:
     friction: dict[str, Any]
     dahl: Any
     load: Any
+    warming: Any
     cogging: Any
     spring: Any
     drift: np.ndarray | None
@@ -269,10 +270,14 @@ def _hidden_effects(effects: Mapping[str, Any], joints: Sequence[str], path: Pat
     load = _load_friction(effects, joints, path, truth)
     if load is not None:
         friction["load_level"] = load[0].copy()
+    warming = _warming_friction(effects, joints, path, truth)
+    if warming is not None:
+        friction["warm_level"] = warming_level(0.0, warming)
     cogging = _cogging(effects, joints, path, truth)
     spring = _cable_spring(effects, joints, path, truth)
     drift = _torque_drift(effects, joints, path, seed, truth, time)
-    passive = friction["gaz"] is not None or friction["stribeck"] is not None or dahl is not None or load is not None
+    passive = (friction["gaz"] is not None or friction["stribeck"] is not None or dahl is not None or load is not None
+               or warming is not None)
     delay_steps = 0
     if "actuation_delay" in effects:
         delay_steps = int(round(float(effects["actuation_delay"]["delay_s"]) * rate))
@@ -285,7 +290,7 @@ def _hidden_effects(effects: Mapping[str, Any], joints: Sequence[str], path: Pat
         lag_keep = float(np.exp(-dt / constant)) if constant > 0 else 0.0
         truth["actuation_lag"] = {"time_constant_s": constant}
     scales = _gains_and_biases(effects, joints, path, truth)
-    return _Hidden(friction, dahl, load, cogging, spring, drift, delay_steps, lag_keep, scales, passive,
+    return _Hidden(friction, dahl, load, warming, cogging, spring, drift, delay_steps, lag_keep, scales, passive,
                    cogging is not None or spring is not None)
 
 
@@ -330,6 +335,8 @@ def _play(arms: _Arms, desired: tuple[np.ndarray, np.ndarray, np.ndarray, np.nda
             applied = lag_keep * out_applied[k - 1] + (1.0 - lag_keep) * applied
         out_q[k], out_qd[k], out_applied[k] = q_meas, qd_meas, applied
         real_data.ctrl[ctrl_index] = applied
+        if hidden.warming is not None:  # the level the joint's warmth sets, held over the control step
+            friction["warm_level"] = warming_level(float(time[k] - time[0]), hidden.warming)
         if hidden.load is not None:
             # The level the gear's load sets, held over the control step: the torque transmitted to the link at the
             # last step's acceleration (one step late: what the friction of this step does is not known before it).
@@ -466,6 +473,7 @@ def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, ou
     _gains_and_biases(effects, joints, Path(lab_config), truth)
     _hysteretic_friction(effects, joints, Path(lab_config), truth)
     _load_friction(effects, joints, Path(lab_config), truth)
+    _warming_friction(effects, joints, Path(lab_config), truth)
     _cogging(effects, joints, Path(lab_config), truth)
     _cable_spring(effects, joints, Path(lab_config), truth)
     if "torque_drift" in effects:

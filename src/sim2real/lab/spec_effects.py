@@ -19,6 +19,7 @@ def _apply_spec_effects(spec: mujoco.MjSpec, joints: Sequence[str], effects: Map
                         path: Path | None) -> dict[str, Any]:
     """Effects that live in the model itself; returns the resolved hidden values for truth.yaml."""
     truth: dict[str, Any] = {}
+    _base_mount(spec, effects, path, truth)
     if "viscous_friction" in effects:
         values = _per_joint(effects["viscous_friction"]["coefficient"], joints, "viscous_friction", path)
         for j, v in zip(joints, values):
@@ -73,6 +74,23 @@ def _apply_spec_effects(spec: mujoco.MjSpec, joints: Sequence[str], effects: Map
         child.explicitinertial = True
         truth["payload"] = {"mass": mass, "com": com.tolist(), "body": body_name, "radius": radius}
     return truth
+
+
+def _base_mount(spec: mujoco.MjSpec, effects: Mapping[str, Any], path: Path | None, truth: dict[str, Any]) -> None:
+    """``base_mount`` ``{tilt_x_deg, tilt_y_deg}``: the real arm's base turned by ``tilt_x_deg`` about the world's x,
+    then ``tilt_y_deg`` about the world's y (a URDF origin's rpy): gravity, seen from the base, is the world's turned back (the lab turns the
+    gravity vector of its torque-driven arm, whose base is the world). Recorded in ``truth`` (degrees)."""
+    mount = effects.get("base_mount")
+    if not mount:
+        return
+    angles = [mount.get(key, 0.0) for key in ("tilt_x_deg", "tilt_y_deg")]
+    if not all(isinstance(v, (int, float)) and np.isfinite(v) and abs(v) < 90 for v in angles):
+        raise InputError(path, "base_mount", "a tilt is not a finite angle below 90 degrees",
+                         "give tilt_x_deg and tilt_y_deg in degrees, e.g. {tilt_x_deg: 1.5, tilt_y_deg: -1.0}")
+    a, b = np.radians(angles)
+    magnitude = float(np.linalg.norm(spec.option.gravity))
+    spec.option.gravity = magnitude * np.array([np.sin(b), -np.sin(a) * np.cos(b), -np.cos(a) * np.cos(b)])
+    truth["base_mount"] = {"tilt_x_deg": float(angles[0]), "tilt_y_deg": float(angles[1])}
 
 
 # Per-joint gains and offsets: (effect, its key, the value when absent). The motor's act on the command

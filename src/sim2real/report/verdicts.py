@@ -16,7 +16,9 @@ from typing import Any
 from sim2real.excitation.names import separation_name
 from sim2real.identification.diagnosis import Diagnosis
 from sim2real.identification.diagnosis.caveats import troubles
-from sim2real.identification.diagnosis.ceiling import CLOSE_TO_RUNG, DRIFT_EFFECT, imitated_joints, offset_joints
+from sim2real.identification.diagnosis.ceiling import (
+    CLOSE_TO_RUNG, DRIFT_EFFECT, POSE_LEARNERS, imitated_joints, offset_joints,
+)
 from sim2real.identification.effects.sensor_drift import SHAPE as DRIFT_SHAPE
 from sim2real.identification.records import Note, NoteKind, SensorPlacement, Side, Status
 from sim2real.stats import floor_multiple
@@ -366,6 +368,9 @@ FEATURE_TEXT = {
     "speed": "the speed of {joint}", "gravity_torque": "the gravity torque of {joint}",
     "torque_times_sign": "the torque the model predicts for {joint} times the sign of its velocity",
     "abs_torque_times_sign": "|the torque the model predicts for {joint}| times the sign of its velocity",
+    **{f"gravity_along_{axis}": f"the gravity torque of {{joint}} under gravity along the base's {axis}"
+       for axis in ("x", "y", "z")},
+    "sin_position": "the sine of the angle of {joint}", "cos_position": "the cosine of the angle of {joint}",
 }
 
 
@@ -400,6 +405,22 @@ def _motion_sentence(per_joint: Mapping[str, Any], joints: Sequence[str]) -> str
             "position_ripple's, one period per joint) before trusting the rest.")
 
 
+def _pose_sentence(per_joint: Mapping[str, Any], joints: Sequence[str], points_to: Mapping[str, Any] | None,
+                   robot: str) -> str:
+    """Joints where a function of the pose alone explains what is left (a pose learner carried it to the holdout's
+    poses): said so, with the pose dependence named, and the library's effect that carries it where it has one."""
+    text = ("A function of the pose alone explains much of what is left, carried from the fit runs' poses to the "
+            f"holdout's: {'; '.join(_learned(j, per_joint[j]) for j in joints)}.")
+    if points_to:
+        text += (f" On {', '.join(points_to['joints'])} it follows the arm's gravity torque under a gravity turned "
+                 f"sideways, the mark of a base mounted off level: add the line '{points_to['line']}' under "
+                 f"'effects:' in configs/{robot}/model.yaml.")
+    else:
+        text += (" No effect of the library has its shape (a cable's or a hose's pull, a spring, a mass the model "
+                 "misplaces): model that dependence before trusting the rest.")
+    return text
+
+
 def _imitated_sentence(per_joint: Mapping[str, Any], joints: Sequence[str]) -> str:
     parts = [f"{_learned(j, per_joint[j])}, yet a drift of each run's own removes "
              f"{per_joint[j]['beyond_motion'][per_joint[j]['follows']]:.0%} of its excess (the learner "
@@ -429,9 +450,12 @@ def ceiling_text(ceiling: Mapping[str, Any], robot: str, joints: Sequence[str] =
     per_joint = {j: ceiling["per_joint"][j] for j in ([j for j in joints if j in ceiling["per_joint"]]
                                                        or ceiling["per_joint"])}
     imitated = imitated_joints(per_joint)
-    motion = [j for j, r in per_joint.items() if r["kind"] == "motion" and j not in imitated]
+    posed = [j for j, r in per_joint.items() if r["kind"] == "motion" and j not in imitated
+             and r.get("learner") in POSE_LEARNERS]
+    motion = [j for j, r in per_joint.items() if r["kind"] == "motion" and j not in imitated and j not in posed]
     still = [j for j, r in per_joint.items() if r["kind"] == "not_motion"]
-    sentences = ([_motion_sentence(per_joint, motion)] if motion else []) + (
+    sentences = ([_pose_sentence(per_joint, posed, ceiling.get("points_to"), robot)] if posed else []) + (
+        [_motion_sentence(per_joint, motion)] if motion else []) + (
         [_imitated_sentence(per_joint, imitated)] if imitated else []) + (
         [_still_sentence(per_joint, still)] if still else [])
     offsets = offset_joints(per_joint)

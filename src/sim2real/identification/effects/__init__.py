@@ -18,6 +18,7 @@ from typing import Any
 from sim2real.identification.effects.actuation_delay import ActuationDelay
 from sim2real.identification.effects.actuation_lag import ActuationLag
 from sim2real.identification.effects.actuator_gain import ActuatorGain
+from sim2real.identification.effects.base_mount import BaseMount
 from sim2real.identification.effects.asymmetric_friction import AsymmetricFriction
 from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals
 from sim2real.identification.effects.command_bias import CommandBias
@@ -52,6 +53,7 @@ EFFECTS: dict[str, Effect] = {
         ActuationLag(),
         Payload(),
         LinkInertia(),
+        BaseMount(),
         TorqueBias(),
         TorqueGain(),
         ActuatorGain(),

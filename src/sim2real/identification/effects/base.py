@@ -77,6 +77,10 @@ class Signals:
     # on the motion now, so the delay that shifts the command does not shift them.
     unshifted: np.ndarray | None = None
     _regressor: np.ndarray | None = None
+    # callable () -> (N, n, 3): the nominal model's generalized gravity under unit gravity along the base's x, y, z
+    # (sim2real.assets.dynamics.RigidBodyModel.unit_gravity), computed on demand (None: not known to these signals)
+    gravity_fn: Any = None
+    _gravity: np.ndarray | None = None
     # What effects compute once per signals (e.g. link_inertia's basis), keyed by the effect; never compared
     # or digested (a leading underscore: sim2real.cache leaves it out).
     _memo: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
@@ -90,6 +94,15 @@ class Signals:
         if self._regressor is None:
             self._regressor = np.asarray(self.regressor_fn())
         return self._regressor
+
+    @property
+    def unit_gravity(self) -> np.ndarray:
+        """(N, n, 3): :attr:`gravity_fn`'s, computed once."""
+        if self._gravity is None:
+            if self.gravity_fn is None:
+                raise ValueError("these signals carry no unit gravity (make_signals gives it)")
+            self._gravity = np.asarray(self.gravity_fn())
+        return self._gravity
 
 
 def diagonal_columns(values: np.ndarray) -> np.ndarray:

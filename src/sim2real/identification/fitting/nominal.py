@@ -320,5 +320,6 @@ def make_signals(nominal: NominalModel, data: TorqueData) -> Signals:
         joint_names=list(data.joint_names), time=data.time, q=data.q, qd=data.qd, qdd=data.qdd,
         tau_nominal=tau_nominal, segments=data.segments, tau=data.tau,
         regressor_fn=lambda: dynamics.regressor(data.q, data.qd, data.qdd), nominal=info,
+        gravity_fn=lambda: dynamics.unit_gravity(data.q),
     )
 

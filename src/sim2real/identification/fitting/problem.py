@@ -291,6 +291,8 @@ def subset_signals(signals: Signals, rows: np.ndarray) -> Signals:
         tau=None if signals.tau is None else signals.tau[rows],
         regressor_fn=lambda: parent.regressor[rows], nominal=signals.nominal, forward=signals.forward,
         unshifted=None if signals.unshifted is None else signals.unshifted[rows], _regressor=regressor,
+        gravity_fn=None if signals.gravity_fn is None else lambda: parent.unit_gravity[rows],
+        _gravity=None if signals._gravity is None else signals._gravity[rows],
     )
 
 

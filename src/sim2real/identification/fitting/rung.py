@@ -292,7 +292,10 @@ def _solve_physical(problem: _Problem, data: TorqueData, nonlinear: Mapping[str,
     theta: dict[str, np.ndarray] = {}
     solve_time = 0.0
     for _ in range(3 if has_offset else 1):
-        solution = solve_consistent(weighted, (data.tau - problem.base(theta, nonlinear)) * problem.weights,
+        # The solver returns the link inertias' whole correction each time: their remainder off the basis (the
+        # null_offset the last iteration stored) is part of it, not a term of the data to fit around.
+        others = {name: value for name, value in theta.items() if name != "link_inertia"}
+        solution = solve_consistent(weighted, (data.tau - problem.base(others, nonlinear)) * problem.weights,
                                     bounds, inertial, weight)
         solve_time += solution.solve_time_s
         for effect, cols, _, kept in blocks:
