@@ -73,3 +73,30 @@ def test_the_verdict_says_status_action_and_worst_joint_and_names_kinds_not_join
     assert len(floor_text) == 2 and floor_text[0].startswith("Nothing to add on the body link")
     for sentences in (unexplained, added, tied, floor_text):
         assert sum(bool(re.search(rf"\b{j}\b", " ".join(sentences))) for j in x_floor) == 1  # the worst joint alone
+
+
+def test_gap_diff_of_the_demo_reads_the_noise(built_tree: Path) -> None:
+    """The demo's report against itself moved within what the noise resolves: every joint unchanged, "no change
+    beyond the noise"; one joint of the last rung worse beyond it: that rung red, with each side's verdict."""
+    import copy
+
+    from sim2real.report.gapdiff import NO_CHANGE, gap_diff_markdown, independent_samples, resolution
+
+    base = json.loads((built_tree / "results/panda/gap.json").read_text())
+    floors, samples = base["noise_floor"]["torque_rmse"]["per_joint"], independent_samples(base)
+    head = copy.deepcopy(base)
+    for rung in head["ladder"]:
+        per_joint = rung["metrics"]["torque_rmse"]["per_joint"]
+        for joint, value in per_joint.items():
+            per_joint[joint] = value + 0.5 * resolution(value, floors[joint], samples)
+    text = gap_diff_markdown(base, head)
+    assert "🔴" not in text and "🟢" not in text and f"**{NO_CHANGE}**" in text
+    for joint in base["joints"]:
+        assert re.search(rf"^\| {joint} \| .* \| ⚪ within the noise \(\+", text, flags=re.MULTILINE), joint
+    worst = head["ladder"][-1]["metrics"]["torque_rmse"]["per_joint"]
+    joint = base["joints"][0]
+    worst[joint] += 3 * resolution(worst[joint], floors[joint], samples)
+    text = gap_diff_markdown(base, head)
+    label = "+ " + ", ".join(base["ladder"][-1]["effects"]) if base["ladder"][-1]["effects"] else "nominal"
+    assert f"- 🔴 rung `{label}` is worse beyond the noise. Base verdict: " in text and NO_CHANGE not in text
+    assert re.search(rf"^\| {joint} \| .* \| 🔴 \+", text, flags=re.MULTILINE)

@@ -203,8 +203,9 @@ def _rung_rows(head: GapReport, base: GapReport | None,
                side: str | None = None) -> tuple[list[str], list[str]]:
     """One row per rung of this branch against the base's rung with the same effects, removed rungs last; and the
     rungs worse beyond the noise (a joint of theirs worse beyond its resolution)."""
-    head_link = head[side] if side else head
-    base_link = ((base or {}).get(side) if side else base) or {}
+    # A link is judged on its report's runs: the actuator link's part takes them from the report around it.
+    head_link = {"runs": head.get("runs"), **head[side]} if side else head
+    base_link = {"runs": (base or {}).get("runs"), **(((base or {}).get(side) if side else base) or {})}
     head_ladder, base_ladder = head_link.get("ladder") or [], base_link.get("ladder") or []
     base_by_label = {_label(r): r for r in base_ladder}
     lines = ["| rung | holdout torque RMSE (base) | (this branch) | change |", "|---|---|---|---|"]
