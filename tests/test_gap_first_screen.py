@@ -67,6 +67,11 @@ def test_the_verdict_says_status_action_and_worst_joint_and_names_kinds_not_join
     assert added[:2] == ["On the body link, the model lacks viscous_friction: it removes 80% of what lies above the "
                          "noise floor, to 1.20x the floor arm-wide.",
                          "Add the line '- viscous_friction' under 'effects:' in configs/panda/model.yaml."]
+    on_joints = _diagnosis("add_effect")
+    on_joints["candidates"][0]["decided_on"] = "joints"
+    assert first_screen_verdict(on_joints, "panda", x_floor, rmse, floor)[0] == (
+        "On the body link, the model lacks viscous_friction on 2 joints, where it removes most of what lies above "
+        "their floors.")
     tied = first_screen_verdict(_diagnosis("not_told_apart"), "panda", x_floor, rmse, floor)
     assert "a and b each remove part" in tied[0] and "excitation/" in tied[1]
     floor_text = first_screen_verdict(_diagnosis("at_noise_floor"), "panda", x_floor, rmse, floor)

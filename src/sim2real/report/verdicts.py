@@ -606,6 +606,10 @@ def _kinds_left(ceiling: Mapping[str, Any] | None, above: Sequence[str]) -> str:
 
 def _first_status(diagnosis: Mapping[str, Any], side: str) -> str:
     status, best = diagnosis.get("status"), (diagnosis.get("candidates") or [None])[0]
+    if status == Status.ADD_EFFECT and best and best.get("decided_on") == "joints":
+        # decided on its own joints (the table's "closest candidate there"), not on the arm-wide share
+        return (f"On {side}, the model lacks {best['effect']} on {len(best['joints'])} joint"
+                f"{'s' if len(best['joints']) > 1 else ''}, where it removes most of what lies above their floors.")
     if status == Status.ADD_EFFECT and best:
         after = best.get("evidence", {}).get("x_floor_after")
         reach = (f": it removes {best['explained_beyond_noise']:.0%} of what lies above the noise floor"
