@@ -67,6 +67,11 @@ def test_the_verdict_says_status_action_and_worst_joint_and_names_kinds_not_join
     assert added[:2] == ["On the body link, the model lacks viscous_friction: it removes 80% of what lies above the "
                          "noise floor, to 1.20x the floor arm-wide.",
                          "Add the line '- viscous_friction' under 'effects:' in configs/panda/model.yaml."]
+    trading = _diagnosis("add_effect")
+    trading["candidates"][0]["evidence"]["trades_with"] = [{"effect": "coulomb_friction", "moved_x_own_term": 0.9,
+                                                             "correlation": -0.9}]
+    assert first_screen_verdict(trading, "panda", x_floor, rmse, floor)[1].endswith(
+        "in configs/panda/model.yaml; read its caution in the diagnosis below first.")
     on_joints = _diagnosis("add_effect")
     on_joints["candidates"][0]["decided_on"] = "joints"
     assert first_screen_verdict(on_joints, "panda", x_floor, rmse, floor)[0] == (

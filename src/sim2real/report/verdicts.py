@@ -628,7 +628,8 @@ def _first_action(diagnosis: Mapping[str, Any], robot: str) -> str | None:
     status, best = diagnosis.get("status"), (diagnosis.get("candidates") or [None])[0]
     if status == Status.ADD_EFFECT and best:
         removal = "".join(f" and remove '- {r}'" for r in best.get("replaces") or [])
-        return f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml{removal}."
+        caution = "; read its caution in the diagnosis below first" if troubles(best) else ""
+        return f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml{removal}{caution}."
     tied = list(diagnosis.get("tied") or [])
     if status == Status.NOT_TOLD_APART and len(tied) > 1:
         return (f"The run that would tell them apart: {separating_runs(tied[0], tied[1:], robot)} designs it; record "
