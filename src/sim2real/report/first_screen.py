@@ -112,7 +112,8 @@ class SideView:
     nominal: Mapping[str, float] | None
 
 
-def _sides(gap: Mapping[str, Any]) -> list[SideView]:
+def sides(gap: Mapping[str, Any]) -> list[SideView]:
+    """The report's links as the first screen may show them: the body link, then the actuator link where there is one."""
     nominal = gap["ladder"][0]["metrics"]["torque_rmse"]["per_joint"] if gap.get("metrics", {}).get("model") else None
     sides = [SideView("body link", gap.get("diagnosis"), gap.get("ladder") or [], gap["noise_floor"]["torque_rmse"],
                       gap["metrics"]["torque_rmse"]["per_joint"], nominal)]
@@ -125,11 +126,11 @@ def _sides(gap: Mapping[str, Any]) -> list[SideView]:
 
 def leading_side(gap: Mapping[str, Any]) -> SideView:
     """The link the first screen shows: the body link, or the actuator link where only it has something left."""
-    sides = _sides(gap)
-    for side in sides:
+    links = sides(gap)
+    for side in links:
         if side.diagnosis and side.diagnosis.get("status") != "at_noise_floor":
             return side
-    return sides[0]
+    return links[0]
 
 
 def _x_floor(side: SideView) -> dict[str, float | None]:

@@ -9,7 +9,9 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR
-from sim2real.report.first_screen import SideView, first_screen, joints_table, ladder_table, leading_side, model_name
+from sim2real.report.first_screen import (
+    SideView, first_screen, joints_table, ladder_table, leading_side, model_name, sides,
+)
 from sim2real.report.regimes import REGIME_LABELS
 from sim2real.report.verdicts import BOUND_TEXT, bounds_text
 
@@ -119,8 +121,7 @@ def _diagnosis_markdown(diagnosis: Mapping[str, Any], side: SideView | None = No
     skipped = [f"- `{skip['effect']}` not tried: {skip['reason']}" for skip in diagnosis.get("skipped", [])]
     if skipped:
         lines += details("Effects not tried, and why", skipped)
-    if side is not None and diagnosis.get("per_joint") and (diagnosis.get("status") != "at_noise_floor"
-                                                            or diagnosis.get("model_free")):
+    if side is not None:
         lines += joints_table(side).markdown() + [""]
     lines += details("The diagnosis in full (gap.json's verdict)", [diagnosis["verdict"]])
     ceiling = diagnosis.get("model_free")
@@ -212,9 +213,10 @@ def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> s
     lines = first_screen(gap).markdown()
     shown = leading_side(gap).name
     if "diagnosis" in gap:
-        lines += ["## Diagnosis", ""] + _diagnosis_markdown(gap["diagnosis"])
+        body = None if shown == "body link" else sides(gap)[0]  # its joints, where the first screen shows the other
+        lines += ["## Diagnosis", ""] + _diagnosis_markdown(gap["diagnosis"], body)
     lines += _where_lines(gap, model)
-    lines += _torque_domain_lines(gap, model, full=shown != "body link")
+    lines += _torque_domain_lines(gap, model)
     lines += _state_domain_lines(gap, model)
     if "ladder" in gap:
         lines += _ladder_lines(gap, figures["ladder"])
@@ -247,10 +249,10 @@ def _runs_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
                                   preparation + _incomplete_lines(runs) + _gaps_lines(runs) + _spike_lines(runs))
 
 
-def _torque_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None, full: bool) -> list[str]:
+def _torque_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> list[str]:
     """The torque domain: the current model's error against the noise floor (with the nominal URDF's, for
-    reference, once a ladder calibrates it), then joint by joint what the first screen does not show (``full``:
-    everything, where the first screen shows the other link)."""
+    reference, once a ladder calibrates it), then joint by joint what the per-joint table (on the first screen, or
+    the diagnosis's where the first screen shows the other link) does not say."""
     m = gap["metrics"]
     floor = gap["noise_floor"]["torque_rmse"]
     nominal_rung = gap["ladder"][0]["metrics"]["torque_rmse"] if model and gap.get("ladder") else None
@@ -267,25 +269,16 @@ def _torque_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None
         lines += [f"Overall RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
                   f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
                   f"R^2 {m['torque_r2']['overall']:.4g}.", ""]
-    return lines + _torque_table(gap["joints"], m, floor, nominal_rung if full else None, full)
+    return lines + _torque_table(gap["joints"], m)
 
 
-def _torque_table(joints: Sequence[str], m: Mapping[str, Any], floor: Mapping[str, Any],
-                  nominal_rung: Mapping[str, Any] | None, full: bool) -> list[str]:
-    """Each joint's relative torque error and R^2; ``full``: its N m and x its own floor too (and the nominal URDF's,
-    when there is a ladder), which the first screen otherwise shows."""
+def _torque_table(joints: Sequence[str], m: Mapping[str, Any]) -> list[str]:
+    """Each joint's relative torque error and R^2 (its N m and x its own floor are the per-joint table's)."""
     lines = ["Each joint is judged in its own units, x its own noise floor: a wrist residual 8x its floor weighs "
-             "what a shoulder residual 8x its floor weighs, although its N m are ten times smaller.", ""]
-    head, rule = "| joint |", "|---|"
-    if full:
-        head, rule = head + " RMSE [N m] | noise floor [N m] | x floor |", rule + "---|---|---|"
-    lines += [head + " relative RMSE | R^2 |" + (" nominal URDF [N m] |" if nominal_rung else ""),
-              rule + "---|---|" + ("---|" if nominal_rung else "")]
+             "what a shoulder residual 8x its floor weighs, although its N m are ten times smaller.", "",
+             "| joint | relative RMSE | R^2 |", "|---|---|---|"]
     for j in joints:
-        value, noise = m["torque_rmse"]["per_joint"][j], floor["per_joint"][j]
-        row = f"| {j} |" + (f" {value:.3g} | {noise:.3g} | {_fmt(value / noise if noise > 0 else None)} |" if full else "")
-        lines.append(row + f" {m['torque_relative_rmse']['per_joint'][j]:.3g} | {m['torque_r2']['per_joint'][j]:.4g} |"
-                     + (f" {nominal_rung['per_joint'][j]:.3g} |" if nominal_rung else ""))
+        lines.append(f"| {j} | {m['torque_relative_rmse']['per_joint'][j]:.3g} | {m['torque_r2']['per_joint'][j]:.4g} |")
     return lines
 
 
