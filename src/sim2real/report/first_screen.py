@@ -133,18 +133,25 @@ def leading_side(gap: Mapping[str, Any]) -> SideView:
     return links[0]
 
 
-def _x_floor(side: SideView) -> dict[str, float | None]:
-    """Each joint's holdout RMSE in units of its floor: the ladder's, else RMSE over floor."""
+def _floors(side: SideView) -> dict[str, tuple[float | None, float]]:
+    """Each joint's (x its floor, the floor): the ladder's figure, measured against the floor of the holdout runs the
+    ladder judges on (its RMSE over it, so that a row reads RMSE / floor = x floor); else the report's floor."""
     ladder_x = ((side.ladder[-1]["metrics"].get("torque_x_floor") or {}).get("per_joint") if side.ladder else None)
     floors = side.floor["per_joint"]
-    return {j: (ladder_x[j] if ladder_x and j in ladder_x else
-                (value / floors[j] if floors[j] > 0 else None)) for j, value in side.rmse.items()}
+    out: dict[str, tuple[float | None, float]] = {}
+    for joint, value in side.rmse.items():
+        x = ladder_x.get(joint) if ladder_x else None
+        if x:
+            out[joint] = (x, value / x)
+        else:
+            out[joint] = (value / floors[joint] if floors[joint] > 0 else None, floors[joint])
+    return out
 
 
 def joints_table(side: SideView) -> Table:
     """The current model joint by joint: its holdout RMSE, floor and x floor (the nominal URDF's beside it), what
     comes closest there and what it leaves, and what kind of thing is left (the model-free ceiling)."""
-    x_floor = _x_floor(side)
+    floors = _floors(side)
     diagnosis = side.diagnosis or {}
     per_joint, ceiling = diagnosis.get("per_joint") or {}, diagnosis.get("model_free")
     head = ["joint", "RMSE [N m]", "noise floor [N m]", "x floor"]
@@ -153,7 +160,7 @@ def joints_table(side: SideView) -> Table:
     head += ["model-free ceiling [N m] (x floor)", "what is left"] if ceiling else []
     rows = []
     for joint, value in side.rmse.items():
-        row = [joint, f"{value:.3g}", f"{side.floor['per_joint'][joint]:.3g}", fmt(x_floor[joint])]
+        row = [joint, f"{value:.3g}", f"{floors[joint][1]:.3g}", fmt(floors[joint][0])]
         row += [f"{side.nominal[joint]:.3g}"] if side.nominal else []
         if per_joint:
             r = per_joint.get(joint) or {}
@@ -180,9 +187,10 @@ def first_screen(gap: Mapping[str, Any]) -> FirstScreen:
     model = gap["metrics"].get("model")
     verdict: tuple[str, ...] = ()
     if side.diagnosis:
-        x_floor = {j: x for j, x in _x_floor(side).items() if x is not None}
+        floors = _floors(side)
+        x_floor = {j: x for j, (x, _) in floors.items() if x is not None}
         verdict = tuple(first_screen_verdict(side.diagnosis, gap["robot"], x_floor, side.rmse,
-                                             side.floor["per_joint"]))
+                                             {j: floor for j, (_, floor) in floors.items()}))
     ladder = ladder_table(side.ladder, side.floor["overall"], unconstrained=side.name == "body link") \
         if side.ladder else None
     caption = (f"**Model ladder** ({side.name}): the effects of configs/{gap['robot']}/model.yaml added one by one, "
