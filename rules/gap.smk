@@ -1,4 +1,5 @@
-# Gap report: measurements (configs/{robot}/measurements.yaml) vs the model -> gap.json, gap.md, figures.
+# Gap report: measurements (configs/{robot}/measurements.yaml) vs the model -> gap.json, gap.md (its first
+# screen also as HTML for the Snakemake report), figures.
 # ROS 2 bags under data/{robot}/bags/ are converted to measurement runs first; the runs are prepared once
 # (filtered, on a uniform grid, checked against the URDF) for the gap report and the sysid rule, so that a
 # round of the loop (a change of model.yaml) reads them back instead of preparing them again.
@@ -56,6 +57,12 @@ rule gap_report:
     output:
         json="results/{robot}/{campaign}gap.json",
         md="results/{robot}/{campaign}gap.md",
+        first_screen=report(
+            "results/{robot}/{campaign}gap/first_screen.html",
+            caption="../report/gap_first_screen.rst",
+            category="Gap report",
+            subcategory="{robot}",
+        ),
         torque=report(
             "results/{robot}/{campaign}gap/torque.png",
             caption="../report/gap_torque.rst",

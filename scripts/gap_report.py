@@ -1,4 +1,4 @@
-"""Snakemake script: measurements vs model -> gap.json, gap.md, figures (sim2real.report.gap.build_gap_report)."""
+"""Snakemake script: measurements vs model -> gap.json, gap.md, its first screen, figures (sim2real.report.gap.build_gap_report)."""
 
 from sim2real.cli import rule_entry
 from sim2real.report.gap import GapInputs, build_gap_report
@@ -20,4 +20,5 @@ with rule_entry(snakemake):
          "regimes": snakemake.output.regimes, "ladder": snakemake.output.ladder},
         threads=snakemake.threads,
         cache_dir=snakemake.params.kept,
+        first_screen_html=snakemake.output.first_screen,
     )

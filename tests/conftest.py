@@ -32,6 +32,28 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         module = item.nodeid.split("::")[0]
         item.add_marker(pytest.mark.xdist_group(modules.get(module, module)))
+    shard = config.getoption("shard")
+    if shard:
+        _keep_shard(config, items, modules, shard)
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--shard", default=None, metavar="K/N",
+                     help="run the K-th of N parts of the suite, whole xdist groups each (tests/shards.py; CI's matrix)")
+
+
+def _keep_shard(config: pytest.Config, items: list[pytest.Item], modules: dict[str, str], shard: str) -> None:
+    """Keeps the items of part K of N (tests/shards.py), whole groups; the others are deselected."""
+    from shards import assign_shards, parse_shard
+
+    part, count = parse_shard(shard)
+    group_of = {item.nodeid: modules.get(item.nodeid.split("::")[0], item.nodeid.split("::")[0]) for item in items}
+    shards = assign_shards(set(group_of.values()), count)
+    kept = [item for item in items if shards[group_of[item.nodeid]] == part]
+    deselected = [item for item in items if shards[group_of[item.nodeid]] != part]
+    if deselected:
+        config.hook.pytest_deselected(items=deselected)
+    items[:] = kept
 
 
 @pytest.hookimpl(optionalhook=True)

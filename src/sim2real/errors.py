@@ -21,3 +21,7 @@ class InputError(ValueError):
         if where:
             location = f"{location}: {where}"
         super().__init__(f"{location}: {problem}. Fix: {fix}")
+
+    def __reduce__(self) -> tuple[type, tuple[str | None, str | None, str, str]]:
+        # Rebuilt from its parts when it crosses a process (sim2real.forked), not from its message.
+        return (type(self), (self.path, self.where, self.problem, self.fix))

@@ -30,14 +30,16 @@ import math
 import os
 import sys
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.files import atomic_path
+from sim2real.forked import ChildGaveNoAnswer, Limits, TimeLimit, call_limited
 
 PROJECT_ROOT = Path(__file__).resolve().parents[3]
 PACKAGE_PREFIX = "package://"
@@ -106,28 +108,64 @@ def resolve_package_uri(
 # Xacro
 
 
-def run_xacro(xacro_path: str | Path, args: Mapping[str, object] | None = None) -> str:
-    """Expand a Xacro file to URDF text; a Xacro error becomes an InputError naming the file."""
-    import xacro  # imported lazily: xacro keeps global state, keep it out of module import
+# A pull request's Xacro runs in the untrusted CI job: it is expanded in a child process held to these limits (a
+# robot's Xacro takes well under a second and tens of MB), and may read only files of the robot's packages.
+XACRO_LIMITS = Limits(seconds=60.0, memory_bytes=1024 * 2**20)
 
+
+def xacro_roots(xacro_path: str | Path) -> list[Path]:
+    """The directories a Xacro may read from (its includes, its ``xacro.load_yaml``): the one holding its own
+    package (``robots/`` for ``robots/<name>/<name>.urdf.xacro``) and every package search directory
+    (:func:`package_search_dirs`), symlinks resolved."""
+    roots = [Path(xacro_path).resolve().parent.parent, *package_search_dirs()]
+    return list(dict.fromkeys(Path(os.path.realpath(root)) for root in roots))
+
+
+def run_xacro(xacro_path: str | Path, args: Mapping[str, object] | None = None, *,
+              allowed: tuple[str | Path, ...] = (), limits: Limits = XACRO_LIMITS) -> str:
+    """Expand a Xacro file to URDF text in a child process held to ``limits``; it may read files under
+    :func:`xacro_roots` and the files ``allowed`` (a calibration YAML). A Xacro error, a file outside, or a limit
+    reached becomes one InputError naming the file and the element."""
     xacro_path = Path(xacro_path)
     if not xacro_path.exists():
         raise InputError(xacro_path, None, "Xacro file does not exist", "create it or correct the path")
     mappings = {str(k): ("" if v is None else _xacro_arg(v)) for k, v in (args or {}).items()}
+    readable = (tuple(xacro_roots(xacro_path)), frozenset(Path(os.path.realpath(f)) for f in allowed))
+    try:
+        return call_limited(_expand_xacro, xacro_path, mappings, readable, limits, limits=limits)
+    except ChildGaveNoAnswer as exc:
+        problem = (f"expanding it ran past its time limit of {limits.seconds:g} s" if exc.timed_out else
+                   f"expanding it ended without an answer (exit code {exc.exitcode}; its memory limit is "
+                   f"{limits.memory_bytes / 2**20:.0f} MB)")
+        raise InputError(xacro_path, "Xacro expansion", problem, XACRO_LIMIT_FIX) from None
+
+
+XACRO_LIMIT_FIX = ("bound the macro recursion (a macro that calls itself until a condition) and the ranges and "
+                   "repetitions of ${...} expressions")
+
+
+def _expand_xacro(xacro_path: Path, mappings: Mapping[str, str], readable: tuple[tuple[Path, ...], frozenset[Path]],
+                  limits: Limits) -> str:
+    """The child's work (:func:`run_xacro`): xacro reads through :func:`_reading_within`; what stops it becomes an
+    InputError naming the file xacro was in and the macro it was expanding."""
+    import xacro  # imported lazily: xacro keeps global state, keep it out of module import
+
     xacro.all_includes = []
     xacro.filestack = []
     try:
-        doc = xacro.process_file(str(xacro_path), mappings=mappings)
-    except Exception as exc:  # xacro raises XacroException, NameError, SyntaxError, ...
-        stack = [str(f) for f in (getattr(xacro, "filestack", None) or []) if f]
-        failing = stack[-1] if stack else str(xacro_path)
-        macro = getattr(exc, "macro", None)
-        where = f"macro '{macro.name}'" if macro is not None and getattr(macro, "name", None) else "Xacro expansion"
-        raise InputError(
-            failing, where, f"Xacro cannot expand it: {exc}",
-            "fix the ${...} expression, macro call or argument named above",
-        ) from exc
-    # Drop xacro's banner (it names the input path) so the output does not depend on where it ran.
+        # xacro's module namespace is searched before the builtins: every file it opens (its parse of an include,
+        # its load_yaml) passes the check; where the work runs in a child, the child's copy of the module is patched.
+        xacro.open = _reading_within(*readable, xacro)
+        return _urdf_text(xacro.process_file(str(xacro_path), mappings=mappings), xacro_path)
+    except (Exception, TimeLimit) as exc:  # xacro: XacroException, NameError...; the limits: TimeLimit, MemoryError
+        raise _xacro_error(exc, xacro_path, xacro, limits) from None
+    finally:
+        vars(xacro).pop("open", None)
+
+
+def _urdf_text(doc: Any, xacro_path: Path) -> str:
+    """The expanded document as the URDF's text, with sim2real's banner for xacro's (which names the input path,
+    so that the output does not depend on where it ran)."""
     for node in list(doc.childNodes):
         if node.nodeType == node.COMMENT_NODE:
             doc.removeChild(node)
@@ -139,6 +177,60 @@ def run_xacro(xacro_path: str | Path, args: Mapping[str, object] | None = None) 
     lines = [line for line in text.splitlines() if line.strip()]
     banner = f"<!-- Generated by sim2real from {xacro_path.name}; do not edit (edit the Xacro). -->"
     return "\n".join([lines[0], banner, *lines[1:]]) + "\n"
+
+
+def _reading_within(roots: tuple[Path, ...], allowed: frozenset[Path], xacro: Any) -> Callable[..., Any]:
+    """xacro's ``open``: a file under ``roots`` or ``allowed`` (symlinks resolved) opens; any other is an InputError
+    naming the element that reads it, told by xacro's caller: its parse of an include or its load_yaml."""
+    def open_within(file: str, *args: Any, **kwargs: Any) -> Any:
+        real = Path(os.path.realpath(file))
+        if real in allowed or any(real.is_relative_to(root) for root in roots):
+            return open(file, *args, **kwargs)
+        stack = [str(f) for f in xacro.filestack if f]
+        if sys._getframe(1).f_code.co_name == "load_yaml":
+            source, element = stack[-1], f"xacro.load_yaml('{file}')"
+        elif len(stack) > 1:
+            source, element = stack[-2], f'<xacro:include filename="{stack[-1]}">'
+        else:
+            source, element = file, "the Xacro file itself"
+        raise InputError(source, element, f"reads {real}, outside the robot's package roots "
+                         f"({', '.join(map(str, roots))})",
+                         "read only files of the robot's packages (its folder under robots/, robots/common, "
+                         "example-robot-data's share directory, ROS_PACKAGE_PATH); copy the file there")
+    return open_within
+
+
+def _cause(exc: BaseException, kind: type[BaseException] | tuple[type[BaseException], ...]) -> BaseException | None:
+    """The exception of ``kind`` that ``exc`` is or wraps (xacro keeps the wrapped one in ``exc``)."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        if isinstance(current, kind):
+            return current
+        seen.add(id(current))
+        current = getattr(current, "exc", None) or current.__cause__ or current.__context__
+    return None
+
+
+def _xacro_error(exc: BaseException, xacro_path: Path, xacro: Any, limits: Limits) -> InputError:
+    """What stopped xacro, as one InputError line: a file read outside, a limit reached, or xacro's own error, in
+    the file it was in and the macro it was expanding."""
+    refused = _cause(exc, InputError)
+    if isinstance(refused, InputError):
+        return refused
+    stack = [str(f) for f in (getattr(xacro, "filestack", None) or []) if f]
+    failing = stack[-1] if stack else str(xacro_path)
+    macros = getattr(xacro, "macrostack", None) or []
+    name = macros[-1].body.getAttribute("name") if macros and macros[-1].body is not None else ""
+    where = f"macro '{name}'" if name else "Xacro expansion"  # the macro xacro was expanding, as xacro names it
+    if _cause(exc, TimeLimit) is not None:
+        return InputError(failing, where, f"expanding it ran past its time limit of {limits.seconds:g} s",
+                          XACRO_LIMIT_FIX)
+    if _cause(exc, MemoryError) is not None:
+        return InputError(failing, where, f"expanding it ran past its memory limit of "
+                          f"{limits.memory_bytes / 2**20:.0f} MB", XACRO_LIMIT_FIX)
+    return InputError(failing, where, f"Xacro cannot expand it: {' '.join(str(exc).split())}",
+                      "fix the ${...} expression, macro call or argument named above")
 
 
 def _xacro_arg(value: object) -> str:
@@ -353,9 +445,11 @@ def _parse_with_pinocchio(text: str, source: Path) -> None:
 # Build
 
 
-def build_urdf(xacro_path: str | Path, out_path: str | Path, args: Mapping[str, object] | None = None) -> None:
+def build_urdf(xacro_path: str | Path, out_path: str | Path, args: Mapping[str, object] | None = None, *,
+               limits: Limits = XACRO_LIMITS) -> None:
     """Expand ``xacro_path`` with ``args`` (e.g. ``{"hand": "true", "calibration": "<yaml>"}``), validate,
-    and write ``out_path`` atomically: nothing is written if expansion or validation fails.
+    and write ``out_path`` atomically: nothing is written if expansion or validation fails. The Xacro may read the
+    files of the robot's packages and the calibration YAML, within ``limits`` (:func:`run_xacro`).
 
     See the module docstring for the calibration YAML shape.
     """
@@ -367,7 +461,8 @@ def build_urdf(xacro_path: str | Path, out_path: str | Path, args: Mapping[str, 
         if not calibration.is_file():
             raise InputError(calibration, None, "calibration file does not exist", "run the sysid stage or correct the path")
         args["calibration"] = str(calibration)
-    text = run_xacro(xacro_path, args)
+    allowed = (str(args["calibration"]),) if args.get("calibration") else ()
+    text = run_xacro(xacro_path, args, allowed=allowed, limits=limits)
     with atomic_path(out_path) as tmp:
         tmp.write_text(text, encoding="utf-8")
         validate_urdf(tmp, source=xacro_path)

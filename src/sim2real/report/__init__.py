@@ -6,7 +6,8 @@ Each module does one job of the rules ``gap_report`` and ``fleet`` (``rules/gap.
 * :mod:`~sim2real.report.metrics`: torque-domain metrics, the reality-gap score and fidelity grade;
 * :mod:`~sim2real.report.replay`: the commands replayed in MuJoCo (multiple shooting), the state domain;
 * :mod:`~sim2real.report.regimes`: the regimes an error can live in, where the model fails, the worst windows;
-* :mod:`~sim2real.report.figures` and :mod:`~sim2real.report.markdown`: what a reviewer sees;
+* :mod:`~sim2real.report.figures`, :mod:`~sim2real.report.first_screen` and :mod:`~sim2real.report.markdown`: what a
+  reviewer sees (gap.md's first screen: the verdict, the ladder, the joints; then the rest);
 * :mod:`~sim2real.report.gapdiff`: the pull-request comment, two reports compared;
 * :mod:`~sim2real.report.fleet`: every arm and campaign side by side, what drifted.
 

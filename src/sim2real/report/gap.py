@@ -278,9 +278,10 @@ def _replay_ladders(gap: dict[str, Any], comparisons: list[TorqueComparison], re
 
 def build_gap_report(
     inputs: GapInputs, gap_json: str | Path, gap_md: str | Path, figures: Mapping[str, str | Path],
-    threads: int = 1, cache_dir: str | Path | None = None,
+    threads: int = 1, cache_dir: str | Path | None = None, first_screen_html: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Write gap.json, gap.md and the figures (keys: :data:`sim2real.report.figures.FIGURES`); the figures
+    """Write gap.json, gap.md and the figures (keys: :data:`sim2real.report.figures.FIGURES`), and gap.md's first
+    screen as HTML for the Snakemake report (``first_screen_html``, where given); the figures
     are drawn on up to ``threads`` processes. The ladder and its residuals are used where their files exist.
     ``cache_dir``: where the replays and figures are kept for the next report (:class:`sim2real.cache.FitCache`;
     None: not kept): a round of the loop that adds a rung replays that rung and redraws what shows the ladder,
@@ -300,6 +301,10 @@ def build_gap_report(
     from sim2real.files import write_text
 
     write_text(gap_md, render_gap_markdown(gap, rel))
+    if first_screen_html is not None:
+        from sim2real.report.first_screen import first_screen
+
+        write_text(first_screen_html, first_screen(gap).html())
     write_json(gap_json, gap)
     cache.prune()
     return gap

@@ -1,22 +1,42 @@
-"""Markdown summary of what changed between two gap reports (base branch vs pull request).
+"""Markdown summary of what changed between two gap reports (base branch vs pull request): the pull-request comment.
 
-Reads only the stable keys of ``gap.json`` (``robot``, ``ladder[].effects``,
-``ladder[].metrics.torque_rmse``, ``noise_floor``, ``diagnosis.candidates``, and the same of the
-``actuator`` link where the runs have one), so reviewers see per rung and per joint whether the model
-got closer to the measurements or further away.
+It says each side's verdict and what changed in it, then what a reviewer must look at (a rung worse beyond the
+noise, a verdict that changed, a body newly held at a bound, a new implausible body), then the ladder and the model
+each side ends with, joint by joint. A change is marked 🔴/🟢 only where the noise can resolve it
+(:func:`resolution`): smaller, it is shown unchanged (⚪), and two fits that differ only within the noise read "no
+change beyond the noise".
+
+Reads only the stable keys of ``gap.json`` (``robot``, ``runs``, ``ladder[].effects``, ``ladder[].metrics.torque_rmse``,
+``ladder[-1].params.link_inertia.bodies``, ``noise_floor``, ``diagnosis``, and the same of the ``actuator`` link
+where the runs have one).
 """
 
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from sim2real.errors import InputError
 from sim2real.report import rung_label
+from sim2real.report.verdicts import BOUND_TEXT
 
 GapReport = Mapping[str, Any]
+
+# What no change of code can promise to hold: a held-out metric moves this much across CPUs and BLAS kernels with the
+# same code and data (tests/test_loop_pinned.py, docs/performance.md): 1 % of itself or 2.5 % of its joint's floor.
+REPRODUCIBLE_RELATIVE = 0.01
+REPRODUCIBLE_FLOOR_SHARE = 0.025
+# A change is resolved beyond this many standard errors of the joint's holdout RMSE (:func:`resolution`).
+RESOLVING_ERRORS = 2.0
+
+UNCHANGED, WORSE, BETTER = "⚪", "🔴", "🟢"
+NO_CHANGE = "No change beyond the noise."
+STATUS_TEXT = {"add_effect": "an effect to add", "not_told_apart": "effects not told apart",
+               "at_noise_floor": "at the noise floor", "unexplained": "unexplained: the library lacks what is left"}
 
 
 def load_gap(path: str | Path) -> GapReport:
@@ -32,17 +52,58 @@ def load_gap(path: str | Path) -> GapReport:
     return data
 
 
-def _fmt(value: float | None, unit: str = "") -> str:
-    return "–" if value is None else f"{value:.4g}{unit}"
+# --- what the noise can resolve -----------------------------------------------------------------------------------
+
+def independent_samples(report: GapReport | None) -> float | None:
+    """Roughly independent samples of the holdout runs: their length times twice the filter's cutoff (samples closer
+    than half a period of the cutoff move together); None where the report does not say."""
+    runs = [r for r in (report or {}).get("runs") or [] if r.get("role") == "holdout"]
+    try:
+        count = sum(float(r["duration_s"]) * 2.0 * float(r["filter"]["cutoff_hz"]) for r in runs)
+    except (KeyError, TypeError, ValueError):
+        return None
+    return count if count > 0 else None
 
 
-def _delta(base: float | None, head: float | None) -> str:
+def resolution(value: float, floor: float | None, samples: float | None) -> float:
+    """The smallest change of a joint's holdout RMSE ``value`` the noise can resolve: what a metric moves across
+    machines (:data:`REPRODUCIBLE_RELATIVE`, :data:`REPRODUCIBLE_FLOOR_SHARE` of the floor), and
+    :data:`RESOLVING_ERRORS` standard errors of the RMSE that white noise of the joint's floor ``floor`` leaves on
+    ``samples`` independent samples: the mean square's variance (2 s^4 + 4 s^2 e^2) / n for a model error e above
+    noise s, carried to the RMSE through its derivative 1 / (2 RMSE)."""
+    tolerance = REPRODUCIBLE_RELATIVE * abs(value)
+    if floor is None or floor <= 0:
+        return tolerance
+    tolerance = max(tolerance, REPRODUCIBLE_FLOOR_SHARE * floor)
+    if samples and value > 0:
+        excess = max(value**2 - floor**2, 0.0)
+        standard_error = math.sqrt((2 * floor**4 + 4 * floor**2 * excess) / samples) / (2 * value)
+        tolerance = max(tolerance, RESOLVING_ERRORS * standard_error)
+    return tolerance
+
+
+@dataclass(frozen=True)
+class Change:
+    """One number of both sides: its mark (⚪ within the noise, 🔴 worse, 🟢 better) and its words."""
+
+    mark: str
+    text: str
+
+
+def change(base: float | None, head: float | None, resolved: float) -> Change:
+    """``head`` against ``base``, a change within ``resolved`` shown unchanged."""
     if base is None or head is None:
-        return "new" if base is None and head is not None else "–"
+        return Change(UNCHANGED, "new" if base is None and head is not None else "–")
     diff = head - base
     pct = f" ({100.0 * diff / base:+.1f}%)" if base else ""
-    arrow = "🟢" if diff < 0 else ("🔴" if diff > 0 else "⚪")
-    return f"{arrow} {diff:+.4g}{pct}"
+    if abs(diff) <= resolved:
+        return Change(UNCHANGED, f"{UNCHANGED} within the noise ({diff:+.2g})")
+    mark = WORSE if diff > 0 else BETTER
+    return Change(mark, f"{mark} {diff:+.4g}{pct}")
+
+
+def _fmt(value: float | None, unit: str = "") -> str:
+    return "–" if value is None else f"{value:.4g}{unit}"
 
 
 def _label(rung: Mapping[str, Any] | None) -> str:
@@ -55,74 +116,183 @@ def _torque_rmse(rung: Mapping[str, Any] | None) -> Mapping[str, Any]:
     return rung.get("metrics", {}).get("torque_rmse", {}) or {}
 
 
-def _top_candidate(report: GapReport | None) -> str:
-    if not report:
-        return "–"
-    diagnosis = report.get("diagnosis") or {}
-    candidates: Sequence[Mapping[str, Any]] = diagnosis.get("candidates") or []
-    if not candidates:
-        return diagnosis.get("verdict") or "no candidate"
-    top = candidates[0]
-    joints = ", ".join(top.get("joints") or [])
-    return f"`{top.get('effect')}` on {joints or 'all joints'} (explains {100 * float(top.get('explained', 0)):.0f}%)"
+def _floors(report: GapReport | None) -> Mapping[str, float]:
+    return ((report or {}).get("noise_floor") or {}).get("torque_rmse", {}).get("per_joint", {})
+
+
+def joint_changes(base_rung: Mapping[str, Any] | None, head_rung: Mapping[str, Any], base: GapReport | None,
+                  head: GapReport) -> dict[str, tuple[float | None, float | None, Change]]:
+    """Each joint of ``head_rung``: (base, head, change), the change resolved against the larger floor and the
+    shorter holdout of the two sides."""
+    base_joints, head_joints = _torque_rmse(base_rung).get("per_joint", {}), _torque_rmse(head_rung).get("per_joint", {})
+    floors = [_floors(base), _floors(head)]
+    counts = [n for n in (independent_samples(base), independent_samples(head)) if n]
+    samples = min(counts) if counts else None
+    out = {}
+    for joint, h in head_joints.items():
+        b = base_joints.get(joint)
+        floor = max((f[joint] for f in floors if f.get(joint) is not None), default=None)
+        resolved = resolution(max(v for v in (b, h) if v is not None), floor, samples)
+        out[joint] = (b, h, change(b, h, resolved))
+    return out
+
+
+# --- each side's verdict, and what a reviewer must look at ------------------------------------------------------------
+
+def _headline(diagnosis: Mapping[str, Any] | None) -> str:
+    """A verdict's first sentence (its status's headline), or its status in words."""
+    if not diagnosis:
+        return "no diagnosis"
+    text = str(diagnosis.get("verdict") or "")
+    first = text.split(". ", 1)[0].rstrip(".")
+    return (first + ".") if first else STATUS_TEXT.get(str(diagnosis.get("status")), "no verdict")
+
+
+def _named(diagnosis: Mapping[str, Any] | None) -> tuple[str | None, str | None]:
+    """(status, the line it recommends) of a diagnosis."""
+    if not diagnosis:
+        return None, None
+    status = diagnosis.get("status")
+    candidates = diagnosis.get("candidates") or []
+    line = candidates[0].get("add") if status == "add_effect" and candidates else None
+    return status, line
+
+
+def verdict_lines(base: Mapping[str, Any] | None, head: Mapping[str, Any] | None, link: str) -> tuple[list[str], bool]:
+    """Each side's verdict and what changed in it; whether it changed (its status or the line it recommends)."""
+    b_status, b_line = _named(base)
+    h_status, h_line = _named(head)
+    changed = base is not None and (b_status, b_line) != (h_status, h_line)
+    lines = [f"**Verdict{link}** — this branch: {_headline(head)}"]
+    if base is None:
+        return lines, False
+    if not changed:
+        return [*lines, "", "Base: the same verdict."], False
+    what = (f"the status went from {STATUS_TEXT.get(str(b_status), b_status)} to "
+            f"{STATUS_TEXT.get(str(h_status), h_status)}" if b_status != h_status else
+            f"the line to add went from `{b_line}` to `{h_line}`")
+    return [*lines, "", f"Base: {_headline(base)}", "", f"What changed: {what}."], True
+
+
+def _bodies(report: GapReport | None, key: str) -> dict[str, list[str]]:
+    """Bodies of the last rung's link inertias with a ``key`` ("binding": held at a bound, "implausible") set."""
+    ladder = (report or {}).get("ladder") or []
+    link = ((ladder[-1].get("params") or {}).get("link_inertia") or {}) if ladder else {}
+    return {name: list(b.get(key) or []) for name, b in (link.get("bodies") or {}).items() if b.get(key)}
+
+
+def bodies_lines(base: GapReport | None, head: GapReport) -> list[str]:
+    """Bodies newly held at a bound, and newly implausible, in the model this branch ends with."""
+    lines = []
+    held, held_before = _bodies(head, "binding"), _bodies(base, "binding")
+    for name, bounds in held.items():
+        new = [b for b in bounds if b not in held_before.get(name, [])]
+        if new:
+            lines.append(f"- **{name}** newly held at a bound: {', '.join(BOUND_TEXT.get(b, b) for b in new)}.")
+    implausible, before = _bodies(head, "implausible"), _bodies(base, "implausible")
+    for name, reasons in implausible.items():
+        new = [r for r in reasons if r not in before.get(name, [])]
+        if new:
+            lines.append(f"- **{name}** newly implausible: {'; '.join(new)}.")
+    return lines
+
+
+# --- the comment ------------------------------------------------------------------------------------------------------
+
+def _rung_rows(head: GapReport, base: GapReport | None,
+               side: str | None = None) -> tuple[list[str], list[str]]:
+    """One row per rung of this branch against the base's rung with the same effects, removed rungs last; and the
+    rungs worse beyond the noise (a joint of theirs worse beyond its resolution)."""
+    # A link is judged on its report's runs: the actuator link's part takes them from the report around it.
+    head_link = {"runs": head.get("runs"), **head[side]} if side else head
+    base_link = {"runs": (base or {}).get("runs"), **(((base or {}).get(side) if side else base) or {})}
+    head_ladder, base_ladder = head_link.get("ladder") or [], base_link.get("ladder") or []
+    base_by_label = {_label(r): r for r in base_ladder}
+    lines = ["| rung | holdout torque RMSE (base) | (this branch) | change |", "|---|---|---|---|"]
+    worse = []
+    for rung in head_ladder:
+        label = _label(rung)
+        before = base_by_label.get(label)
+        b, h = _torque_rmse(before).get("overall"), _torque_rmse(rung).get("overall")
+        marks = {c.mark for *_, c in joint_changes(before, rung, base_link, head_link).values()} if before else set()
+        mark = WORSE if WORSE in marks else BETTER if BETTER in marks else UNCHANGED
+        text = "new" if before is None else (f"{UNCHANGED} within the noise" if mark == UNCHANGED else
+                                             f"{mark} {h - b:+.4g} ({100.0 * (h - b) / b:+.1f}%)" if b else mark)
+        if mark == WORSE:
+            worse.append(label)
+        lines.append(f"| {label} | {_fmt(b, ' N·m')} | {_fmt(h, ' N·m')} | {text} |")
+    for label in base_by_label:
+        if label not in {_label(r) for r in head_ladder}:
+            lines.append(f"| {label} | {_fmt(_torque_rmse(base_by_label[label]).get('overall'), ' N·m')} | removed | – |")
+    return lines, worse
+
+
+def _joint_table(base: GapReport | None, head: GapReport) -> tuple[list[str], bool]:
+    """Per joint, the last rung of each branch; whether any joint changed beyond the noise."""
+    last, base_last = head["ladder"][-1], ((base or {}).get("ladder") or [None])[-1]
+    models = (f"base {_label(base_last)}, this branch {_label(last)}" if base_last is not None
+              and _label(base_last) != _label(last) else _label(last))
+    floor = _floors(head)
+    lines = [f"Per joint, the last rung of each branch, the model it calibrates ({models}); a change the noise floor "
+             "and the holdout's length cannot resolve is marked ⚪:", "",
+             "| joint | base | this branch | change | noise floor |", "|---|---|---|---|---|"]
+    changes = joint_changes(base_last, last, base, head)
+    for joint, (b, h, c) in changes.items():
+        lines.append(f"| {joint} | {_fmt(b)} | {_fmt(h)} | {c.text} | {_fmt(floor.get(joint))} |")
+    return lines, any(c.mark != UNCHANGED for *_, c in changes.values())
+
+
+@dataclass(frozen=True)
+class LinkDiff:
+    """One link's part of the comment: its verdict, what a reviewer must look at, its tables, whether anything of
+    it changed beyond the noise."""
+
+    verdict: list[str]
+    look: list[str]
+    tables: list[str]
+    changed: bool
+
+
+def link_diff(base: GapReport | None, head: GapReport, side: str | None) -> LinkDiff:
+    """The body link (``side`` None) or the ``actuator`` link: its verdict, its rungs worse beyond the noise, its
+    ladder and (the body link) its joints."""
+    link = " (actuator link)" if side else ""
+    head_link = head[side] if side else head
+    base_link = (((base or {}).get(side) if side else base) or {}) if base is not None else None
+    head_diagnosis, base_diagnosis = head_link.get("diagnosis"), (base_link or {}).get("diagnosis")
+    verdict, verdict_changed = verdict_lines(base_diagnosis if base_link is not None else None, head_diagnosis, link)
+    rows, worse = _rung_rows(head, base, side)
+    tables = ([f"Ladder{link}:", ""] if side else []) + rows + [""]
+    changed = verdict_changed or any(WORSE in r or BETTER in r for r in rows)
+    look = [f"- {WORSE} rung `{label}`{link} is worse beyond the noise. Base verdict: {_headline(base_diagnosis)} "
+            f"This branch: {_headline(head_diagnosis)}" for label in worse] if base is not None else []
+    look += [f"- The verdict{link} changed (above)."] if verdict_changed else []
+    if not side:
+        table, joints_changed = _joint_table(base, head)
+        tables += table + [""]
+        changed = changed or joints_changed
+    return LinkDiff(verdict + [""], look, tables, changed)
 
 
 def gap_diff_markdown(base: GapReport | None, head: GapReport) -> str:
-    """Markdown table of head vs base: ladder rungs, last rung per joint, top diagnosis."""
+    """The pull-request comment of one robot: each side's verdict and what changed, what to look at, the ladder and
+    the joints of the model each side ends with."""
     robot = head.get("robot", "?")
     lines = [f"### Reality gap: `{robot}`", ""]
     if base is None:
         lines += ["No gap report on the base branch to compare with; showing this branch only.", ""]
-    head_ladder = list(head.get("ladder") or [])
-    base_ladder = list((base or {}).get("ladder") or [])
-    if head_ladder:
-        lines += _rung_rows(head_ladder, base_ladder) + [""]
-        # The model each branch ends with: its last rung, whatever effects either added.
-        last = head_ladder[-1]
-        base_last = base_ladder[-1] if base_ladder else None
-        head_joints = _torque_rmse(last).get("per_joint", {})
-        base_joints = _torque_rmse(base_last).get("per_joint", {})
-        floor = (head.get("noise_floor") or {}).get("torque_rmse", {}).get("per_joint", {})
-        models = (f"base {_label(base_last)}, this branch {_label(last)}" if base_last is not None
-                  and _label(base_last) != _label(last) else _label(last))
-        lines += [
-            f"Per joint, the last rung of each branch, the model it calibrates ({models}):",
-            "",
-            "| joint | base | this branch | change | noise floor |",
-            "|---|---|---|---|---|",
-        ]
-        for joint in head_joints:
-            b, h = base_joints.get(joint), head_joints.get(joint)
-            lines.append(f"| {joint} | {_fmt(b)} | {_fmt(h)} | {_delta(b, h)} | {_fmt(floor.get(joint))} |")
-        lines.append("")
-    else:
-        lines += ["This gap report has no model ladder.", ""]
-    lines += [
-        f"**Top diagnosis** — base: {_top_candidate(base)}; this branch: {_top_candidate(head)}",
-        "",
-    ]
-    if head.get("actuator"):
-        base_link = (base or {}).get("actuator")
-        lines += ["Actuator link (measured against commanded torque):", ""]
-        lines += _rung_rows(head["actuator"].get("ladder") or [], (base_link or {}).get("ladder") or []) + [""]
-        lines += [f"**Top diagnosis, actuator link** — base: {_top_candidate(base_link)}; this branch: "
-                  f"{_top_candidate(head['actuator'])}", ""]
-    return "\n".join(lines)
-
-
-def _rung_rows(head_ladder: Sequence[Mapping[str, Any]], base_ladder: Sequence[Mapping[str, Any]]) -> list[str]:
-    """One row per rung of this branch against the base's rung with the same effects; removed rungs last."""
-    base_by_label = {_label(r): r for r in base_ladder}
-    lines = ["| rung | holdout torque RMSE (base) | (this branch) | change |", "|---|---|---|---|"]
-    for rung in head_ladder:
-        label = _label(rung)
-        b = _torque_rmse(base_by_label.get(label)).get("overall")
-        h = _torque_rmse(rung).get("overall")
-        lines.append(f"| {label} | {_fmt(b, ' N·m')} | {_fmt(h, ' N·m')} | {_delta(b, h)} |")
-    for label in base_by_label:
-        if label not in {_label(r) for r in head_ladder}:
-            lines.append(f"| {label} | {_fmt(_torque_rmse(base_by_label[label]).get('overall'), ' N·m')} | removed | – |")
-    return lines
+    if not head.get("ladder"):
+        return "\n".join(lines + ["This gap report has no model ladder.", ""])
+    links = [link_diff(base, head, None)] + ([link_diff(base, head, "actuator")] if head.get("actuator") else [])
+    for part in links:
+        lines += part.verdict
+    if base is not None:
+        look = [line for part in links for line in part.look] + bodies_lines(base, head)
+        if look:
+            lines += ["**Look at:**", "", *look, ""]
+        elif not any(part.changed for part in links):
+            lines += [f"**{NO_CHANGE}**", ""]
+    return "\n".join(lines + [line for part in links for line in part.tables])
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,4 +1,7 @@
-"""gap.md: the numbers a reviewer reads in a pull request, then the figures (:func:`render_gap_markdown`)."""
+"""gap.md: the first screen a reviewer reads in a pull request (:mod:`sim2real.report.first_screen`: the verdict, the
+ladder, the current model joint by joint), then the diagnosis's reasons, where the model fails, the torque and state
+domains, the inertias, the other link, the runs and the figures (:func:`render_gap_markdown`); long explanations in
+collapsible ``<details>`` blocks, which GitHub renders."""
 
 from __future__ import annotations
 
@@ -6,6 +9,9 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR
+from sim2real.report.first_screen import (
+    SideView, first_screen, joints_table, ladder_table, leading_side, model_name, sides,
+)
 from sim2real.report.regimes import REGIME_LABELS
 from sim2real.report.verdicts import BOUND_TEXT, bounds_text, not_judged_text
 
@@ -93,35 +99,15 @@ def _identified_markdown(rung: Mapping[str, Any], robot: str) -> list[str]:
     return lines
 
 
-def _ladder_table(ladder: Sequence[Mapping[str, Any]], floor: float, unconstrained: bool) -> list[str]:
-    """One link's ladder: holdout error per rung, its fall, against the floor (arm-wide: each joint x its own
-    floor, and the worst joint), and the replay's position error."""
-    first = ladder[0]["metrics"]["torque_rmse"]["overall"]
-    head = "| rung | effects | holdout torque RMSE [N m] | change from nominal | x noise floor (worst joint) | "
-    head += "unconstrained fit [N m] | " if unconstrained else ""
-    lines = [head + "replay position RMSE [rad] |", "|---|---|---|---|---|" + ("---|" if unconstrained else "") + "---|"]
-    for k, rung in enumerate(ladder):
-        value = rung["metrics"]["torque_rmse"]["overall"]
-        change = f"{100 * (value - first) / first:+.0f}%" if k and first else "–"
-        position = rung["metrics"].get("position_rmse", {}).get("overall")
-        x_floor = rung["metrics"].get("torque_x_floor")
-        if x_floor:
-            worst = max(x_floor["per_joint"], key=x_floor["per_joint"].get)
-            ratio = f"{x_floor['overall']:.2f} ({worst} {x_floor['per_joint'][worst]:.2f})"
-        else:
-            ratio = f"{value / floor:.2f}"
-        row = f"| {k} | {', '.join(rung['effects']) or 'nominal'} | {value:.3g} | {change} | {ratio} | "
-        if unconstrained:
-            free = rung["metrics"].get("unconstrained_torque_rmse", {}).get("overall")
-            physical = rung.get("consistency", {}).get("unconstrained_physical")
-            row += _fmt(free) + (" (non-physical)" if physical is False else "") + " | "
-        lines.append(row + f"{_fmt(position)} |")
-    return lines
+def details(summary: str, body: Sequence[str]) -> list[str]:
+    """A collapsible block (GitHub renders the Markdown inside it)."""
+    return ["<details>", f"<summary>{summary}</summary>", "", *body, "", "</details>", ""]
 
 
-def _diagnosis_markdown(diagnosis: Mapping[str, Any]) -> list[str]:
-    """The verdict, the three best candidates and the effects not tried, with why."""
-    lines = [diagnosis["verdict"], ""]
+def _diagnosis_markdown(diagnosis: Mapping[str, Any], side: SideView | None = None) -> list[str]:
+    """The three best candidates and their evidence, the effects not tried and why, the diagnosis's verdict in full and
+    the model-free ceiling's reasoning (collapsed); joint by joint where the first screen does not show ``side``."""
+    lines = []
     for cand in diagnosis["candidates"][:3]:
         beyond = cand.get("explained_beyond_noise")
         beyond_text = f" ({100 * beyond:.0f}% of what lies above the noise floor)" if beyond is not None else ""
@@ -131,54 +117,21 @@ def _diagnosis_markdown(diagnosis: Mapping[str, Any]) -> list[str]:
                      f"{_fmt(cand['evidence'].get('rmse_after'))} N m"
                      + (f" ({after:.2f}x the floor)" if after is not None else "") + f"; add `{cand['add']}`"
                      + "".join(f", remove `- {r}`" for r in cand.get("replaces", [])))
-    for skip in diagnosis.get("skipped", []):
-        lines.append(f"- `{skip['effect']}` not tried: {skip['reason']}")
-    per_joint = diagnosis.get("per_joint")
+    lines += [""] if lines else []
+    skipped = [f"- `{skip['effect']}` not tried: {skip['reason']}" for skip in diagnosis.get("skipped", [])]
+    if skipped:
+        lines += details("Effects not tried, and why", skipped)
+    if side is not None:
+        lines += joints_table(side).markdown() + [""]
+    lines += details("The diagnosis in full (gap.json's verdict)", [diagnosis["verdict"]])
     ceiling = diagnosis.get("model_free")
-    if per_joint and (diagnosis.get("status") != "at_noise_floor" or ceiling):
-        # Joint by joint: how far above its own floor each joint sits, what comes closest there, and how far any
-        # function of the motion would go (the model-free ceiling).
-        head = "| joint | x its noise floor | closest candidate there | share of its excess removed | x floor after |"
-        rule = "|---|---|---|---|---|"
-        if ceiling:
-            head += " model-free ceiling [N m] (x floor) | what is left |"
-            rule += "---|---|"
-        lines += ["", head, rule]
-        for joint, row in per_joint.items():
-            line = (f"| {joint} | {row['x_floor']:.2f} | {row['closest'] or 'none'} | "
-                    f"{100 * row['closest_explained_beyond_noise']:.0f}% | {row['closest_x_floor_after']:.2f} |")
-            if ceiling:
-                c = ceiling["per_joint"][joint]
-                line += f" {c['ceiling_rmse']:.3g} ({_fmt(c.get('ceiling_x_floor'))}) | {_left_text(c)} |"
-            lines.append(line)
-        if ceiling:
-            lines += ["", f"Model-free ceiling: {ceiling['learner']}. " + (ceiling["text"] or
-                      "Nothing is left above the floors that a function of the motion, the time or the history explains.")]
+    if ceiling:
+        # The verdict holds the ceiling's reading where nothing is named: then only the learner is added here.
+        reading = "" if ceiling.get("text") and ceiling["text"] in diagnosis["verdict"] else " " + (
+            ceiling.get("text") or "Nothing is left above the floors that a function of the motion, the time or the "
+            "history explains.")
+        lines += details("The model-free ceiling", [f"Model-free ceiling: {ceiling['learner']}.{reading}"])
     return lines
-
-
-LEFT_TEXT = {"at_floor": "at its floor", "motion": "a function of the motion the library lacks"}
-
-
-FOLLOWS_TEXT = {"time": "not the motion: drifts with time", "run": "not the motion: an offset per run",
-                "history": "not the motion: follows the history since a reversal", None: "not the motion, nor time"}
-
-
-def _left_text(row: Mapping[str, Any]) -> str:
-    """What kind of thing is left on a joint (the ceiling's ``kind`` and ``follows``), in a few words."""
-    if row["kind"] == "motion" and row.get("imitated"):  # the motion only imitates what the run's time explains
-        return FOLLOWS_TEXT[row["follows"]].replace("not the motion: ", "") + ", which the motion imitates"
-    if row["kind"] == "motion":
-        with_ = row.get("gains_most_with") or []
-        return LEFT_TEXT["motion"] + (f" ({', '.join(with_)})" if with_ else "")
-    return LEFT_TEXT.get(row["kind"]) or FOLLOWS_TEXT[row.get("follows")]
-
-
-def _model_name(model: Mapping[str, Any]) -> str:
-    """The current model as gap.md names it (gap.json ``metrics.model``)."""
-    if not model["effects"]:
-        return "the nominal URDF, no effect added yet"
-    return f"rung {model['rung']}: the URDF + {', '.join(model['effects'])}"
 
 
 def _per_run_lines(effects: Sequence[str]) -> list[str]:
@@ -255,43 +208,48 @@ def _spike_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
 
 
 def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> str:
-    """gap.md: numbers a reviewer reads in a pull request, then the figures."""
+    """gap.md: the first screen (the verdict, the ladder, the current model joint by joint), then the rest."""
     model = gap["metrics"].get("model")
-    lines = [f"# Reality gap: {gap['robot']}", ""]
-    lines += _runs_lines(gap["runs"])
+    lines = first_screen(gap).markdown()
     if "not_judged" in gap:
         lines += [not_judged_text(gap["not_judged"]), ""]
+    shown = leading_side(gap).name
+    if "diagnosis" in gap:
+        body = None if shown == "body link" else sides(gap)[0]  # its joints, where the first screen shows the other
+        lines += ["## Diagnosis", ""] + _diagnosis_markdown(gap["diagnosis"], body)
+    lines += _where_lines(gap, model)
     lines += _torque_domain_lines(gap, model)
     lines += _state_domain_lines(gap, model)
-    lines += _where_lines(gap, model)
     if "ladder" in gap:
         lines += _ladder_lines(gap, figures["ladder"])
-    if "diagnosis" in gap:
-        lines += ["", "## Diagnosis", ""] + _diagnosis_markdown(gap["diagnosis"])
     if "actuator" in gap:
-        lines += _actuator_lines(gap["actuator"])
+        lines += _actuator_lines(gap["actuator"], shown=shown == "actuator link")
     if "links" in gap:
         lines += _links_lines(gap["links"])
+    lines += _runs_lines(gap["runs"])
     lines += _figures_lines(model, figures)
     return "\n".join(lines)
 
 
 def _runs_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
-    """The runs (role, torque judged, size, commands), how they were prepared, and what their files lacked."""
-    lines = ["## Runs", "", "| run | role | torque judged | samples | duration [s] | commands |",
+    """The runs (role, torque judged, size, commands), then (collapsed) how they were prepared and what their files
+    lacked."""
+    lines = ["", "## Runs", "", "| run | role | torque judged | samples | duration [s] | commands |",
              "|---|---|---|---|---|---|"]
     for r in runs:
         lines.append(f"| {r['name']} | {r['role']} | `{r['torque_source']}` | {r['samples']} | "
                      f"{r['duration_s']:.2f} | {'yes' if r['has_commands'] else 'no'} |")
     f = runs[0]["filter"]
-    lines += ["", f"Preparation: {f['resampling']} at {f['resampled_to_hz']:g} Hz "
-              f"(raw steps {f['raw_step_ms']['min']:.2f}-{f['raw_step_ms']['max']:.2f} ms, "
-              f"{f['repeated_samples_dropped']} repeated samples dropped); q filtered by a {f['type']}, "
-              f"order {f['order']}, cutoff {f['cutoff_hz']:g} Hz; velocity: {f['velocity']}; "
-              f"acceleration: {f['acceleration']}; {f['applied_to']}; "
-              f"{f['trimmed_s_each_end']:g} s trimmed at each end"
-              f"{' of each piece' if any('gaps' in r['filter'] for r in runs) else ''}.", ""]
-    return lines + _incomplete_lines(runs) + _gaps_lines(runs) + _spike_lines(runs) + _held_lines(runs)
+    preparation = [f"Preparation: {f['resampling']} at {f['resampled_to_hz']:g} Hz "
+                   f"(raw steps {f['raw_step_ms']['min']:.2f}-{f['raw_step_ms']['max']:.2f} ms, "
+                   f"{f['repeated_samples_dropped']} repeated samples dropped); q filtered by a {f['type']}, "
+                   f"order {f['order']}, cutoff {f['cutoff_hz']:g} Hz; velocity: {f['velocity']}; "
+                   f"acceleration: {f['acceleration']}; {f['applied_to']}; "
+                   f"{f['trimmed_s_each_end']:g} s trimmed at each end"
+                   f"{' of each piece' if any('gaps' in r['filter'] for r in runs) else ''}.", ""]
+    return lines + [""] + details("How the runs were prepared, and what their files lacked",
+                                  preparation + _incomplete_lines(runs) + _gaps_lines(runs) + _spike_lines(runs)
+                                   + _held_lines(runs))
 
 
 def _held_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -312,13 +270,14 @@ def _held_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
 
 def _torque_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> list[str]:
     """The torque domain: the current model's error against the noise floor (with the nominal URDF's, for
-    reference, once a ladder calibrates it), then joint by joint."""
+    reference, once a ladder calibrates it), then joint by joint what the per-joint table (on the first screen, or
+    the diagnosis's where the first screen shows the other link) does not say."""
     m = gap["metrics"]
     floor = gap["noise_floor"]["torque_rmse"]
     nominal_rung = gap["ladder"][0]["metrics"]["torque_rmse"] if model and gap.get("ladder") else None
-    lines = ["## Torque domain (inverse dynamics on measured motion)", ""]
+    lines = ["", "## Torque domain (inverse dynamics on measured motion)", ""]
     if model:
-        lines += [f"The model of configs/{gap['robot']}/model.yaml ({_model_name(model)}), judged on the holdout runs "
+        lines += [f"The model of configs/{gap['robot']}/model.yaml ({model_name(model)}), judged on the holdout runs "
                   f"as the ladder judges it: RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
                   f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
                   f"R^2 {m['torque_r2']['overall']:.4g}.", "",
@@ -329,22 +288,16 @@ def _torque_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None
         lines += [f"Overall RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
                   f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
                   f"R^2 {m['torque_r2']['overall']:.4g}.", ""]
-    return lines + _torque_table(gap["joints"], m, floor, nominal_rung)
+    return lines + _torque_table(gap["joints"], m)
 
 
-def _torque_table(joints: Sequence[str], m: Mapping[str, Any], floor: Mapping[str, Any],
-                  nominal_rung: Mapping[str, Any] | None) -> list[str]:
-    """Each joint's torque error in N m and x its own floor (and the nominal URDF's, when there is a ladder)."""
+def _torque_table(joints: Sequence[str], m: Mapping[str, Any]) -> list[str]:
+    """Each joint's relative torque error and R^2 (its N m and x its own floor are the per-joint table's)."""
     lines = ["Each joint is judged in its own units, x its own noise floor: a wrist residual 8x its floor weighs "
              "what a shoulder residual 8x its floor weighs, although its N m are ten times smaller.", "",
-             "| joint | RMSE [N m] | noise floor [N m] | x floor | relative RMSE | R^2 |"
-             + (" nominal URDF [N m] |" if nominal_rung else ""),
-             "|---|---|---|---|---|---|" + ("---|" if nominal_rung else "")]
+             "| joint | relative RMSE | R^2 |", "|---|---|---|"]
     for j in joints:
-        value, noise = m["torque_rmse"]["per_joint"][j], floor["per_joint"][j]
-        lines.append(f"| {j} | {value:.3g} | {noise:.3g} | {_fmt(value / noise if noise > 0 else None)} | "
-                     f"{m['torque_relative_rmse']['per_joint'][j]:.3g} | {m['torque_r2']['per_joint'][j]:.4g} |"
-                     + (f" {nominal_rung['per_joint'][j]:.3g} |" if nominal_rung else ""))
+        lines.append(f"| {j} | {m['torque_relative_rmse']['per_joint'][j]:.3g} | {m['torque_r2']['per_joint'][j]:.4g} |")
     return lines
 
 
@@ -357,7 +310,7 @@ def _state_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None)
         return lines
     g = sd["reality_gap"]
     if model:
-        lines += [f"The commands of the holdout runs replayed on {_model_name(model)}, its fitted effects "
+        lines += [f"The commands of the holdout runs replayed on {model_name(model)}, its fitted effects "
                   "written into the MJCF."]
         nominal_sd = gap["nominal"]["metrics"]["state_domain"]
         if nominal_sd.get("status") == "computed":
@@ -383,7 +336,7 @@ def _where_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> lis
     w = gap["where"]
     lines = ["", "## Where the model fails", ""]
     if model:
-        lines += [f"The model of model.yaml ({_model_name(model)}) on the holdout runs. "
+        lines += [f"The model of model.yaml ({model_name(model)}) on the holdout runs. "
                   + _where_nominal_text(gap["nominal"]["where"]), ""]
     if w["findings"]:
         lines.append(f"The error concentrates in **{', '.join(REGIME_LABELS[r] for r in w['summary']['regimes'])}** "
@@ -403,16 +356,15 @@ def _where_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> lis
 
 
 def _ladder_lines(gap: Mapping[str, Any], figure: str) -> list[str]:
-    """The body link's ladder: its table, the rungs' physical-consistency notes, what the data identified of the
-    link inertias, and its figure."""
+    """The body link's ladder beyond its table (on the first screen): the rungs' physical-consistency notes, what the
+    data identified of the link inertias, and its figure."""
     separate = gap.get("links", {}).get("mode") == "separate"
     lines = ["", "## Model ladder" + (" (body link: measured torque against the motion)" if separate else ""), "",
-             "Effects of configs/{robot}/model.yaml added one by one, each rung fitted on the `fit` runs and "
-             "judged on the `holdout` runs.".replace("{robot}", gap["robot"]), ""]
-    lines += _ladder_table(gap["ladder"], gap["noise_floor"]["torque_rmse"]["overall"], unconstrained=True)
-    lines += ["", "Each rung is the physically consistent fit (every body's pseudo-inertia positive definite, "
-              "friction, damping and armature >= 0); the unconstrained column is the same rung without those "
-              "constraints, for comparison."]
+             "Each rung is the physically consistent fit (every body's pseudo-inertia positive definite, "
+             "friction, damping and armature >= 0); the unconstrained column of the ladder is the same rung without "
+             "those constraints, for comparison."]
+    if leading_side(gap).name != "body link":
+        lines += ["", *ladder_table(gap["ladder"], gap["noise_floor"]["torque_rmse"]["overall"], True).markdown()]
     for k, rung in enumerate(gap["ladder"]):
         for note in rung.get("notes", []):
             if note.startswith("physical consistency"):
@@ -421,15 +373,19 @@ def _ladder_lines(gap: Mapping[str, Any], figure: str) -> list[str]:
     return lines + ["", f"![Model ladder]({figure})"]
 
 
-def _actuator_lines(link: Mapping[str, Any]) -> list[str]:
-    """The actuator link: what it judges, its floor, its ladder and its diagnosis."""
+def _actuator_lines(link: Mapping[str, Any], shown: bool) -> list[str]:
+    """The actuator link: what it judges, its floor, its ladder and its diagnosis (``shown``: its ladder and joints
+    are on the first screen)."""
     link_floor = link["noise_floor"]["torque_rmse"]["overall"]
     lines = ["", "## Actuator link (measured against commanded torque)", "",
              f"The {link['judged']}. Noise floor {link_floor:.3g} N m: the sensor's white noise, what no "
              "filter of the command explains. Replay: the commands replayed in MuJoCo on the body link's "
              "last rung with each actuator rung's effects.", ""]
-    lines += _ladder_table(link["ladder"], link_floor, unconstrained=False)
-    return lines + ["", "### Diagnosis of the actuator link", ""] + _diagnosis_markdown(link["diagnosis"])
+    if not shown:
+        lines += ladder_table(link["ladder"], link_floor, unconstrained=False).markdown()
+    side = None if shown else SideView("actuator link", link["diagnosis"], link["ladder"], link["noise_floor"]["torque_rmse"],
+                                       link["ladder"][-1]["metrics"]["torque_rmse"]["per_joint"], None)
+    return lines + ["", "### Diagnosis of the actuator link", ""] + _diagnosis_markdown(link["diagnosis"], side)
 
 
 def _links_lines(links: Mapping[str, Any]) -> list[str]:
@@ -454,7 +410,7 @@ def _figures_lines(model: Mapping[str, Any] | None, figures: Mapping[str, str]) 
     """The figures of the current model (the ladder's is in its section)."""
     lines = ["", "## Figures", ""]
     if model:
-        lines += [f"The model of model.yaml ({_model_name(model)}) on the holdout runs.", ""]
+        lines += [f"The model of model.yaml ({model_name(model)}) on the holdout runs.", ""]
     return lines + [f"![Measured vs model torque]({figures['torque']})", "",
                     f"![Residual vs velocity]({figures['residual_velocity']})", "",
                     f"![Residual vs time]({figures['residual_time']})", "",
