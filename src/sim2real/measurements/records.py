@@ -12,6 +12,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal
 
+from sim2real.measurements.noise import NoiseFloorRecord
+
 # Where a run's measured torque ``tau`` is taken (metadata ``torque_sensor``): at the motor's output, before the
 # joint's rotor inertia and friction (a motor-current estimate, the default), or after the gearbox (link-side:
 # the Panda's tau_J, a KUKA iiwa's sensors).
@@ -117,6 +119,8 @@ class FilterSettings:
     spikes: SpikeRecord | None = None
     incomplete_rows: IncompleteRows | None = None
     gaps: GapRecord | None = None
+    # how the torque's noise floor was measured, where any joint's is not the white part from differences
+    noise_floor: NoiseFloorRecord | None = None
     type: str = "butterworth low-pass, zero-phase (scipy.signal.sosfiltfilt)"
     applied_to: str = "q (torque is not filtered)"
     acceleration: str = "central differences of the velocity"
@@ -147,6 +151,8 @@ class FilterSettings:
                 "pieces": [{"name": p.name, "from_s": p.from_s, "to_s": p.to_s, "kept": p.kept} for p in record.pieces],
                 "run": record.run,
             }
+        if self.noise_floor is not None:
+            document["noise_floor"] = self.noise_floor.as_document()
         return document
 
     @classmethod
@@ -164,6 +170,7 @@ class FilterSettings:
             gaps=None if record is None else GapRecord(
                 record["max_step_s"], tuple(LoggingGap(**g) for g in record["gaps"]),
                 tuple(GapPiece(**p) for p in record["pieces"]), record["run"]),
+            noise_floor=None if "noise_floor" not in document else NoiseFloorRecord.from_document(document["noise_floor"]),
             type=document["type"], applied_to=document["applied_to"], acceleration=document["acceleration"],
             resampling=document["resampling"],
         )
