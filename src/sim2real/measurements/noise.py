@@ -19,6 +19,7 @@ import numpy as np
 
 from sim2real import blas
 from sim2real.blas import one_blas_thread
+from sim2real.measurements.records import DIFFERENCE_ORDERS, NoiseFloorRecord
 
 # The longest actuation delay the fit allows (sim2real.identification.effects.actuation_delay): the command floor
 # regresses on every lag up to it, so the floor holds any delay the fit may find.
@@ -96,9 +97,6 @@ def command_floor_of(run: PreparedRun) -> np.ndarray:
     return command_white_noise(run.tau, run.tau_cmd, run.dt)
 
 
-# Differences of these orders estimate the same white noise (each normalised by its own gain, C(2k, k)); on a torque
-# smoothed, held or upsampled before it was logged they do not: its noise is no longer white.
-DIFFERENCE_ORDERS = (2, 3, 4, 5)
 # The floor is the differences' (as always) unless the log shows it is not white, by both of: the estimates fall
 # with the order (the 5th below this share of the 2nd: a white torque's are within 1.5 % of each other either way
 # on the lab's 8 s runs, the lab's 25 Hz smoothing logged at 200 Hz falls by 3-13 %) and the torque's spectrum holds
@@ -112,38 +110,6 @@ SPECTRUM_OVER_DIFFERENCES = 1.25
 HELD_SHARE = 0.5
 # Steps within this fraction of a whole number of quanta are rounding's.
 QUANTUM_TOLERANCE = 0.01
-
-
-@dataclass(frozen=True)
-class NoiseFloorRecord:
-    """How each joint's noise floor was measured when the run was prepared (:func:`measured_noise_floor`), with the
-    figures that chose the method: ``method[j]`` is ``differences`` (the white part, orders agree), ``rounding`` (the
-    logger's quantum), ``updates`` (a held column's white part, from its own updates), ``spectrum``
-    (:func:`spectrum_noise_sigma`: differences do not measure this log's noise) or ``stated`` (the run's metadata, ``noise_floor.reason``); ``differences[k][j]``: the estimate of order
-    :data:`DIFFERENCE_ORDERS` ``[k]``; ``equal_steps[j]``: the share of consecutive samples that are equal;
-    ``spectrum[j]``: the spectral estimate (None where the log is too slow for it); ``motion_band_hz``: where the
-    motion's band ends (the position filter's cutoff)."""
-
-    method: tuple[str, ...]
-    differences: tuple[tuple[float, ...], ...]
-    equal_steps: tuple[float, ...]
-    spectrum: tuple[float, ...] | None
-    motion_band_hz: float
-    stated_reason: str | None = None
-
-    def as_document(self) -> dict[str, Any]:
-        """The record as the prepared runs' file and gap.json's ``runs[].filter.noise_floor`` hold it."""
-        return {"method": list(self.method), "difference_orders": list(DIFFERENCE_ORDERS),
-                "differences": [list(row) for row in self.differences], "equal_steps": list(self.equal_steps),
-                "spectrum": None if self.spectrum is None else list(self.spectrum),
-                "motion_band_hz": self.motion_band_hz, "stated_reason": self.stated_reason}
-
-    @classmethod
-    def from_document(cls, document: Mapping[str, Any]) -> NoiseFloorRecord:
-        spectrum = document["spectrum"]
-        return cls(tuple(document["method"]), tuple(tuple(row) for row in document["differences"]),
-                   tuple(document["equal_steps"]), None if spectrum is None else tuple(spectrum),
-                   float(document["motion_band_hz"]), document.get("stated_reason"))
 
 
 @dataclass(frozen=True)
@@ -274,3 +240,23 @@ def stated_noise_floor(stated: Any, joints: Sequence[str], path: Path | None) ->
                              f"misses {', '.join(missing) or 'none'}", f"give a floor for each of {', '.join(joints)}")
         return np.array([float(value[j]) for j in joints]), str(stated["reason"])
     return np.full(len(joints), float(value)), str(stated["reason"])
+
+
+def floor_method_document(prepared: Sequence[PreparedRun], joints: Sequence[str]) -> dict[str, Any]:
+    """gap.json's ``noise_floor.method`` (per joint, how its floor was measured: the runs' method, or theirs joined by
+    ``+`` where they differ) and ``noise_floor.evidence`` (per run whose floor is not the differences' white part on
+    every joint, the figures that chose it: equal consecutive samples, the differences' estimates of orders 2 to 5,
+    the spectrum's; absent when there is none)."""
+    methods = [floor_methods(p) for p in prepared]
+    per_joint = {j: "+".join(sorted({m[i] for m in methods})) for i, j in enumerate(joints)}
+    evidence = []
+    for run, method in zip(prepared, methods, strict=True):
+        record = run.filter.noise_floor if run.filter is not None else None
+        if record is None:
+            continue
+        evidence.append({"run": run.name, "stated_reason": record.stated_reason, "joints": {j: {
+            "method": method[i], "floor": float(run.raw_torque_sigma[i]), "equal_steps": record.equal_steps[i],
+            "held": record.equal_steps[i] > HELD_SHARE and method[i] in ("updates", "spectrum"),
+            "differences": [row[i] for row in record.differences],
+            "spectrum": None if record.spectrum is None else record.spectrum[i]} for i, j in enumerate(joints)}})
+    return {"method": per_joint, **({"evidence": evidence} if evidence else {})}

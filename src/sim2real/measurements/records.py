@@ -12,8 +12,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal
 
-from sim2real.measurements.noise import NoiseFloorRecord
-
 # Where a run's measured torque ``tau`` is taken (metadata ``torque_sensor``): at the motor's output, before the
 # joint's rotor inertia and friction (a motor-current estimate, the default), or after the gearbox (link-side:
 # the Panda's tau_J, a KUKA iiwa's sensors).
@@ -102,6 +100,43 @@ class GapRecord:
     gaps: tuple[LoggingGap, ...]
     pieces: tuple[GapPiece, ...]
     run: str
+
+
+# Differences of these orders estimate the same white noise (each normalised by its own gain, C(2k, k)); on a torque
+# smoothed, held or upsampled before it was logged they do not: its noise is no longer white.
+DIFFERENCE_ORDERS = (2, 3, 4, 5)
+
+
+@dataclass(frozen=True)
+class NoiseFloorRecord:
+    """How each joint's noise floor was measured when the run was prepared (:func:`measured_noise_floor`), with the
+    figures that chose the method: ``method[j]`` is ``differences`` (the white part, orders agree), ``rounding`` (the
+    logger's quantum), ``updates`` (a held column's white part, from its own updates), ``spectrum``
+    (:func:`spectrum_noise_sigma`: differences do not measure this log's noise) or ``stated`` (the run's metadata, ``noise_floor.reason``); ``differences[k][j]``: the estimate of order
+    :data:`DIFFERENCE_ORDERS` ``[k]``; ``equal_steps[j]``: the share of consecutive samples that are equal;
+    ``spectrum[j]``: the spectral estimate (None where the log is too slow for it); ``motion_band_hz``: where the
+    motion's band ends (the position filter's cutoff)."""
+
+    method: tuple[str, ...]
+    differences: tuple[tuple[float, ...], ...]
+    equal_steps: tuple[float, ...]
+    spectrum: tuple[float, ...] | None
+    motion_band_hz: float
+    stated_reason: str | None = None
+
+    def as_document(self) -> dict[str, Any]:
+        """The record as the prepared runs' file and gap.json's ``runs[].filter.noise_floor`` hold it."""
+        return {"method": list(self.method), "difference_orders": list(DIFFERENCE_ORDERS),
+                "differences": [list(row) for row in self.differences], "equal_steps": list(self.equal_steps),
+                "spectrum": None if self.spectrum is None else list(self.spectrum),
+                "motion_band_hz": self.motion_band_hz, "stated_reason": self.stated_reason}
+
+    @classmethod
+    def from_document(cls, document: Mapping[str, Any]) -> NoiseFloorRecord:
+        spectrum = document["spectrum"]
+        return cls(tuple(document["method"]), tuple(tuple(row) for row in document["differences"]),
+                   tuple(document["equal_steps"]), None if spectrum is None else tuple(spectrum),
+                   float(document["motion_band_hz"]), document.get("stated_reason"))
 
 
 @dataclass(frozen=True)

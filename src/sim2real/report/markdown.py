@@ -7,7 +7,7 @@ from typing import Any
 
 from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR
 from sim2real.report.regimes import REGIME_LABELS
-from sim2real.report.verdicts import BOUND_TEXT, bounds_text
+from sim2real.report.verdicts import BOUND_TEXT, bounds_text, floor_sentences
 
 # Where the runs' tau is measured (run metadata `torque_sensor`), as gap.md says it.
 SENSOR_TEXT = {
@@ -311,6 +311,7 @@ def _torque_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None
         lines += [f"Overall RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
                   f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
                   f"R^2 {m['torque_r2']['overall']:.4g}.", ""]
+    lines += [" ".join(floor_sentences(gap["noise_floor"])), ""]
     return lines + _torque_table(gap["joints"], m, floor, nominal_rung)
 
 
