@@ -625,3 +625,20 @@ def _floor_evidence(run: Mapping[str, Any]) -> list[str]:
         out.append(f"Run {run['run']}: the floor on {_joint_list(stated)} is the one its metadata state: "
                    f"{run['stated_reason']}.")
     return out
+
+
+# ---- No rung raises a joint (sim2real.identification.diagnosis.raises): the candidate set aside for it.
+
+def _raises_joints(note: Note, robot: str) -> str:
+    figures = note.figures
+
+    def moves(rows: Mapping[str, Mapping[str, float]]) -> str:
+        return ", ".join(f"{j} {floor_multiple(r['from'])} -> {floor_multiple(r['to'])}" for j, r in rows.items())
+
+    lowers = f"lowers {moves(figures['lowers'])} (x each joint's floor) but " if figures["lowers"] else ""
+    return (f" {note.effect} {lowers}raises {moves(figures['raises'])} beyond what the noise floor and the holdout's "
+            f"blocks can resolve: no rung may raise a joint, so it is not recommended. configs/{robot}/model.yaml has "
+            f"no line that keeps an effect on some joints only, so its line '- {note.effect}' is added on none.")
+
+
+NOTE_TEXT[NoteKind.RAISES_JOINTS] = _raises_joints
