@@ -89,6 +89,16 @@ def one_round(directory: Path, urdf: Path, mjcf: Path, listing: Path, effects: l
     return time.perf_counter() - started, pstats.Stats(profiler)
 
 
+def tried_candidates(ladder: Path) -> dict[str, list[str]]:
+    """The candidates each side's diagnosis fitted (what a round's trials cost follows)."""
+    import json
+
+    document = json.loads(ladder.read_text(encoding="utf-8"))
+    sides = {"body": document, "actuator": document.get("actuator") or {}}
+    return {side: [c["effect"] for c in section["diagnosis"]["candidates"]]
+            for side, section in sides.items() if section.get("diagnosis")}
+
+
 def cumulative(stats: pstats.Stats) -> dict[str, float]:
     """Cumulative seconds of every function of the package, by ``module:function``."""
     out: dict[str, float] = {}
@@ -104,20 +114,25 @@ def main() -> None:
     parser.add_argument("--total", type=float, default=180.0, help="seconds of log in each case")
     parser.add_argument("--effects", default="link_inertia,asymmetric_friction", help="model.yaml's effects")
     parser.add_argument("--top", type=int, default=15, help="functions listed whose time grows most")
+    parser.add_argument("--keep", type=Path, help="work in this folder and keep it (its lab runs are made once)")
     args = parser.parse_args()
     effects = [e for e in args.effects.split(",") if e]
     with tempfile.TemporaryDirectory() as tmp:
-        directory = Path(tmp)
+        directory = args.keep or Path(tmp)
+        directory.mkdir(parents=True, exist_ok=True)
         urdf, mjcf = build_dev_panda(directory)
         config = lab_config(directory, args.total)
         one = measurement_list(directory, mjcf, config, "one_run", ["long_fit", "long_holdout"])
         ten = measurement_list(directory, mjcf, config, "ten_runs", ["short"])
         one_s, one_stats = one_round(directory, urdf, mjcf, one, effects)
         ten_s, ten_stats = one_round(directory, urdf, mjcf, ten, effects)
+        one_tried, ten_tried = (tried_candidates(directory / name / "ladder.json") for name in ("one_run", "ten_runs"))
     print(f"real_arm_like at {RATE_HZ:g} Hz, {args.total:g} s of log, model {effects or ['nominal']}:")
     print(f"  one run (fit {0.8 * args.total:g} s + holdout {0.2 * args.total:g} s): round {one_s:.1f} s")
     print(f"  ten runs of {0.1 * args.total:g} s (8 fit + 2 holdout): round {ten_s:.1f} s")
     print(f"  ten runs / one run: {ten_s / one_s:.2f}x (target: at most 1.5x)")
+    for name, tried in (("one run", one_tried), ("ten runs", ten_tried)):
+        print(f"  {name}: candidates tried by side: {tried}")
     a, b = cumulative(one_stats), cumulative(ten_stats)
     grows = sorted(b, key=lambda k: b[k] - a.get(k, 0.0), reverse=True)[: args.top]
     print(f"\n{'function (cumulative s)':70s}{'one run':>10s}{'ten runs':>10s}")
