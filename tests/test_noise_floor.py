@@ -121,3 +121,20 @@ def test_a_stated_floor_replaces_the_measured_one_and_names_its_reason(tmp_path)
     assert floor.sigma.tolist() == [0.1, 0.2] and floor.record.stated_reason == "repeatability test"
     with pytest.raises(InputError, match="noise_floor/torque_nm"):
         stated_noise_floor({"torque_nm": {"a": 0.1}, "reason": "x"}, ["a", "b"], tmp_path / "run.yaml")
+
+
+def test_a_torque_smoothed_then_held_is_measured_by_the_spectrum_of_its_own_updates():
+    """As a real arm's chain may do both: a 25 Hz low-pass, then each joint updated every 5 ms in turn, at 1 kHz."""
+    from scipy import signal
+
+    from sim2real.lab.sensor_chain import held_per_joint
+
+    motion, noise = _torque(1000.0, 20.0)
+    b, a = signal.butter(1, 25.0, fs=1000.0)
+    logged = signal.lfilter(b, a, noise, axis=0).std(axis=0)
+    torque = held_per_joint(signal.lfilter(b, a, motion + noise, axis=0), 5, staggered=True)
+    distinct = np.concatenate([[True], np.any(torque[1:] != torque[:-1], axis=1)])
+    floor = measured_noise_floor(torque, distinct, 1000.0, 10.0)
+    assert floor.record is not None and floor.record.method == ("spectrum", "spectrum")
+    assert min(floor.record.equal_steps) > 0.7  # held: most consecutive samples equal
+    assert np.all(np.abs(np.log(floor.sigma / logged)) < np.log(1.2)), (floor.sigma, logged)
