@@ -138,3 +138,28 @@ def test_a_torque_smoothed_then_held_is_measured_by_the_spectrum_of_its_own_upda
     assert floor.record is not None and floor.record.method == ("spectrum", "spectrum")
     assert min(floor.record.equal_steps) > 0.7  # held: most consecutive samples equal
     assert np.all(np.abs(np.log(floor.sigma / logged)) < np.log(1.2)), (floor.sigma, logged)
+
+
+def test_a_floor_stated_in_the_run_metadata_is_validated_and_used(lab, tmp_path):
+    import shutil
+
+    listing, _ = lab["scenario"]("real_arm_like_run_offsets")
+    runs = yaml.safe_load(listing.read_text())["runs"]
+    for run in runs:
+        path = tmp_path / Path(run["path"]).name
+        shutil.copy(run["path"], path)
+        meta = yaml.safe_load(Path(run["path"]).with_suffix(".yaml").read_text())
+        meta["noise_floor"] = {"torque_nm": 0.04, "reason": "the arm's repeatability test"}
+        path.with_suffix(".yaml").write_text(yaml.safe_dump(meta))
+        run["path"] = path.as_posix()
+    stated = tmp_path / "measurements.yaml"
+    stated.write_text(yaml.safe_dump({"runs": runs}))
+    prepared = load_prepared_runs(stated, JOINTS, "/")
+    assert all(floor_methods(p) == ("stated",) * 7 and np.all(p.raw_torque_sigma == 0.04) for p in prepared)
+    words = " ".join(floor_sentences(floor_method_document(prepared, JOINTS)))
+    assert "the floor the runs' metadata state" in words and "the arm's repeatability test" in words
+    meta = yaml.safe_load(Path(runs[0]["path"]).with_suffix(".yaml").read_text())
+    del meta["noise_floor"]["reason"]
+    Path(runs[0]["path"]).with_suffix(".yaml").write_text(yaml.safe_dump(meta))
+    with pytest.raises(InputError, match="reason"):
+        load_prepared_runs(stated, JOINTS, "/")
