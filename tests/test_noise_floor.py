@@ -16,7 +16,7 @@ from sim2real.errors import InputError
 from sim2real.lab import run_lab_scenario_run, write_truth
 from sim2real.measurements import load_prepared_runs
 from sim2real.measurements.noise import (
-    floor_method_document, floor_methods, measured_noise_floor, stated_noise_floor, white_noise_sigma,
+    command_floor_of, floor_method_document, floor_methods, measured_noise_floor, stated_noise_floor, white_noise_sigma,
 )
 from sim2real.report.gap import GapInputs, compute_gap
 from sim2real.report.markdown import render_gap_markdown
@@ -60,6 +60,8 @@ def test_a_smoothed_or_held_torque_gets_its_floor_elsewhere_within_1_5x_of_the_s
         assert np.all((ratio > 1 / 1.5) & (ratio < 1.5)), (run.name, ratio)
         # differences alone would have been far off (smoothed: too low; held: about zero)
         assert np.any(white_noise_sigma(run.tau) < noise / 1.5) or method == "updates"
+        # the actuator link's floor is that one too: the command's differences do not measure such a log's noise
+        assert np.array_equal(command_floor_of(run), run.raw_torque_sigma)
     gap, _ = compute_gap(GapInputs("panda", lab["urdf"], None, listing))
     assert gap["noise_floor"]["method"] == dict.fromkeys(JOINTS, method)
     words = " ".join(floor_sentences(gap["noise_floor"]))

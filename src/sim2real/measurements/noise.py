@@ -94,7 +94,7 @@ def command_floor_of(run: PreparedRun) -> np.ndarray:
     assert run.tau_cmd is not None and run.torque_source == "tau"
     if run.command_torque_sigma.size:
         return np.asarray(run.command_torque_sigma, dtype=float).copy()
-    return command_white_noise(run.tau, run.tau_cmd, run.dt)
+    return command_floor_where_measured(command_white_noise(run.tau, run.tau_cmd, run.dt), run)
 
 
 # The floor is the differences' (as always) unless the log shows it is not white, by both of: the estimates fall
@@ -260,3 +260,12 @@ def floor_method_document(prepared: Sequence[PreparedRun], joints: Sequence[str]
             "differences": [row[i] for row in record.differences],
             "spectrum": None if record.spectrum is None else record.spectrum[i]} for i, j in enumerate(joints)}})
     return {"method": per_joint, **({"evidence": evidence} if evidence else {})}
+
+
+def command_floor_where_measured(command_floor: np.ndarray, run: PreparedRun) -> np.ndarray:
+    """The actuator link's floor (:func:`command_white_noise`, per joint), but the run's own floor where that was not
+    the differences' white part (:func:`floor_methods`: a smoothed or held torque, a stated floor): the command floor
+    is taken from the same differences, which do not measure such a log's noise either."""
+    methods = floor_methods(run)
+    measured = np.array([m not in ("differences", "rounding") for m in methods])
+    return np.where(measured, noise_floor_of(run), command_floor)

@@ -32,7 +32,8 @@ import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.measurements.noise import (
-    MeasuredFloor, command_white_noise, measured_noise_floor, stated_noise_floor, white_noise_sigma,
+    MeasuredFloor, command_floor_where_measured, command_white_noise, measured_noise_floor, stated_noise_floor,
+    white_noise_sigma,
 )
 from sim2real.measurements.records import FilterSettings, GapPiece, GapRecord, LoggingGap, SpikeRecord, StepRange
 from sim2real.measurements.runs import (
@@ -257,7 +258,8 @@ def with_command_floor(run: PreparedRun) -> PreparedRun:
     logs both the measured and the commanded torque: computed once, by the rule that prepares the runs."""
     if run.tau_cmd is None or run.torque_source != "tau" or run.command_torque_sigma.size:
         return run
-    return dataclasses.replace(run, command_torque_sigma=command_white_noise(run.tau, run.tau_cmd, run.dt))
+    return dataclasses.replace(run, command_torque_sigma=command_floor_where_measured(
+        command_white_noise(run.tau, run.tau_cmd, run.dt), run))
 
 
 def prepare_runs(
