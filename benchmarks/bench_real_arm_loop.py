@@ -12,7 +12,10 @@ sensor's log with all of that at once (``real_panda_log``: Dahl friction beside 
 (``real_arm_like_30hz_cable``, where free link inertias bend: the fit's bands hold them), a harmonic drive's friction
 that grows with the load beside real_arm_like's CAD errors (``real_arm_like_load_friction``), real_arm_like on a base
 mounted 1-2 degrees off level (``real_arm_like_mount``), a dry friction that eases as the joints warm
-(``real_arm_like_warming``) and, with
+(``real_arm_like_warming``), torques a sensor chain
+smoothed or held before they were logged, positions held, each run's sensor offsets (``real_arm_like_smoothed_200hz``,
+``_smoothed_1khz``, ``_held``, ``_positions_held``, ``_run_offsets``: their floors are not the differences' where
+those cannot measure them) and, with
 ``--robot ur5``, the UR5's
 ``real_arm_like`` (torques from motor currents at 500 Hz) and ``real_arm_like_current_lag`` (those currents filtered)
 hide all of it. This script plays the user: it
@@ -40,7 +43,9 @@ SCENARIOS = ("real_arm_like", "link_side_sensor", "link_side_tau_only", "wrist_f
              "drift", "ripple", "real_arm_like_dropouts", "real_arm_like_glitches", "real_arm_like_30hz",
              "real_arm_like_sensor_lag", "real_arm_like_drive_lag", "real_arm_like_cogging",
              "link_side_cogging", "real_arm_like_warm_up", "real_panda_log", "real_arm_like_30hz_cable",
-             "real_arm_like_load_friction", "real_arm_like_mount", "real_arm_like_warming")
+             "real_arm_like_load_friction", "real_arm_like_mount", "real_arm_like_warming",
+             "real_arm_like_smoothed_200hz", "real_arm_like_smoothed_1khz", "real_arm_like_held",
+             "real_arm_like_positions_held", "real_arm_like_run_offsets")
 ROUNDS = 10  # real_panda_log's two links name lines in turn: ten rounds follow it to its end
 UR5_SCENARIOS = ("real_arm_like", "real_arm_like_current_lag")
 

@@ -68,6 +68,10 @@ Column semantics of the written runs:
     as the solver's force), as a real Panda's tau_J shows friction.
 
   The run's metadata says which (``torque_sensor: motor|link``) whenever it logs ``tau``.
+  Between the sensor and the log, ``sensors.chain`` (:mod:`sim2real.lab.sensor_chain`, any arm) adds a per-run
+  offset, a first-order low-pass the reading passes noise included (``low_pass_hz``), and a hold of each joint's
+  reading between updates slower than the log (``hold_s``, the joints polled in turn); ``position_hold_s`` holds
+  the logged positions likewise. truth.yaml's ``sensor_noise.as_logged`` is then the noise the log holds.
 * ``time``: the logger's stamps: the sample instants plus Gaussian ``sensors.stamp_jitter_s`` (kept
   increasing), like a real log whose stamps wander around the control period; ``sensors.dropouts`` removes
   stretches of rows, as a logger that loses samples does, ``sensors.glitches`` and

@@ -20,6 +20,7 @@ from sim2real.lab.hidden import (
     _cable_spring, _cogging, _hysteretic_friction, _joint_friction, _load_friction, _torque_drift, _warming_friction,
     cable_spring_torque, cogging_torque, dahl_step, load_friction_level, passive_friction, warming_level,
 )
+from sim2real.lab.sensor_chain import chained_torque, held_positions, logged_noise_rms, sensor_chain
 from sim2real.lab.spec_effects import _apply_spec_effects, _gains_and_biases
 
 
@@ -220,7 +221,7 @@ def simulate_run(
                           float(sensors["encoder_resolution_rad"]), float(sensors["velocity_noise_std"]))
     rng = np.random.default_rng(seed + 7919)  # sensor noise stream, independent of the excitation draw
     played = _play(arms, desired, hidden, control, link, link_side, rng)
-    return _logged(scenario, desired, played, hidden, 1.0 / rate, rng) + (arms.truth,)
+    return _logged(scenario, joints, desired, played, hidden, 1.0 / rate, rng) + (arms.truth,)
 
 
 def _arms(mjcf_path: str | Path, joints: Sequence[str], effects: Mapping[str, Any], path: Path | None, rate: float,
@@ -360,11 +361,12 @@ def _play(arms: _Arms, desired: tuple[np.ndarray, np.ndarray, np.ndarray, np.nda
     return {"q": out_q, "qd": out_qd, "cmd": out_cmd, "applied": out_applied, "link": out_link}
 
 
-def _logged(scenario: Mapping[str, Any], desired: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-            played: Mapping[str, np.ndarray | None], hidden: _Hidden, dt: float,
-            rng: np.random.Generator) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """What the logger writes: the torque sensor's reading (lagged, scaled, offset, noisy, drifting), the stamps
-    (jittered), less the rows dropped, with lone glitches, at the logger's rate; the scenario's columns only."""
+def _logged(scenario: Mapping[str, Any], joints: Sequence[str],
+            desired: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], played: Mapping[str, np.ndarray | None],
+            hidden: _Hidden, dt: float, rng: np.random.Generator) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """What the logger writes: the torque sensor's reading (lagged, scaled, offset, noisy, drifting) through the
+    chain to the log (:mod:`sim2real.lab.sensor_chain`), the stamps (jittered), less the rows dropped, with lone
+    glitches, at the logger's rate; the scenario's columns only."""
     sensors = scenario["sensors"]
     time, q_des = desired[0], desired[1]
     steps, n = played["q"].shape  # type: ignore[union-attr]
@@ -374,7 +376,10 @@ def _logged(scenario: Mapping[str, Any], desired: tuple[np.ndarray, np.ndarray, 
     tau_sensor = gain * seen + bias + float(sensors["torque_noise_std"]) * rng.standard_normal((steps, n))
     if hidden.drift is not None:
         tau_sensor = tau_sensor + hidden.drift
-    signals = {"q": played["q"], "qd": played["qd"], "tau": tau_sensor, "tau_cmd": played["cmd"], "q_cmd": q_des}
+    chain = sensor_chain(scenario)
+    tau_sensor = chained_torque(tau_sensor, chain, joints, dt, rng, None)
+    signals = {"q": held_positions(played["q"], chain, dt), "qd": played["qd"], "tau": tau_sensor,  # type: ignore[arg-type]
+               "tau_cmd": played["cmd"], "q_cmd": q_des}
     columns = set(scenario["columns"])
     jitter = float(sensors.get("stamp_jitter_s", 0.0))
     if jitter > 0:
@@ -485,4 +490,15 @@ def write_truth(lab_config: str | Path, mjcf_path: str | Path, scenario: str, ou
         "sensors": settings["sensors"],
         "controller": settings["controller"],
         "columns": list(settings["columns"]),
+        **_chain_truth(settings, dt),
     })
+
+
+def _chain_truth(settings: Mapping[str, Any], dt: float) -> dict[str, Any]:
+    """With a sensor chain (:mod:`sim2real.lab.sensor_chain`): ``sensor_noise``, the sensor's white noise (``std``)
+    and what of it the log holds (``as_logged``, RMS N*m): the floor a perfect model is left at."""
+    chain = sensor_chain(settings)
+    if not chain:
+        return {}
+    std = float(settings["sensors"]["torque_noise_std"])
+    return {"sensor_noise": {"std": std, "as_logged": logged_noise_rms(chain, std, dt)}}

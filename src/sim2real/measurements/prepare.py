@@ -35,7 +35,10 @@ from typing import Any
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.measurements.noise import command_white_noise, white_noise_sigma
+from sim2real.measurements.noise import (
+    MeasuredFloor, command_floor_where_measured, command_white_noise, measured_noise_floor, stated_noise_floor,
+    white_noise_sigma,
+)
 from sim2real.measurements.signs import check_torque_signs
 from sim2real.measurements.records import (
     FilterSettings, GapPiece, GapRecord, HeldRecord, LoggingGap, SpikeRecord, StepRange,
@@ -190,13 +193,11 @@ def prepare_run(
         spikes=SpikeRecord(SPIKE_SCALES, spikes) if spikes else None, incomplete_rows=run.incomplete,
         held=_held_record(run, updates),
     )
-    raw_torque = run.tau if run.tau is not None else run.tau_cmd
-    assert raw_torque is not None
-    keep_raw = np.concatenate([[True], np.any(raw_torque[1:] != raw_torque[:-1], axis=1)])
+    floor = _measured_floor(run, cutoff_hz)
     return PreparedRun(
         name=run.name, joint_names=list(run.joint_names), time=grid[sl], dt=dt, q=q_f[sl], qd=qd_f[sl],
-        qdd=qdd_f[sl], torque_source="tau" if run.tau is not None else "tau_cmd", filter=record,
-        raw_torque_sigma=white_noise_sigma(raw_torque[keep_raw]),
+        qdd=qdd_f[sl], torque_source="tau" if run.tau is not None else "tau_cmd",
+        filter=dataclasses.replace(record, noise_floor=floor.record), raw_torque_sigma=floor.sigma,
         torque_sensor=(run.meta.torque_sensor or DEFAULT_TORQUE_SENSOR) if run.tau is not None
         else DEFAULT_TORQUE_SENSOR,
         entry=run.entry, **torques,
@@ -209,6 +210,17 @@ def _held_record(run: Run, updates: Mapping[int, np.ndarray]) -> HeldRecord | No
         return None
     held = {run.joint_names[j]: int(np.count_nonzero(~changed[1:])) for j, changed in updates.items()}
     return HeldRecord({"q": held}, of=int(run.q.shape[0]))
+
+
+def _measured_floor(run: Run, motion_band_hz: float) -> MeasuredFloor:
+    """The noise floor of the run's raw torque (:func:`~sim2real.measurements.noise.measured_noise_floor`), at the
+    log's own rate, the motion's band ending at the position filter's cutoff, or as its metadata states it."""
+    raw_torque = run.tau if run.tau is not None else run.tau_cmd
+    assert raw_torque is not None
+    distinct = np.concatenate([[True], np.any(raw_torque[1:] != raw_torque[:-1], axis=1)])
+    stated, reason = stated_noise_floor(run.meta.extra.get("noise_floor"), run.joint_names, run.path.with_suffix(".yaml"))
+    rate = 1.0 / float(np.median(np.diff(run.time)))
+    return measured_noise_floor(raw_torque, distinct, rate, motion_band_hz, stated, reason)
 
 
 def _replace_spikes(run: Run) -> tuple[Run, dict[str, dict[str, int]]]:
@@ -307,7 +319,8 @@ def with_command_floor(run: PreparedRun) -> PreparedRun:
     logs both the measured and the commanded torque: computed once, by the rule that prepares the runs."""
     if run.tau_cmd is None or run.torque_source != "tau" or run.command_torque_sigma.size:
         return run
-    return dataclasses.replace(run, command_torque_sigma=command_white_noise(run.tau, run.tau_cmd, run.dt))
+    return dataclasses.replace(run, command_torque_sigma=command_floor_where_measured(
+        command_white_noise(run.tau, run.tau_cmd, run.dt), run))
 
 
 def prepare_runs(

@@ -125,6 +125,43 @@ class GapRecord:
     run: str
 
 
+# Differences of these orders estimate the same white noise (each normalised by its own gain, C(2k, k)); on a torque
+# smoothed, held or upsampled before it was logged they do not: its noise is no longer white.
+DIFFERENCE_ORDERS = (2, 3, 4, 5)
+
+
+@dataclass(frozen=True)
+class NoiseFloorRecord:
+    """How each joint's noise floor was measured when the run was prepared (:func:`measured_noise_floor`), with the
+    figures that chose the method: ``method[j]`` is ``differences`` (the white part, orders agree), ``rounding`` (the
+    logger's quantum), ``updates`` (a held column's white part, from its own updates), ``spectrum``
+    (:func:`spectrum_noise_sigma`: differences do not measure this log's noise) or ``stated`` (the run's metadata, ``noise_floor.reason``); ``differences[k][j]``: the estimate of order
+    :data:`DIFFERENCE_ORDERS` ``[k]``; ``equal_steps[j]``: the share of consecutive samples that are equal;
+    ``spectrum[j]``: the spectral estimate (None where the log is too slow for it); ``motion_band_hz``: where the
+    motion's band ends (the position filter's cutoff)."""
+
+    method: tuple[str, ...]
+    differences: tuple[tuple[float, ...], ...]
+    equal_steps: tuple[float, ...]
+    spectrum: tuple[float, ...] | None
+    motion_band_hz: float
+    stated_reason: str | None = None
+
+    def as_document(self) -> dict[str, Any]:
+        """The record as the prepared runs' file and gap.json's ``runs[].filter.noise_floor`` hold it."""
+        return {"method": list(self.method), "difference_orders": list(DIFFERENCE_ORDERS),
+                "differences": [list(row) for row in self.differences], "equal_steps": list(self.equal_steps),
+                "spectrum": None if self.spectrum is None else list(self.spectrum),
+                "motion_band_hz": self.motion_band_hz, "stated_reason": self.stated_reason}
+
+    @classmethod
+    def from_document(cls, document: Mapping[str, Any]) -> NoiseFloorRecord:
+        spectrum = document["spectrum"]
+        return cls(tuple(document["method"]), tuple(tuple(row) for row in document["differences"]),
+                   tuple(document["equal_steps"]), None if spectrum is None else tuple(spectrum),
+                   float(document["motion_band_hz"]), document.get("stated_reason"))
+
+
 @dataclass(frozen=True)
 class FilterSettings:
     """What :func:`sim2real.measurements.prepare.prepare_run` did to a run: the grid, the filter, the derivatives,
@@ -141,6 +178,8 @@ class FilterSettings:
     incomplete_rows: IncompleteRows | None = None
     gaps: GapRecord | None = None
     held: HeldRecord | None = None
+    # how the torque's noise floor was measured, where any joint's is not the white part from differences
+    noise_floor: NoiseFloorRecord | None = None
     type: str = "butterworth low-pass, zero-phase (scipy.signal.sosfiltfilt)"
     applied_to: str = "q (torque is not filtered)"
     acceleration: str = "central differences of the velocity"
@@ -173,6 +212,8 @@ class FilterSettings:
             }
         if self.held is not None:
             document["held"] = self.held.as_document()
+        if self.noise_floor is not None:
+            document["noise_floor"] = self.noise_floor.as_document()
         return document
 
     @classmethod
@@ -191,6 +232,7 @@ class FilterSettings:
                 record["max_step_s"], tuple(LoggingGap(**g) for g in record["gaps"]),
                 tuple(GapPiece(**p) for p in record["pieces"]), record["run"]),
             held=None if "held" not in document else HeldRecord.from_document(document["held"]),
+            noise_floor=None if "noise_floor" not in document else NoiseFloorRecord.from_document(document["noise_floor"]),
             type=document["type"], applied_to=document["applied_to"], acceleration=document["acceleration"],
             resampling=document["resampling"],
         )

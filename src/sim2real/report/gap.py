@@ -42,6 +42,7 @@ from sim2real.errors import InputError
 from sim2real.files import relative_path, validate, write_json
 from sim2real.measurements import PreparedRun, RunSet, measured_after_drive, noise_floor_of, runs_for_model
 from sim2real.measurements.motion import not_judged_document
+from sim2real.measurements.noise import floor_method_document
 from sim2real.report.metrics import TorqueComparison, per_joint_dict, torque_metrics
 from sim2real.report.regimes import where_it_fails
 from sim2real.report.replay import ReplayModels, ladder_position_rmse, model_armature, state_domain
@@ -175,8 +176,7 @@ def _gap_head(robot: str, joints: list[str], prepared: RunSet[PreparedRun],
     weights = np.array([p.time.size for p in prepared], dtype=float)
     floor = np.sqrt(np.average(floors**2, axis=0, weights=weights))
     noise_floor = {"torque_rmse": per_joint_dict(floor, joints, float(np.sqrt(np.mean(floor**2)))),
-                   "method": "white part of the raw torque from second differences (MAD), per joint; "
-                             "a model that explains everything else has about this RMSE"}
+                   **floor_method_document(prepared, joints)}
     gap: dict[str, Any] = {"robot": robot, "joints": joints, "noise_floor": noise_floor}
     not_judged = not_judged_document(prepared.fit)
     if not_judged is not None:  # the joints the fit runs barely move: not judged, their drives held at the URDF's

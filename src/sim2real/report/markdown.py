@@ -13,7 +13,7 @@ from sim2real.report.first_screen import (
     SideView, first_screen, joints_table, ladder_table, leading_side, model_name, sides,
 )
 from sim2real.report.regimes import REGIME_LABELS
-from sim2real.report.verdicts import BOUND_TEXT, bounds_text, not_judged_text
+from sim2real.report.verdicts import BOUND_TEXT, bounds_text, floor_sentences, not_judged_text
 
 # Where the runs' tau is measured (run metadata `torque_sensor`), as gap.md says it.
 SENSOR_TEXT = {
@@ -288,6 +288,7 @@ def _torque_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None
         lines += [f"Overall RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
                   f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
                   f"R^2 {m['torque_r2']['overall']:.4g}.", ""]
+    lines += [" ".join(floor_sentences(gap["noise_floor"])), ""]
     return lines + _torque_table(gap["joints"], m)
 
 

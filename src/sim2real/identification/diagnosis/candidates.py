@@ -58,6 +58,7 @@ from sim2real.identification.diagnosis.caveats import (
 )
 from sim2real.identification.diagnosis.current import CurrentResidual
 from sim2real.identification.diagnosis.lags import after_other_shape, other_shapes, same_lag, screen_lags, shapes_note
+from sim2real.identification.diagnosis.raises import raise_notes, set_aside_raisers
 from sim2real.identification.diagnosis.result import Candidate, Diagnosis
 from sim2real.identification.diagnosis.screens import screen_ripples
 from sim2real.identification.effects import EFFECTS
@@ -436,6 +437,7 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
             residuals_after[name] = scaled
         else:
             failed[name] = broken
+    raised = set_aside_raisers(tried_candidates, residuals_after, now, joints)  # no rung raises a joint
     ranked = _rank([c for c in tried_candidates if c["effect"] not in failed], float(limits["parsimony_noise_fraction"]))
     ranked += [c for c in tried_candidates if c["effect"] in failed]  # last, whatever they would have scored
     confounded = _confounded(ranked, residuals_after, CONFOUNDED_NOISE_FRACTION, float(limits["min_gain"]))
@@ -451,6 +453,7 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
     status = _status(best, recommended, above)
     notes = _named_notes(best, ranked, group, confounded, residuals_after, limits) \
         if status == Status.ADD_EFFECT and best is not None else []
+    notes += raise_notes(raised, best)
     if failed:
         notes.append(Note(NoteKind.FAILED_TRIALS, figures={"failed": {k: failed[k] for k in sorted(failed)}}))
     return Diagnosis(
