@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from gap_fixtures import build_dev_panda, short_lab_config
+from gap_fixtures import build_dev_iiwa14, build_dev_panda, short_lab_config
 from sim2real.errors import InputError
 from sim2real.lab import run_lab_scenario_run, write_truth
 from sim2real.measurements import load_prepared_runs
@@ -165,3 +165,48 @@ def test_a_floor_stated_in_the_run_metadata_is_validated_and_used(lab, tmp_path)
     Path(runs[0]["path"]).with_suffix(".yaml").write_text(yaml.safe_dump(meta))
     with pytest.raises(InputError, match="reason"):
         load_prepared_runs(stated, JOINTS, "/")
+
+
+IIWA_JOINTS = [f"iiwa_joint_{i}" for i in range(1, 8)]
+
+
+@pytest.fixture(scope="module")
+def iiwa_lab(tmp_path_factory):
+    """The shipped iiwa 14's lab arm (configs/iiwa14/lab.yaml) on 8 s runs: its link-side sensors, per-run offsets
+    and wrist torques a hundred times smaller than the shoulder's, logged through a sensor chain."""
+    directory = tmp_path_factory.mktemp("noise_floor_iiwa")
+    urdf, mjcf = build_dev_iiwa14(directory)
+    config = short_lab_config(directory, duration_s=8.0, robot="iiwa14")
+
+    def scenario(name: str) -> tuple[Path, dict]:
+        entries = []
+        for run in ("fit", "holdout"):
+            out = directory / name / f"{run}.csv"
+            if not out.exists():
+                run_lab_scenario_run(mjcf, config, "iiwa14", name, run, out)
+            entries.append({"name": f"{name}_{run}", "path": out.as_posix(), "role": run})
+        listing = directory / f"{name}_measurements.yaml"
+        listing.write_text(yaml.safe_dump({"runs": entries}))
+        truth = directory / name / "truth.yaml"
+        write_truth(config, mjcf, name, truth)
+        return listing, yaml.safe_load(truth.read_text())
+
+    return scenario
+
+
+@pytest.mark.parametrize("name, methods", [("real_arm_like_smoothed_200hz", {"spectrum"}),
+                                           ("real_arm_like_held_1khz", {"spectrum", "updates"}),
+                                           ("real_arm_like_positions_held", {"differences"})])
+def test_the_iiwa_logs_floor_is_its_sensors_noise_joint_by_joint(iiwa_lab, name, methods):
+    """A real iiwa's log, smoothed at 200 Hz or held at 1 kHz by its drive: the floor is not the differences', and on
+    every joint, wrist included, it lies within 1.5x of the noise the log holds."""
+    listing, truth = iiwa_lab(name)
+    prepared = load_prepared_runs(listing, IIWA_JOINTS, "/")
+    noise = truth["sensor_noise"]["as_logged"]
+    for run in prepared:
+        assert set(floor_methods(run)) <= methods, (run.name, floor_methods(run))
+        ratio = run.raw_torque_sigma / noise
+        assert np.all((ratio > 1 / 1.5) & (ratio < 1.5)), (run.name, dict(zip(IIWA_JOINTS, ratio)))
+    if methods != {"differences"}:
+        words = " ".join(floor_sentences(floor_method_document(prepared, IIWA_JOINTS)))
+        assert "the floor could not be taken from differences on" in words

@@ -110,6 +110,9 @@ SPECTRUM_OVER_DIFFERENCES = 1.25
 HELD_SHARE = 0.5
 # Steps within this fraction of a whole number of quanta are rounding's.
 QUANTUM_TOLERANCE = 0.01
+# A rounding logger's steps are a few quanta (its floor is about one quantum); a column whose median step is more
+# quanta than this holds a finer signal, its smallest step the file's last printed digit, not a logger's quantum.
+MAX_ROUNDED_STEP = 20.0
 
 
 @dataclass(frozen=True)
@@ -162,7 +165,8 @@ def _held(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         moved = column[column > 0]
         if equal[j] > HELD_SHARE and moved.size:
             ratio = moved / moved.min()
-            held[j] = np.median(np.abs(ratio - np.round(ratio))) > QUANTUM_TOLERANCE
+            held[j] = (np.median(ratio) > MAX_ROUNDED_STEP
+                       or np.median(np.abs(ratio - np.round(ratio))) > QUANTUM_TOLERANCE)
     return equal, held
 
 
