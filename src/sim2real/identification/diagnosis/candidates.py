@@ -54,9 +54,13 @@ import numpy as np
 from sim2real.forked import map_forked
 from sim2real.identification import fitting
 from sim2real.identification.diagnosis.caveats import (
-    NESTED_IN, SPANNED_BY, bound_changes, caveat_notes, effect_term, implausible_bodies, recommend, ties, trades_with_model,
+    NESTED_IN, SPANNED_BY, bound_changes, caveat_notes, effect_term, implausible_bodies, recommend, relabelling, ties,
+    trades_with_model,
 )
 from sim2real.identification.diagnosis.current import CurrentResidual
+from sim2real.identification.diagnosis.margins import (
+    CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor, near_threshold_notes, near_thresholds,
+)
 from sim2real.identification.diagnosis.lags import after_other_shape, other_shapes, same_lag, screen_lags, shapes_note
 from sim2real.identification.diagnosis.result import Candidate, Diagnosis
 from sim2real.identification.diagnosis.screens import screen_ripples
@@ -339,24 +343,24 @@ def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: 
     joints = list(context.holdout_data.joint_names)
     broken = failed_trial(result, current, context.fit_data)
     scores = _scores(trial[1], now, broken is not None, limits)
-    arm_wide = scores["beyond"] >= limits["min_explained"] and scores["explained"] >= limits["min_gain"]
-    # A joint above its floor whose excess the candidate mostly removes names it on that joint, however
-    # small that joint's share of the arm; never at the price of the arm as a whole (gain > 0).
-    # Nor at the price of another joint: one pushed further above its floor is no joint's fix.
-    on_joints = [j for j, x, v in zip(joints, now.x_floor, scores["per_joint_beyond"], strict=True)
-                 if x > limits["noise_floor_factor"] and v >= limits["joint_decisive"]
-                 ] if scores["gain"] > 0 and not any(scores["harmed"]) else []
     # Named on the joints where its own term shows, not where the residual fell because the rest of the
     # model no longer bends to soak it up (joint 7's friction frees the link inertias of joints 2 to 6).
     own = _own_term_x_floor(result, name, context.nominal, context.holdout_data, context.holdout_signals, now.unit)
     seen = [True] * len(joints) if own is None else [bool(o >= OWN_TERM_MIN) for o in own]
-    on_joints = [j for j in on_joints if seen[joints.index(j)]]
+    # A joint above its floor whose excess the candidate mostly removes names it on that joint, however small that
+    # joint's share of the arm; never at the price of the arm as a whole, nor of another joint (diagnosis.margins).
+    # Each threshold read with the arithmetic's margin against the decision: a figure within it names nothing.
+    decision = decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, CONSERVATIVE)
+    arm_wide, on_joints = decision.arm_wide, list(decision.on_joints)
     acting = [j for j, v, ok in zip(joints, scores["per_joint_beyond"], seen, strict=True)
               if v >= limits["joint_min_explained"] and ok]
-    decisive = arm_wide or bool(on_joints)
+    decisive = decision.decisive
     evidence = _evidence(name, trial, scores, context, now, current, own)
     if broken is not None:
         evidence["fit_failed"] = broken
+    elif decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, PERMISSIVE) != decision:
+        evidence["near_threshold"] = [n.as_document() for n in
+                                      near_thresholds(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN)]
     return {
         "effect": name,
         "link": EFFECTS[name].side if side == Side.COMBINED else side,  # a drive effect's follows the torque sensor
@@ -403,6 +407,25 @@ def _named_notes(best: Mapping[str, Any], candidates: Sequence[Mapping[str, Any]
     return notes + caveat_notes(best, group)
 
 
+def _relabellings(candidates: Sequence[dict[str, Any]], failed: Mapping[str, Any],
+                  trials: Mapping[str, tuple[fitting.FitResult, np.ndarray]], current: fitting.FitResult | None,
+                  context: fitting.FitContext, now: CurrentResidual) -> dict[str, list[dict[str, Any]]]:
+    """The decisive candidates whose own term is the model's relabelled (:func:`~sim2real.identification.diagnosis.
+    caveats.relabelling`), each with its trades: they are made not decisive (named nowhere, whatever they seem to
+    remove: the fall is the model's own term under another name) and their trades kept in their evidence."""
+    out = {}
+    for c in candidates:
+        if current is None or not c["decisive"] or c["effect"] in failed:
+            continue
+        trades = relabelling(trades_with_model(trials[c["effect"]][0], current, c["effect"], context.nominal,
+                                               context.holdout_data, context.holdout_signals, now.unit))
+        if trades:
+            c["evidence"]["relabels"] = trades
+            c.update({"decisive": False, "decided_on": None, "joints": []})
+            out[c["effect"]] = trades
+    return out
+
+
 def _status(best: Mapping[str, Any] | None, recommended: Mapping[str, Any] | None, above: Sequence[str]) -> Status:
     if best is not None and best["decisive"]:
         return Status.ADD_EFFECT if recommended is not None else Status.NOT_TOLD_APART
@@ -426,7 +449,7 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
     limits = {**DEFAULT_DIAGNOSIS, **(limits or {})}
     joints = list(context.holdout_data.joint_names)
     now = CurrentResidual.of(holdout_residual, context.holdout_data.noise_floor)
-    above = [j for j, x in zip(joints, now.x_floor, strict=True) if x > limits["noise_floor_factor"]]
+    above = above_floor(joints, now.x_floor, limits["noise_floor_factor"])  # clearly above: by more than the margin
     trials, tried, skipped = _tried(model_effects, context, now, current, limits, candidates)
     tried_candidates, residuals_after, failed = [], {}, {}
     for name in tried:
@@ -436,6 +459,7 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
             residuals_after[name] = scaled
         else:
             failed[name] = broken
+    relabelled = _relabellings(tried_candidates, failed, trials, current, context, now)
     ranked = _rank([c for c in tried_candidates if c["effect"] not in failed], float(limits["parsimony_noise_fraction"]))
     ranked += [c for c in tried_candidates if c["effect"] in failed]  # last, whatever they would have scored
     confounded = _confounded(ranked, residuals_after, CONFOUNDED_NOISE_FRACTION, float(limits["min_gain"]))
@@ -453,6 +477,9 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
         if status == Status.ADD_EFFECT and best is not None else []
     if failed:
         notes.append(Note(NoteKind.FAILED_TRIALS, figures={"failed": {k: failed[k] for k in sorted(failed)}}))
+    if relabelled:
+        notes.append(Note(NoteKind.RELABELLED, figures={"relabelled": relabelled}))
+    notes += near_threshold_notes(ranked, group, joints_near_floor(joints, now.x_floor, limits["noise_floor_factor"]))
     return Diagnosis(
         side=side, status=status, candidates=tuple(_typed(c) for c in ranked), confounded=tuple(confounded),
         tied=tuple(c["effect"] for c in group), residual_rmse=round(now.rmse, 6),

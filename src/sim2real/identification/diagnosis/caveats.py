@@ -19,6 +19,7 @@ import numpy as np
 
 from sim2real.identification import fitting
 from sim2real.identification.diagnosis.lags import same_lag
+from sim2real.identification.diagnosis.margins import tie_near
 from sim2real.identification.effects.base import Signals
 from sim2real.identification.records import Note, NoteKind
 
@@ -50,6 +51,11 @@ TRADE_NET = 0.5
 
 
 TRADE_CORRELATION = -0.5
+
+
+# A trade this close to a correlation of -1 is no new term at all: the candidate's own term is an effect of the model
+# relabelled, its fall the current model's (relabelling), and it is never named.
+RELABEL_CORRELATION = -0.95
 
 
 # Two candidates act "on the same joints" when the joints each is named on overlap by this share (Jaccard).
@@ -107,6 +113,12 @@ def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name
             out.append({"effect": effect, "moved_x_own_term": round(float(np.sqrt(np.mean(change**2))) / size, 3),
                         "correlation": round(correlation, 3)})
     return out
+
+
+def relabelling(trades: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The trades (:func:`trades_with_model`) that make a candidate a relabelling of the model: its own term given
+    back through an effect already held, correlation near -1 (:data:`RELABEL_CORRELATION`), the prediction unchanged."""
+    return [dict(t) for t in trades if t["correlation"] <= RELABEL_CORRELATION]
 
 
 def _block_sse(scaled: np.ndarray, blocks: int) -> np.ndarray:
@@ -182,9 +194,10 @@ def ties(candidates: list[dict[str, Any]], residuals: Mapping[str, np.ndarray], 
                 or _overlap(best["joints"], c["joints"]) < TIE_JOINT_OVERLAP):
             continue
         same, difference, spread = tied(_block_sse(residuals[c["effect"]], blocks), best_blocks)
-        if same:
+        near = tie_near(difference, spread, TIE_SPREAD)  # within the arithmetic's margin of the bound: tied
+        if same or near:
             c["evidence"]["tie_with_best"] = {"difference": round(difference, 3), "spread": round(spread, 3),
-                                              "blocks": blocks}
+                                              "blocks": blocks, **({"near_threshold": True} if near else {})}
             out.append(c)
     return out
 
