@@ -417,13 +417,22 @@ def _relabellings(candidates: Sequence[dict[str, Any]], failed: Mapping[str, Any
     for c in candidates:
         if current is None or not c["decisive"] or c["effect"] in failed:
             continue
-        trades = relabelling(trades_with_model(trials[c["effect"]][0], current, c["effect"], context.nominal,
-                                               context.holdout_data, context.holdout_signals, now.unit))
-        if trades:
-            c["evidence"]["relabels"] = trades
-            c.update({"decisive": False, "decided_on": None, "joints": []})
-            out[c["effect"]] = trades
+        trades = trades_with_model(trials[c["effect"]][0], current, c["effect"], context.nominal,
+                                   context.holdout_data, context.holdout_signals, now.unit)
+        if demote_relabelling(c, trades):
+            out[c["effect"]] = c["evidence"]["relabels"]
     return out
+
+
+def demote_relabelling(candidate: dict[str, Any], trades: Sequence[Mapping[str, Any]]) -> bool:
+    """Make ``candidate`` not decisive when its ``trades`` with the model (:func:`~sim2real.identification.diagnosis.
+    caveats.trades_with_model`) make it a relabelling (:func:`~sim2real.identification.diagnosis.caveats.relabelling`),
+    keeping them in its evidence (``relabels``); whether it did."""
+    relabels = relabelling(trades)
+    if relabels:
+        candidate["evidence"]["relabels"] = relabels
+        candidate.update({"decisive": False, "decided_on": None, "joints": []})
+    return bool(relabels)
 
 
 def _status(best: Mapping[str, Any] | None, recommended: Mapping[str, Any] | None, above: Sequence[str]) -> Status:
