@@ -14,7 +14,8 @@ names a candidate, reads a verdict or the model-free ceiling's reading of a join
 ``follow_the_diagnosis``, the pinned loop document) or calls ``diagnose``; tests that build the whole tree with Snakemake (``built_tree``, ``readme_run``,
 ``slurm_build``) are left to the suite, their verdicts being the same functions on the same fits.
 
-    python benchmarks/bench_verdict_sweep.py [--kernels SkylakeX Haswell Prescott] [-k EXPRESSION] [--list]
+    python benchmarks/bench_verdict_sweep.py [--kernels SkylakeX Haswell Prescott] [-k EXPRESSION] [--jobs 3]
+                                             [--keep DIR] [--list]
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import sys
 import tempfile
 import time
 import xml.etree.ElementTree as ElementTree
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from harness import ROOT
@@ -69,14 +71,14 @@ def run_kernel(kernel: str, tests: list[str], keyword: str | None, directory: Pa
     (passed, failed, error, skipped), and the wall time."""
     report = directory / f"{kernel}.xml"
     env = {**os.environ, "OPENBLAS_CORETYPE": kernel, "NPY_DISABLE_CPU_FEATURES": NUMPY_WITHOUT.get(kernel, "")}
-    command = [sys.executable, "-m", "pytest", "-n", "0", "-p", "no:randomly", "-p", "no:cacheprovider", "-q",
+    command = [sys.executable, "-m", "pytest", "-n", "0", "-p", "no:randomly", "-p", "no:cacheprovider", "-v",
                "--durations=0", f"--junitxml={report}", *tests] + (["-k", keyword] if keyword else [])
     start = time.perf_counter()
-    done = subprocess.run(command, env=env, cwd=ROOT, capture_output=True, text=True)
+    with (directory / f"{kernel}.log").open("w") as log:  # each test's outcome as it comes (pytest -v)
+        subprocess.run(command, env=env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, text=True)
     seconds = time.perf_counter() - start
     if not report.exists():
-        sys.exit(f"pytest under {kernel} wrote no report:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}")
-    (directory / f"{kernel}.log").write_text(done.stdout + done.stderr)
+        sys.exit(f"pytest under {kernel} wrote no report:\n{(directory / f'{kernel}.log').read_text()[-3000:]}")
     outcomes = {}
     for case in ElementTree.parse(report).getroot().iter("testcase"):
         name = f"{case.get('classname', '').replace('.', '/')}.py::{case.get('name')}"
@@ -99,6 +101,7 @@ def main() -> None:
     parser.add_argument("--kernels", nargs="+", default=list(KERNELS))
     parser.add_argument("-k", dest="keyword", help="only the selected tests pytest's -k expression keeps")
     parser.add_argument("--list", action="store_true", help="print the selected tests and stop")
+    parser.add_argument("--jobs", type=int, default=1, help="kernels run side by side (one process each)")
     parser.add_argument("--keep", type=Path, help="keep each kernel's pytest log and report in this folder")
     args = parser.parse_args()
     tests = selected()
@@ -110,8 +113,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as scratch:
         directory = args.keep or Path(scratch)
         directory.mkdir(parents=True, exist_ok=True)
-        for kernel in args.kernels:
-            outcomes, seconds = run_kernel(kernel, tests, args.keyword, directory)
+        with ThreadPoolExecutor(max_workers=args.jobs) as pool:  # each kernel is its own pytest process
+            runs = list(pool.map(lambda kernel: run_kernel(kernel, tests, args.keyword, directory), args.kernels))
+        for kernel, (outcomes, seconds) in zip(args.kernels, runs, strict=True):
             failed = sum(o in ("failed", "error") for o in outcomes.values())
             print(f"{kernel:>9} (runs {kernels_run(kernel)}, numpy without {NUMPY_WITHOUT.get(kernel) or 'nothing'}): "
                   f"{len(outcomes) - failed} of {len(outcomes)} pass, {seconds:.0f} s", flush=True)

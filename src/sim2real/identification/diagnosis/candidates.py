@@ -358,7 +358,7 @@ def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: 
     evidence = _evidence(name, trial, scores, context, now, current, own)
     if broken is not None:
         evidence["fit_failed"] = broken
-    elif decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, PERMISSIVE) != decision:
+    elif decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, PERMISSIVE).decisive != decisive:
         evidence["near_threshold"] = [n.as_document() for n in
                                       near_thresholds(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN)]
     return {
@@ -409,19 +409,21 @@ def _named_notes(best: Mapping[str, Any], candidates: Sequence[Mapping[str, Any]
 
 def _relabellings(candidates: Sequence[dict[str, Any]], failed: Mapping[str, Any],
                   trials: Mapping[str, tuple[fitting.FitResult, np.ndarray]], current: fitting.FitResult | None,
-                  context: fitting.FitContext, now: CurrentResidual) -> dict[str, list[dict[str, Any]]]:
+                  context: fitting.FitContext, now: CurrentResidual,
+                  ) -> tuple[dict[str, list[dict[str, Any]]], dict[str, list[dict[str, Any]]]]:
     """The decisive candidates whose own term is the model's relabelled (:func:`~sim2real.identification.diagnosis.
     caveats.relabelling`), each with its trades: they are made not decisive (named nowhere, whatever they seem to
-    remove: the fall is the model's own term under another name) and their trades kept in their evidence."""
-    out = {}
+    remove: the fall is the model's own term under another name) and their trades kept in their evidence. Also every
+    decisive candidate's trades (:func:`trades_with_model`), for the caveats of the one named."""
+    out, trades_of = {}, {}
     for c in candidates:
         if current is None or not c["decisive"] or c["effect"] in failed:
             continue
-        trades = trades_with_model(trials[c["effect"]][0], current, c["effect"], context.nominal,
-                                   context.holdout_data, context.holdout_signals, now.unit)
-        if demote_relabelling(c, trades):
+        trades_of[c["effect"]] = trades_with_model(trials[c["effect"]][0], current, c["effect"], context.nominal,
+                                                   context.holdout_data, context.holdout_signals, now.unit)
+        if demote_relabelling(c, trades_of[c["effect"]]):
             out[c["effect"]] = c["evidence"]["relabels"]
-    return out
+    return out, trades_of
 
 
 def demote_relabelling(candidate: dict[str, Any], trades: Sequence[Mapping[str, Any]]) -> bool:
@@ -468,7 +470,7 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
             residuals_after[name] = scaled
         else:
             failed[name] = broken
-    relabelled = _relabellings(tried_candidates, failed, trials, current, context, now)
+    relabelled, trades_of = _relabellings(tried_candidates, failed, trials, current, context, now)
     ranked = _rank([c for c in tried_candidates if c["effect"] not in failed], float(limits["parsimony_noise_fraction"]))
     ranked += [c for c in tried_candidates if c["effect"] in failed]  # last, whatever they would have scored
     confounded = _confounded(ranked, residuals_after, CONFOUNDED_NOISE_FRACTION, float(limits["min_gain"]))
@@ -476,9 +478,7 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
     group = [ranked[0], *tied_with_best] if tied_with_best else []  # the best and those it is not told apart from
     if current is not None:
         for c in (group or ranked[:1]) if ranked and ranked[0]["decisive"] else []:
-            c["evidence"]["trades_with"] = trades_with_model(trials[c["effect"]][0], current, c["effect"],
-                                                             context.nominal, context.holdout_data,
-                                                             context.holdout_signals, now.unit)
+            c["evidence"]["trades_with"] = trades_of[c["effect"]]  # every decisive candidate's, found above
     ranked, recommended = recommend(ranked, tied_with_best)
     best = ranked[0] if ranked else None
     status = _status(best, recommended, above)
