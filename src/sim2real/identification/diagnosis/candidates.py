@@ -32,6 +32,10 @@ A verdict the user can trust says when it is not a clean decision:
   plausible, and the verdict says when the named one does not;
 * **trades with the model**: a candidate whose own term the fit gives back through the effects already in
   the model (a torque gain against the link inertias' scale) is said to trade places with them;
+* **relabellings** (:func:`_relabellings`): a candidate whose own term the fit gives back through an effect already
+  held, correlation near -1, is the model's term under another name: never decisive, and the verdict says so;
+* **margins** (:mod:`~sim2real.identification.diagnosis.margins`): every threshold a decision reads is read with the
+  arithmetic's margin against the decision; a figure within it names nothing, and the verdict says so;
 * **failed trials** (``failed``): a candidate extends the current model, so its fit matches the fit runs at
   least as well; one that ends far worse there (:data:`FAILED_TRIAL_FACTOR`) is a solve that failed, not an
   effect that explains nothing: it is left out of the ranking and the verdict says so.
@@ -58,10 +62,10 @@ from sim2real.identification.diagnosis.caveats import (
     trades_with_model,
 )
 from sim2real.identification.diagnosis.current import CurrentResidual
+from sim2real.identification.diagnosis.lags import after_other_shape, other_shapes, same_lag, screen_lags, shapes_note
 from sim2real.identification.diagnosis.margins import (
     CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor, near_threshold_notes, near_thresholds,
 )
-from sim2real.identification.diagnosis.lags import after_other_shape, other_shapes, same_lag, screen_lags, shapes_note
 from sim2real.identification.diagnosis.result import Candidate, Diagnosis
 from sim2real.identification.diagnosis.screens import screen_ripples
 from sim2real.identification.effects import EFFECTS
