@@ -164,3 +164,22 @@ def test_an_almost_solved_fit_is_polished_or_kept_with_its_residuals_never_silen
     document = kept.check.as_document()
     assert set(document["residuals"]) == {"primal", "dual", "gap"} and document["accepted_within"] == ACCEPTED
     assert physically_consistent(ANCHOR + kept.z), "stopped short, the solution is still inside the physical set"
+
+
+def test_a_rung_states_the_residuals_where_clarabel_did_not_say_solved(monkeypatch):
+    """The rung's consistent fit at tolerances no CPU reaches: Clarabel says AlmostSolved on every solve, and the
+    rung's record says so, with the residuals measured and the solution physically consistent."""
+    from sim2real.identification import fitting
+    from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
+
+    nominal = fitting.load_nominal(PANDA_URDF, PANDA_JOINTS, {"panda_joint*": 0.1}, "panda_link8")
+    data = fitting.stack_runs([make_run("fit", {}, 5, duration=6.0, noise=0.01)], PANDA_JOINTS, 100.0)
+    settings = {"fit_rate_hz": 100.0, "bootstrap_replicates": 20, "refine_max_samples": 1500,
+                "inertia_regularization": 0.01}
+    monkeypatch.setattr(conic, "PRECISE_TOLERANCE", 1e-16)
+    result = fitting.fit(["link_inertia"], nominal, data, settings, uncertainty=False)
+    solver = result.consistency["solver"]
+    assert solver["clarabel"] == "AlmostSolved" and solver["kept"] in ("measured", "polished"), solver
+    assert max(solver["residuals"].values()) <= solver["accepted_within"] == ACCEPTED
+    assert result.consistency["status"] == "optimal"
+    assert result.values["link_inertia"]["physically_consistent"]
