@@ -44,10 +44,16 @@ def test_a_candidate_that_relabels_the_models_own_term_is_never_recommended():
     asymmetric friction already held (1x its size, correlation -1.00). It is no line to add, on any CPU."""
     relabel = candidate("load_friction", 0.04, 0.35, ["panda_joint5"], 1.02)
     real = candidate("viscous_friction", 0.03, 0.31, ["panda_joint7"], 1.03)
-    trades = {"load_friction": [{"effect": "asymmetric_friction", "moved_x_own_term": 1.0, "correlation": -0.998}],
+    trades = {"load_friction": [{"effect": "asymmetric_friction", "moved_x_own_term": 1.0, "correlation": -0.998,
+                                 "net_x_floor": 0.3}],
               # the real Panda log's trade: part of the term is new, the named candidate is only cautioned
-              "viscous_friction": [{"effect": "coulomb_friction", "moved_x_own_term": 0.89, "correlation": -0.83}]}
+              "viscous_friction": [{"effect": "coulomb_friction", "moved_x_own_term": 0.89, "correlation": -0.83,
+                                    "net_x_floor": 0.4}]}
     assert relabelling(trades["load_friction"]) and not relabelling(trades["viscous_friction"])
+    # the lab's sensor_gains arm: a torque gain trades as closely with the link inertias' scale, but moves the
+    # prediction by several floors: a change the data resolve, no relabelling
+    assert not relabelling([{"effect": "link_inertia", "moved_x_own_term": 0.93, "correlation": -0.997,
+                             "net_x_floor": 3.1}])
     for alone in ([relabel], [relabel, real]):
         tried = copy.deepcopy(alone)
         demoted = {c["effect"]: c["evidence"].get("relabels") for c in tried
@@ -65,7 +71,7 @@ def test_a_candidate_that_relabels_the_models_own_term_is_never_recommended():
                 recommended, [])))
         said = words(Note(NoteKind.RELABELLED, figures={"relabelled": demoted}))
         assert "Not named: load_friction (asymmetric_friction's term moves against its own, 1x its size, " \
-               "correlation -1.00)" in said and "never a line to add" in said, said
+               "correlation -1.00, the prediction moving by 0.3x the floor)" in said and "never a line to add" in said, said
 
 
 def scores(explained: float, beyond: float, joint_beyond: float) -> dict:

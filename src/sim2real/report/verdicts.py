@@ -229,13 +229,15 @@ def _held_on_other_side(note: Note, robot: str) -> str:
 def _relabelled(note: Note, robot: str) -> str:
     def one(effect: str, trades: Sequence[Mapping[str, Any]]) -> str:
         held = "; ".join(f"{t['effect']}'s term moves against its own, {t['moved_x_own_term']:.2g}x its size, "
-                         f"correlation {t['correlation']:.2f}" for t in trades)
+                         f"correlation {t['correlation']:.2f}, the prediction moving by {t['net_x_floor']:.2g}x the "
+                         "floor" for t in trades)
         return f"{effect} ({held})"
 
     parts = [one(effect, trades) for effect, trades in sorted(note.figures["relabelled"].items())]
     return (f" Not named: {'; '.join(parts)}. Such a candidate's own term is an effect the model already holds, "
-            "relabelled: adding it, the fit gives that effect's term back, the prediction is unchanged and the fall "
-            "it seems to bring is the current model's under another name, so it is never a line to add.")
+            "relabelled: adding it, the fit gives that effect's term back, the prediction moves by less than the "
+            "noise floor and the fall it seems to bring is the current model's under another name (on another CPU it "
+            "is not even a fall), so it is never a line to add.")
 
 
 NEAR_FIGURE_TEXT = {
