@@ -39,7 +39,7 @@ COVERAGE: list[tuple[str, str, str]] = [
     (r"export SNAKEMAKE_STORAGE_S3_.*", SKIP, "credentials of the Kubernetes profile"),
     (r"python benchmarks/(bench_build|bench_gap)\.py( panda)?", SKIP,
      "minutes of cold builds and full-length lab runs; no smaller setting"),
-    (r"python benchmarks/(bench_collision_usd|bench_sysid|bench_fleet|bench_real_arm_loop|bench_excitation|bench_loop|bench_runs|bench_cold_build|bench_pinned_spread|fuzz_inputs)\.py", HELP,
+    (r"python benchmarks/(bench_collision_usd|bench_sysid|bench_fleet|bench_real_arm_loop|bench_excitation|bench_loop|bench_runs|bench_cold_build|bench_pinned_spread|bench_verdict_sweep|fuzz_inputs)\.py", HELP,
      "minutes at their smallest setting: their command line is checked (--help)"),
     (r"python benchmarks/(bench_dr|bench_resources)\.py", RUN, "seconds, on the built results"),
     (r"snakemake results/arm3/gap\.json", SKIP,

@@ -14,6 +14,7 @@ from gap_fixtures import PANDA_JOINTS, build_dev_panda
 from sim2real.identification import fitting
 from sim2real.identification.effects.link_inertia import correction_anchors
 from sim2real.identification.inertial.bands import InertiaBands
+from sim2real.identification.inertial.judged import ACCEPTED
 from sim2real.identification.inertial import (PRIOR_BOUNDS, PRIOR_GRID, PRIOR_TOLERANCE, InertialBlock, choose_prior_weight,
                                solve_consistent)
 
@@ -180,8 +181,10 @@ def test_the_bands_are_constraints_of_both_forms_and_bind_where_the_data_push(an
     target = design @ truth + NOISE * rng.normal(size=(600, 1))
     for weight in (1e-6, 1e-2):
         ours, stated, theirs = solved_both_ways(design, target, lower, block, weight)
-        # At 1e-11 a bound that binds may leave Clarabel a few digits short ("AlmostSolved"), as the fit accepts.
-        assert {ours.status, stated.problem.status} <= {"optimal", "optimal_inaccurate"}
+        # At 1e-11 a bound that binds may leave Clarabel a few digits short ("AlmostSolved"): ours is judged by its
+        # measured residuals (inertial.judged), which meet Clarabel's default tolerances, polished if need be.
+        assert ours.status == "optimal" and ours.check.residuals.worst <= ACCEPTED, ours.check
+        assert stated.problem.status in ("optimal", "optimal_inaccurate")
         assert np.max(np.abs(ours.coefficients - theirs)) <= 1e-3 * np.max(np.abs(theirs))  # 1e-4 seen
         corrected = anchors + ours.coefficients.reshape(2, 10)
         divergence = entropic_divergence(corrected, anchors)

@@ -56,6 +56,9 @@ class NoteKind(enum.StrEnum):
     CAUTION = "caution"  # what the named candidate's fit does that makes it less trustworthy (figures: troubles)
     FAILED_TRIALS = "failed_trials"  # trials that did not solve (figures: failed)
     RAISES_JOINTS = "raises_joints"  # the candidate set aside for raising joints (figures: lowers, raises, explained)
+    # decisions that take the conservative side (sim2real.identification.diagnosis.margins, caveats.relabelling)
+    RELABELLED = "relabelled"  # candidates whose term is the model's own relabelled (figures: relabelled)
+    NEAR_THRESHOLD = "near_threshold"  # figures within the arithmetic's margin (figures: candidates, joints, ties)
     # the verdict's, across the two sides (sim2real.identification.diagnosis.across)
     DRIVE_PLACEMENT = "drive_placement"  # a drive effect found where the sensor's placement did not expect it
     SENSOR_LAG = "sensor_lag"  # the body side finds the sensor's lag in the drive side's (figures: lag_s, effects)

@@ -226,7 +226,54 @@ def _held_on_other_side(note: Note, robot: str) -> str:
             f"beside {holder}.")
 
 
+# --- decisions that take the conservative side (diagnosis.margins, caveats.relabelling) ------------------------------
+
+def _relabelled(note: Note, robot: str) -> str:
+    def one(effect: str, trades: Sequence[Mapping[str, Any]]) -> str:
+        held = "; ".join(f"{t['effect']}'s term moves against its own, {t['moved_x_own_term']:.2g}x its size, "
+                         f"correlation {t['correlation']:.2f}, the prediction moving by {t['net_x_floor']:.2g}x the "
+                         "floor" for t in trades)
+        return f"{effect} ({held})"
+
+    parts = [one(effect, trades) for effect, trades in sorted(note.figures["relabelled"].items())]
+    return (f" Not named: {'; '.join(parts)}. Such a candidate's own term is an effect the model already holds, "
+            "relabelled: adding it, the fit gives that effect's term back, the prediction moves by less than the "
+            "noise floor and the fall it seems to bring is the current model's under another name (on another CPU it "
+            "is not even a fall), so it is never a line to add.")
+
+
+NEAR_FIGURE_TEXT = {
+    "explained_beyond_noise": "of what lies above the floors removed",
+    "explained": "of the whole residual removed",
+    "joint_explained_beyond_noise": "of the joint's excess removed",
+    "own_term_x_floor": "its own term there, x the joint's floor",
+    "x_floor": "the joint's residual, x its floor",
+}
+
+
+def near_text(near: Mapping[str, Any]) -> str:
+    """One figure within the arithmetic's margin of its threshold (:class:`sim2real.identification.diagnosis.margins.
+    Near`)."""
+    where = f"{near['joint']}: " if near.get("joint") else ""
+    return (f"{where}{near['value']:.3g} {NEAR_FIGURE_TEXT[near['figure']]}, against {near['threshold']:g} "
+            f"(give or take {near['margin']:.2g})")
+
+
+def _near_threshold(note: Note, robot: str) -> str:
+    figures = note.figures
+    parts = [f"{effect} is not named ({'; '.join(map(near_text, nears))})"
+             for effect, nears in sorted(figures["candidates"].items())]
+    if figures["ties"]:
+        parts.append(f"{', '.join(figures['ties'])} {'is' if len(figures['ties']) == 1 else 'are'} counted tied with "
+                     f"the best (within {figures['tie_margin']:.0%} of the tie's bound)")
+    if figures["joints"]:
+        parts.append("counted within the floor: " + "; ".join(map(near_text, figures["joints"])))
+    return (" Where a figure sits within the arithmetic's precision of its threshold (another CPU's BLAS moves it that "
+            "much), the decision takes the conservative side: " + "; ".join(parts) + ".")
+
+
 NOTE_TEXT: dict[NoteKind, Callable[[Note, str], str]] = {
+    NoteKind.RELABELLED: _relabelled, NoteKind.NEAR_THRESHOLD: _near_threshold,
     NoteKind.LAG_SHAPES: _lag_shapes, NoteKind.CONFOUNDED: _confounded, NoteKind.TIED: _tied,
     NoteKind.CAUTION: _caution, NoteKind.FAILED_TRIALS: _failed_trials, NoteKind.DRIVE_PLACEMENT: _drive_placement,
     NoteKind.SENSOR_LAG: _sensor_lag, NoteKind.SENSOR_LAG_TRIAL: _sensor_lag_trial, NoteKind.OTHER_SIDE: _other_side,

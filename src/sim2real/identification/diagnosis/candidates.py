@@ -32,6 +32,10 @@ A verdict the user can trust says when it is not a clean decision:
   plausible, and the verdict says when the named one does not;
 * **trades with the model**: a candidate whose own term the fit gives back through the effects already in
   the model (a torque gain against the link inertias' scale) is said to trade places with them;
+* **relabellings** (:func:`_relabellings`): a candidate whose own term the fit gives back through an effect already
+  held, correlation near -1, is the model's term under another name: never decisive, and the verdict says so;
+* **margins** (:mod:`~sim2real.identification.diagnosis.margins`): every threshold a decision reads is read with the
+  arithmetic's margin against the decision; a figure within it names nothing, and the verdict says so;
 * **failed trials** (``failed``): a candidate extends the current model, so its fit matches the fit runs at
   least as well; one that ends far worse there (:data:`FAILED_TRIAL_FACTOR`) is a solve that failed, not an
   effect that explains nothing: it is left out of the ranking and the verdict says so.
@@ -54,11 +58,15 @@ import numpy as np
 from sim2real.forked import map_forked
 from sim2real.identification import fitting
 from sim2real.identification.diagnosis.caveats import (
-    NESTED_IN, SPANNED_BY, bound_changes, caveat_notes, effect_term, implausible_bodies, recommend, ties, trades_with_model,
+    NESTED_IN, SPANNED_BY, bound_changes, caveat_notes, effect_term, implausible_bodies, recommend, relabelling, ties,
+    trades_with_model,
 )
 from sim2real.identification.diagnosis.current import CurrentResidual
 from sim2real.identification.diagnosis.lags import after_other_shape, other_shapes, same_lag, screen_lags, shapes_note
 from sim2real.identification.diagnosis.raises import raise_notes, set_aside_raisers
+from sim2real.identification.diagnosis.margins import (
+    CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor, near_threshold_notes, near_thresholds,
+)
 from sim2real.identification.diagnosis.result import Candidate, Diagnosis
 from sim2real.identification.diagnosis.screens import screen_ripples
 from sim2real.identification.effects import EFFECTS
@@ -340,24 +348,24 @@ def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: 
     joints = list(context.holdout_data.joint_names)
     broken = failed_trial(result, current, context.fit_data)
     scores = _scores(trial[1], now, broken is not None, limits)
-    arm_wide = scores["beyond"] >= limits["min_explained"] and scores["explained"] >= limits["min_gain"]
-    # A joint above its floor whose excess the candidate mostly removes names it on that joint, however
-    # small that joint's share of the arm; never at the price of the arm as a whole (gain > 0).
-    # Nor at the price of another joint: one pushed further above its floor is no joint's fix.
-    on_joints = [j for j, x, v in zip(joints, now.x_floor, scores["per_joint_beyond"], strict=True)
-                 if x > limits["noise_floor_factor"] and v >= limits["joint_decisive"]
-                 ] if scores["gain"] > 0 and not any(scores["harmed"]) else []
     # Named on the joints where its own term shows, not where the residual fell because the rest of the
     # model no longer bends to soak it up (joint 7's friction frees the link inertias of joints 2 to 6).
     own = _own_term_x_floor(result, name, context.nominal, context.holdout_data, context.holdout_signals, now.unit)
     seen = [True] * len(joints) if own is None else [bool(o >= OWN_TERM_MIN) for o in own]
-    on_joints = [j for j in on_joints if seen[joints.index(j)]]
+    # A joint above its floor whose excess the candidate mostly removes names it on that joint, however small that
+    # joint's share of the arm; never at the price of the arm as a whole, nor of another joint (diagnosis.margins).
+    # Each threshold read with the arithmetic's margin against the decision: a figure within it names nothing.
+    decision = decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, CONSERVATIVE)
+    arm_wide, on_joints = decision.arm_wide, list(decision.on_joints)
     acting = [j for j, v, ok in zip(joints, scores["per_joint_beyond"], seen, strict=True)
               if v >= limits["joint_min_explained"] and ok]
-    decisive = arm_wide or bool(on_joints)
+    decisive = decision.decisive
     evidence = _evidence(name, trial, scores, context, now, current, own)
     if broken is not None:
         evidence["fit_failed"] = broken
+    elif decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, PERMISSIVE).decisive != decisive:
+        evidence["near_threshold"] = [n.as_document() for n in
+                                      near_thresholds(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN)]
     return {
         "effect": name,
         "link": EFFECTS[name].side if side == Side.COMBINED else side,  # a drive effect's follows the torque sensor
@@ -404,6 +412,36 @@ def _named_notes(best: Mapping[str, Any], candidates: Sequence[Mapping[str, Any]
     return notes + caveat_notes(best, group)
 
 
+def _relabellings(candidates: Sequence[dict[str, Any]], failed: Mapping[str, Any],
+                  trials: Mapping[str, tuple[fitting.FitResult, np.ndarray]], current: fitting.FitResult | None,
+                  context: fitting.FitContext, now: CurrentResidual,
+                  ) -> tuple[dict[str, list[dict[str, Any]]], dict[str, list[dict[str, Any]]]]:
+    """The decisive candidates whose own term is the model's relabelled (:func:`~sim2real.identification.diagnosis.
+    caveats.relabelling`), each with its trades: they are made not decisive (named nowhere, whatever they seem to
+    remove: the fall is the model's own term under another name) and their trades kept in their evidence. Also every
+    decisive candidate's trades (:func:`trades_with_model`), for the caveats of the one named."""
+    out, trades_of = {}, {}
+    for c in candidates:
+        if current is None or not c["decisive"] or c["effect"] in failed:
+            continue
+        trades_of[c["effect"]] = trades_with_model(trials[c["effect"]][0], current, c["effect"], context.nominal,
+                                                   context.holdout_data, context.holdout_signals, now.unit)
+        if demote_relabelling(c, trades_of[c["effect"]]):
+            out[c["effect"]] = c["evidence"]["relabels"]
+    return out, trades_of
+
+
+def demote_relabelling(candidate: dict[str, Any], trades: Sequence[Mapping[str, Any]]) -> bool:
+    """Make ``candidate`` not decisive when its ``trades`` with the model (:func:`~sim2real.identification.diagnosis.
+    caveats.trades_with_model`) make it a relabelling (:func:`~sim2real.identification.diagnosis.caveats.relabelling`),
+    keeping them in its evidence (``relabels``); whether it did."""
+    relabels = relabelling(trades)
+    if relabels:
+        candidate["evidence"]["relabels"] = relabels
+        candidate.update({"decisive": False, "decided_on": None, "joints": []})
+    return bool(relabels)
+
+
 def _status(best: Mapping[str, Any] | None, recommended: Mapping[str, Any] | None, above: Sequence[str]) -> Status:
     if best is not None and best["decisive"]:
         return Status.ADD_EFFECT if recommended is not None else Status.NOT_TOLD_APART
@@ -427,7 +465,7 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
     limits = {**DEFAULT_DIAGNOSIS, **(limits or {})}
     joints = list(context.holdout_data.joint_names)
     now = CurrentResidual.of(holdout_residual, context.holdout_data.noise_floor)
-    above = [j for j, x in zip(joints, now.x_floor, strict=True) if x > limits["noise_floor_factor"]]
+    above = above_floor(joints, now.x_floor, limits["noise_floor_factor"])  # clearly above: by more than the margin
     trials, tried, skipped = _tried(model_effects, context, now, current, limits, candidates)
     tried_candidates, residuals_after, failed = [], {}, {}
     for name in tried:
@@ -438,6 +476,7 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
         else:
             failed[name] = broken
     raised = set_aside_raisers(tried_candidates, residuals_after, now, joints)  # no rung raises a joint
+    relabelled, trades_of = _relabellings(tried_candidates, failed, trials, current, context, now)
     ranked = _rank([c for c in tried_candidates if c["effect"] not in failed], float(limits["parsimony_noise_fraction"]))
     ranked += [c for c in tried_candidates if c["effect"] in failed]  # last, whatever they would have scored
     confounded = _confounded(ranked, residuals_after, CONFOUNDED_NOISE_FRACTION, float(limits["min_gain"]))
@@ -445,9 +484,7 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
     group = [ranked[0], *tied_with_best] if tied_with_best else []  # the best and those it is not told apart from
     if current is not None:
         for c in (group or ranked[:1]) if ranked and ranked[0]["decisive"] else []:
-            c["evidence"]["trades_with"] = trades_with_model(trials[c["effect"]][0], current, c["effect"],
-                                                             context.nominal, context.holdout_data,
-                                                             context.holdout_signals, now.unit)
+            c["evidence"]["trades_with"] = trades_of[c["effect"]]  # every decisive candidate's, found above
     ranked, recommended = recommend(ranked, tied_with_best)
     best = ranked[0] if ranked else None
     status = _status(best, recommended, above)
@@ -456,6 +493,9 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
     notes += raise_notes(raised, best)
     if failed:
         notes.append(Note(NoteKind.FAILED_TRIALS, figures={"failed": {k: failed[k] for k in sorted(failed)}}))
+    if relabelled:
+        notes.append(Note(NoteKind.RELABELLED, figures={"relabelled": relabelled}))
+    notes += near_threshold_notes(ranked, group, joints_near_floor(joints, now.x_floor, limits["noise_floor_factor"]))
     return Diagnosis(
         side=side, status=status, candidates=tuple(_typed(c) for c in ranked), confounded=tuple(confounded),
         tied=tuple(c["effect"] for c in group), residual_rmse=round(now.rmse, 6),

@@ -19,6 +19,7 @@ import numpy as np
 
 from sim2real.identification import fitting
 from sim2real.identification.diagnosis.lags import same_lag
+from sim2real.identification.diagnosis.margins import tie_near
 from sim2real.identification.effects.base import Signals
 from sim2real.identification.records import Note, NoteKind
 
@@ -52,6 +53,17 @@ TRADE_NET = 0.5
 TRADE_CORRELATION = -0.5
 
 
+# A trade this close to a correlation of -1, which leaves the prediction within the noise floor of the current one
+# (its net move, RMS over the holdout, at most RELABEL_NET x the floor), is no new term at all: the candidate's own
+# term is an effect of the model relabelled, its fall the current model's (relabelling), and it is never named. A
+# torque gain against the link inertias' scale trades as closely (-0.997 on the lab's sensor_gains arm) but moves
+# the prediction by several floors: a change the data resolve, named with its caution.
+RELABEL_CORRELATION = -0.95
+
+
+RELABEL_NET = 1.0
+
+
 # Two candidates act "on the same joints" when the joints each is named on overlap by this share (Jaccard).
 TIE_JOINT_OVERLAP = 0.5
 
@@ -73,8 +85,9 @@ def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name
     """Effects already in the model that the candidate ``name`` trades places with: adding it, the fit moves their
     terms against the candidate's own (a torque gain against the link inertias' scale) until the prediction moves
     by at most :data:`TRADE_NET` of the own term. On these runs they are confounded: the candidate's fall is the
-    model's effect relabelled. Each with the size of its move (x the own term's RMS) and its correlation with the
-    own term, in floor units on the holdout; empty when the candidate adds a term of its own."""
+    model's effect relabelled. Each with the size of its move (x the own term's RMS), its correlation with the
+    own term, in floor units on the holdout, and the net move of the prediction (RMS, x the floor); empty when the
+    candidate adds a term of its own."""
     own = effect_term(trial, name, nominal, data, signals)
     if own is None:
         return []
@@ -97,7 +110,8 @@ def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name
         if after is not None and before is not None:
             moves[effect] = (after - before) / unit
     net = own + sum(moves.values(), np.zeros_like(own))
-    if float(np.sqrt(np.mean(net**2))) > TRADE_NET * size:
+    net_size = float(np.sqrt(np.mean(net**2)))
+    if net_size > TRADE_NET * size:
         return []
     out = []
     for effect, change in moves.items():
@@ -105,8 +119,16 @@ def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name
         correlation = float(np.sum(change * own) / denominator) if denominator > 0 else 0.0
         if correlation <= TRADE_CORRELATION:
             out.append({"effect": effect, "moved_x_own_term": round(float(np.sqrt(np.mean(change**2))) / size, 3),
-                        "correlation": round(correlation, 3)})
+                        "correlation": round(correlation, 3), "net_x_floor": round(net_size, 3)})
     return out
+
+
+def relabelling(trades: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The trades (:func:`trades_with_model`) that make a candidate a relabelling of the model: its own term given
+    back through an effect already held, correlation near -1 (:data:`RELABEL_CORRELATION`), the prediction unchanged
+    within the noise floor (:data:`RELABEL_NET`)."""
+    return [dict(t) for t in trades
+            if t["correlation"] <= RELABEL_CORRELATION and t.get("net_x_floor", np.inf) <= RELABEL_NET]
 
 
 def _block_sse(scaled: np.ndarray, blocks: int) -> np.ndarray:
@@ -182,9 +204,10 @@ def ties(candidates: list[dict[str, Any]], residuals: Mapping[str, np.ndarray], 
                 or _overlap(best["joints"], c["joints"]) < TIE_JOINT_OVERLAP):
             continue
         same, difference, spread = tied(_block_sse(residuals[c["effect"]], blocks), best_blocks)
-        if same:
+        near = tie_near(difference, spread, TIE_SPREAD)  # within the arithmetic's margin of the bound: tied
+        if same or near:
             c["evidence"]["tie_with_best"] = {"difference": round(difference, 3), "spread": round(spread, 3),
-                                              "blocks": blocks}
+                                              "blocks": blocks, **({"near_threshold": True} if near else {})}
             out.append(c)
     return out
 

@@ -226,14 +226,16 @@ def _consistent_fit(
         record["inertia_prior"] = prior
     weight = float(relative) * max(floor, 1e-12)
     try:
-        theta, status, solve_time = _solve_physical(problem, data, nonlinear, weighted, bounds, inertial, weight, blocks)
+        theta, solution, solve_time = _solve_physical(problem, data, nonlinear, weighted, bounds, inertial, weight, blocks)
     except InfeasibleFit as exc:
         record["status"] = "infeasible"
         record["notes"].append(Note(NoteKind.CONSISTENCY_INFEASIBLE, figures={"reason": str(exc)}).as_document())
         return theta_free, free_residual, record
     del weighted  # before the prediction (a long log's largest array, when it was put together)
     residual = data.tau - problem.predict(theta, nonlinear)
-    record.update({"status": status, "solve_time_s": solve_time})
+    record.update({"status": solution.status, "solve_time_s": solve_time})
+    if solution.check is not None and not solution.check.plain:  # the solver's word judged by measured residuals
+        record["solver"] = solution.check.as_document()
     _contradiction(problem, theta_free, free_residual, residual, floor, record)
     return theta, residual, record
 
@@ -283,8 +285,9 @@ def _inertia_prior(problem: _Problem, data: TorqueData, nonlinear: Mapping[str, 
 def _solve_physical(problem: _Problem, data: TorqueData, nonlinear: Mapping[str, np.ndarray], weighted: Any,
                     bounds: np.ndarray, inertial: Any, weight: float,
                     blocks: Sequence[tuple[Effect, slice, np.ndarray, np.ndarray | None]],
-                    ) -> tuple[dict[str, np.ndarray], str, float]:
-    """(theta, the solver's status, its time) of the physically consistent solve; offsets that are not linear (a
+                    ) -> tuple[dict[str, np.ndarray], Any, float]:
+    """(theta, the last solve's :class:`~sim2real.identification.inertial.program.ConsistentSolution`, the solves'
+    time) of the physically consistent solve; offsets that are not linear (a
     payload's own inertia) by fixed-point iteration. Raises InfeasibleFit when there is no consistent solution."""
     from sim2real.identification.inertial import InfeasibleFit, physically_consistent, solve_consistent
 
@@ -317,7 +320,7 @@ def _solve_physical(problem: _Problem, data: TorqueData, nonlinear: Mapping[str,
                                      + state["null_offset"]):
             raise InfeasibleFit(f"the solver's solution ({solution.status}) leaves a body's pseudo-inertia "
                                 "indefinite")
-    return theta, solution.status, solve_time
+    return theta, solution, solve_time
 
 
 def _contradiction(problem: _Problem, theta_free: dict[str, np.ndarray], free_residual: np.ndarray,

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sim2real.identification.inertial.geometry import PARAMS_PER_BODY, PD_MARGIN, PSEUDO_BASIS, InertialBlock, pseudo_inertia
+from sim2real.identification.inertial.judged import SolveCheck
 
 # Clarabel's statuses, named as cvxpy names them.
 SOLVED = {"Solved": "optimal", "AlmostSolved": "optimal_inaccurate"}
@@ -32,6 +33,22 @@ NO_SOLUTION = {"PrimalInfeasible": "infeasible", "DualInfeasible": "unbounded",
                "MaxIterations": "user_limit", "MaxTime": "user_limit"}
 
 _SQRT2 = np.sqrt(2.0)
+
+
+# The precise solve's tolerances (Clarabel's tol_feas and tol_gap_*; its defaults are 1e-8).
+PRECISE_TOLERANCE = 1e-11
+
+
+@dataclass(frozen=True)
+class ConicSolution:
+    """A solve's scaled coefficients (None without a solution), its status as cvxpy names it, its objective, and how
+    a precise solve's status was judged (:class:`~sim2real.identification.inertial.judged.SolveCheck`; None for a
+    solve that is not precise or found no solution)."""
+
+    z: np.ndarray | None
+    status: str
+    objective: float
+    check: SolveCheck | None
 
 
 class SolverFailed(RuntimeError):
@@ -203,46 +220,65 @@ class ConicForm:
             clarabel.PSDTriangleConeT(n) for n in psd_sizes] + [clarabel.ExponentialConeT() for _ in range(exp)]
         return a, self.b, cones
 
-    def solve(self, root: np.ndarray, target_root: np.ndarray, weight: float,
-              inverse_scale: np.ndarray, precise: bool = True) -> tuple[np.ndarray | None, str, float]:
-        """min ||root z - target_root||^2 + weight * (the bodies' divergence) under the constraints: (z or None,
-        the status as cvxpy names it, the objective). Clarabel on one thread: a forked worker inherits no thread
-        pool, and any number of cores gives the same bits. Its tolerances are 1e-11, a thousandth of its defaults: a
-        few more iterations of a 30 ms solve, and the solution then moves by ~1e-6 of itself between two equivalent
-        forms of the program (cvxpy's and this one), rather than 1e-4, in the flat directions the prior holds.
-        Should that stall, it solves again at its default tolerances; raises :class:`SolverFailed` if that fails too.
-        ``precise=False``: 1e-6 from the start (the prior's held-out scores, compared within 1 %: a score then moves by
-        up to 2e-4 of itself, a fiftieth of that, and a fold's solve takes a fifth fewer iterations)."""
-        import clarabel
-        import scipy.sparse as sp
-
+    def _problem(self, root: np.ndarray, target_root: np.ndarray, weight: float,
+                 inverse_scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The data term's Gram block of P and q of the program at this data, weight and column scale."""
         p = self.p
         gram = 2.0 * (root.T @ root)
-        rows, cols = np.triu_indices(p)
-        big_p = sp.csc_matrix((gram[rows, cols], (rows, cols)), shape=(self.n, self.n))
         q = np.zeros(self.n)
         q[:p] = -2.0 * (root.T @ target_root)
         for b in range(self.bodies):  # weight * (tr J~ - sum t - 4): tr J~ = 4 + tr(lift_k) s_k z_k
             cols_b = self.columns[b]
             q[cols_b] += weight * self.traces[b] * inverse_scale[cols_b]
             q[self._z_var(b, 10) : self._z_var(b, 14)] = -weight
+        return gram, q
+
+    def solve(self, root: np.ndarray, target_root: np.ndarray, weight: float,
+              inverse_scale: np.ndarray, precise: bool = True, tolerance: float | None = None) -> ConicSolution:
+        """min ||root z - target_root||^2 + weight * (the bodies' divergence) under the constraints (:class:`ConicSolution`).
+        Clarabel on one thread: a forked worker inherits no thread
+        pool, and any number of cores gives the same bits. Its tolerances are ``tolerance`` (:data:`PRECISE_TOLERANCE`, 1e-11), a thousandth of its
+        defaults: a few more iterations of a 30 ms solve, and the solution then moves by ~1e-6 of itself between two
+        equivalent forms of the program (cvxpy's and this one), rather than 1e-4, in the flat directions the prior holds.
+        Should that stall, it solves again at its default tolerances; raises :class:`SolverFailed` if that fails too.
+        A solution Clarabel calls almost solved is judged by its measured residuals, and polished when they fall short
+        (:func:`sim2real.identification.inertial.judged.judge`).
+        ``precise=False``: 1e-6 from the start (the prior's held-out scores, compared within 1 %: a score then moves by
+        up to 2e-4 of itself, a fiftieth of that, and a fold's solve takes a fifth fewer iterations), taken as it comes."""
+        import clarabel
+        import scipy.sparse as sp
+
+        from sim2real.identification.inertial.judged import judge, measure
+
+        gram, q = self._problem(root, target_root, weight, inverse_scale)
+        rows, cols = np.triu_indices(self.p)
+        big_p = sp.csc_matrix((gram[rows, cols], (rows, cols)), shape=(self.n, self.n))
         a, b_vec, cones = self._constraints(inverse_scale)
-        for tight in (True, False) if precise else (False,):
+
+        def attempt(tight: bool) -> object:
             settings = clarabel.DefaultSettings()
             settings.verbose = False
             settings.max_threads = 1
             if tight:
-                settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = 1e-11
+                settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = tolerance or PRECISE_TOLERANCE
                 settings.tol_ktratio = 1e-9
             elif not precise:
                 settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = 1e-6
-            solution = clarabel.DefaultSolver(big_p, q, a, b_vec, cones, settings).solve()
+            return clarabel.DefaultSolver(big_p, q, a, b_vec, cones, settings).solve()
+
+        for tight in (True, False) if precise else (False,):
+            solution = attempt(tight)
             status = str(solution.status)
             if status in SOLVED or status in NO_SOLUTION:
                 break
-        constant = float(target_root @ target_root)
-        if status in SOLVED:
-            return np.asarray(solution.x, dtype=float)[:p], SOLVED[status], float(solution.obj_val) + constant
         if status in NO_SOLUTION:
-            return None, NO_SOLUTION[status], float("nan")
-        raise SolverFailed(f"Clarabel stopped: {status}")
+            return ConicSolution(None, NO_SOLUTION[status], float("nan"), None)
+        if status not in SOLVED:
+            raise SolverFailed(f"Clarabel stopped: {status}")
+        check = None
+        if precise:
+            solution, check = judge(solution, lambda: attempt(False) if tight else solution,
+                                    lambda s: measure(gram, q, a, b_vec, s))
+            status = "Solved" if check.status == "optimal" else "AlmostSolved"
+        return ConicSolution(np.asarray(solution.x, dtype=float)[: self.p], SOLVED[status],
+                             float(solution.obj_val) + float(target_root @ target_root), check)

@@ -11,6 +11,7 @@ import numpy as np
 from sim2real.identification.inertial.bands import BodyBounds
 from sim2real.identification.inertial.conic import ConicForm, SolverFailed
 from sim2real.identification.inertial.geometry import PARAMS_PER_BODY, PD_MARGIN, PSEUDO_BASIS, InertialBlock, pseudo_inertia
+from sim2real.identification.inertial.judged import SolveCheck
 from sim2real.identification.inertial.rows import DesignRows, _as_rows, _column_scale, _normal_equations
 
 @dataclass
@@ -19,6 +20,8 @@ class ConsistentSolution:
     status: str  # as cvxpy names it ("optimal", "optimal_inaccurate", ...)
     solve_time_s: float
     objective: float
+    # how the solver's word was judged (conic.ConicForm.solve); None where SCS solved, or not precisely
+    check: SolveCheck | None = None
 
 
 class InfeasibleFit(RuntimeError):
@@ -68,16 +71,17 @@ class _ConsistentProgram:
 
         self.scale = term.scale
         started = time.perf_counter()
+        check = None
         try:
-            z, status, objective = self.form.solve(term.root, term.target_root, float(regularization), 1.0 / self.scale,
-                                                   precise)
+            solved = self.form.solve(term.root, term.target_root, float(regularization), 1.0 / self.scale, precise)
+            z, status, objective, check = solved.z, solved.status, solved.objective, solved.check
         except SolverFailed:
             z, status, objective = _CvxpyProgram(*self.structure).solve_scs(
                 term.root, term.target_root, float(regularization), 1.0 / self.scale)
         elapsed = time.perf_counter() - started
         if status not in ("optimal", "optimal_inaccurate") or z is None:
             raise InfeasibleFit(f"the consistent fit found no solution (solver status: {status})")
-        return ConsistentSolution(np.asarray(z) / self.scale, status, elapsed, objective)
+        return ConsistentSolution(np.asarray(z) / self.scale, status, elapsed, objective, check)
 
 
 class _CvxpyProgram:
