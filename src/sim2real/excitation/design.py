@@ -53,7 +53,7 @@ MU_INIT = 1e-4
 LBFGS_HISTORY = 20  # pairs IPOPT's quasi-Newton Hessian keeps (default 6): a better condition number per iteration
 # The quasi-Newton pairs as extra rows of the one factorised KKT system, instead of IPOPT's default Sherman-Morrison-
 # Woodbury update, which backsolves once per column of the low-rank update at every iteration (11 of a pass's 27 s of
-# CPU): about half the time per iteration (issue 32).
+# CPU): about half the time per iteration.
 LBFGS_AUG_SOLVER = "extended"
 
 
@@ -487,9 +487,8 @@ def _peaks(joints: Sequence[str], lim: Limits, trajectory: Trajectory, tau: np.n
 def design_start(design: Design, robot: DesignRobot, log: Callable[[str], None] = lambda message: None) -> np.ndarray:
     """Where a design for any model starts: the same design for the nominal model and friction alone (what
     ``effects: []`` identifies), from a random series. It reads nothing of model.yaml, so a change of the model's
-    effects designs from here (a few seconds) rather than from a random series (issue 32: warm-started when the
-    model changes), and the result is the same bytes whatever was designed before. Coefficients: excited joints x 2
-    harmonics."""
+    effects designs from here (a few seconds) rather than from a random series, and the result is the same bytes
+    whatever was designed before. Coefficients: excited joints x 2 harmonics."""
     return design_trajectory(design, robot, [], log=log).coefficients
 
 

@@ -46,7 +46,7 @@ class InertiaBands:
     # Entropic divergence from CAD (dimensionless). Measured on the Panda lab demo (real_arm_like, 20 s runs): the
     # complete rung ends at <= 2.0 on inner links; the lab's hidden CAD errors themselves (mass +-25 %, COM 25 mm) are
     # 0.1-2.5 on all links but the thin link 2; rungs still missing friction or the sensor bias reached 6-55 on some
-    # link without the bound, and the real arm of issue 18 11-36.
+    # link without the bound, and a real Panda's logs 11-36.
     divergence: float = 5.0
 
     @classmethod
