@@ -139,7 +139,7 @@ class Lab:
                 wanted = [d["effect"] for d in declared if d and d["effect"] not in effects][:1]
             if not wanted:
                 break
-            # the lines a named effect holds go, as its verdict says (diagnosis.candidates.replaced_by)
+            # the lines a named effect holds go, as its verdict says (diagnosis.trials.replaced_by)
             removed = {line for top in tops for line in top.get("replaces", [])}
             effects = [e for e in effects if e not in removed] + wanted
             kept_on = {e: link for e, link in kept_on.items() if e in effects}

@@ -1,8 +1,9 @@
 """Diagnosis: which physical effect is the model missing, and what kind of thing is left when none is.
 
-* :mod:`~sim2real.identification.diagnosis.candidates`: every effect of the library not in the model fitted on top of it as
-  its rung would be, ranked by the holdout residual it removes (each joint in units of its own floor), ties
-  and confounded pairs called so (:func:`diagnose`);
+* :mod:`~sim2real.identification.diagnosis.trials`: every effect of the library not in the model fitted on top of it as
+  its rung would be;
+* :mod:`~sim2real.identification.diagnosis.candidates`: those trials ranked by the holdout residual each removes (each
+  joint in units of its own floor), ties and confounded pairs called so (:func:`diagnose`);
 * :mod:`~sim2real.identification.diagnosis.result`: what it returns, a typed :class:`Diagnosis` whose notes are records;
 * :mod:`~sim2real.identification.diagnosis.current`: the current residual as every decision reads it;
 * :mod:`~sim2real.identification.diagnosis.lags`, :mod:`~sim2real.identification.diagnosis.screens`: when a lag or a
@@ -20,11 +21,12 @@ lab's truth.yaml: it sees only runs.
 """
 
 from sim2real.identification.diagnosis.candidates import (
-    CONFOUNDED_NOISE_FRACTION, DEFAULT_DIAGNOSIS, HARM_TOLERANCE, add_line, candidates_to_try, diagnose, trial_fits,
+    CONFOUNDED_NOISE_FRACTION, DEFAULT_DIAGNOSIS, HARM_TOLERANCE, add_line, diagnose,
 )
 from sim2real.identification.diagnosis.caveats import NESTED_IN
 from sim2real.identification.diagnosis.ceiling import model_free_ceiling
 from sim2real.identification.diagnosis.result import Candidate, Diagnosis
+from sim2real.identification.diagnosis.trials import candidates_to_try, trial_fits
 
 __all__ = ["CONFOUNDED_NOISE_FRACTION", "DEFAULT_DIAGNOSIS", "HARM_TOLERANCE", "NESTED_IN", "Candidate", "Diagnosis",
            "add_line", "candidates_to_try", "diagnose", "model_free_ceiling", "trial_fits"]

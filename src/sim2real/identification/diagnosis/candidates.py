@@ -2,7 +2,8 @@
 
 On the holdout residual of the last rung, every effect of the library not yet in the model is
 tried: it is added to the model, the model is refitted on the fit runs, and its holdout residual
-is compared with the current one. Every residual is taken in units of each joint's own noise floor
+is compared with the current one (the trials run in :mod:`~sim2real.identification.diagnosis.trials`; this module
+scores them, ranks them and concludes). Every residual is taken in units of each joint's own noise floor
 (:func:`sim2real.identification.fitting.joint_weights`, the weights of the fit too): a wrist residual 8x its floor
 weighs what a shoulder residual 8x its floor weighs, although its N*m are ten times smaller.
 ``explained`` is the fraction of the current holdout residual energy (in those units) the candidate
@@ -37,8 +38,8 @@ A verdict the user can trust says when it is not a clean decision:
 * **margins** (:mod:`~sim2real.identification.diagnosis.margins`): every threshold a decision reads is read with the
   arithmetic's margin against the decision; a figure within it names nothing, and the verdict says so;
 * **failed trials** (``failed``): a candidate extends the current model, so its fit matches the fit runs at
-  least as well; one that ends far worse there (:data:`FAILED_TRIAL_FACTOR`) is a solve that failed, not an
-  effect that explains nothing: it is left out of the ranking and the verdict says so.
+  least as well; one that ends far worse there (:data:`~sim2real.identification.diagnosis.trials.FAILED_TRIAL_FACTOR`)
+  is a solve that failed, not an effect that explains nothing: it is left out of the ranking and the verdict says so.
 
 A candidate is decisive arm-wide (it removes ``min_explained`` of the excess above the floors), or
 on joints: a joint above ``noise_floor_factor`` x its floor whose excess it mostly removes
@@ -55,23 +56,20 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.forked import map_forked
 from sim2real.identification import fitting
 from sim2real.identification.diagnosis.caveats import (
-    NESTED_IN, SPANNED_BY, bound_changes, caveat_notes, effect_term, implausible_bodies, recommend, relabelling, ties,
-    trades_with_model,
+    bound_changes, caveat_notes, effect_term, implausible_bodies, recommend, relabelling, ties, trades_with_model,
 )
 from sim2real.identification.diagnosis.current import CurrentResidual
-from sim2real.identification.diagnosis.lags import after_other_shape, other_shapes, same_lag, screen_lags, shapes_note
+from sim2real.identification.diagnosis.lags import other_shapes, same_lag, shapes_note
 from sim2real.identification.diagnosis.raises import raise_notes, set_aside_raisers
 from sim2real.identification.diagnosis.margins import (
     CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor, near_threshold_notes, near_thresholds,
 )
 from sim2real.identification.diagnosis.result import Candidate, Diagnosis
-from sim2real.identification.diagnosis.screens import screen_ripples
+from sim2real.identification.diagnosis.trials import _tried, failed_trial, replaced_by
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Signals, per_joint_dict
-from sim2real.identification.inertial import import_solver
 from sim2real.identification.records import Note, NoteKind, Side, Status
 
 DEFAULT_DIAGNOSIS: dict[str, float] = {
@@ -99,31 +97,6 @@ HARM_TOLERANCE = 0.1
 OWN_TERM_MIN = 0.5
 
 
-# A trial whose fit on the fit runs ends this many times further from them (x the floors) than the model it extends
-# did not solve: the extended model holds the current one (its own coefficients zero), at the same prior weight.
-FAILED_TRIAL_FACTOR = 2.0
-
-
-def _fit_x_floor(result: fitting.FitResult, data: fitting.TorqueData) -> float:
-    """A fit's RMS on its own runs, each joint in units of its floor, arm-wide."""
-    floor = np.asarray(data.noise_floor, dtype=float)
-    per_joint = np.array([result.fit_rmse["per_joint"][j] for j in data.joint_names], dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(floor > 0, per_joint / floor, per_joint)
-    return float(np.sqrt(np.mean(ratio**2)))
-
-
-def failed_trial(result: fitting.FitResult, current: fitting.FitResult | None,
-                 data: fitting.TorqueData) -> dict[str, float] | None:
-    """The fit-run figures of a trial that failed to solve (:data:`FAILED_TRIAL_FACTOR`), or None."""
-    if current is None:
-        return None
-    trial, model = _fit_x_floor(result, data), _fit_x_floor(current, data)
-    if not np.isfinite(trial) or trial > FAILED_TRIAL_FACTOR * max(model, 1e-12):
-        return {"fit_x_floor": round(trial, 4) if np.isfinite(trial) else None, "model_fit_x_floor": round(model, 4)}
-    return None
-
-
 def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: fitting.TorqueData,
                       signals: Signals, unit: np.ndarray) -> np.ndarray | None:
     """RMS per joint of what the effect ``name`` itself adds to the prediction, x each joint's floor
@@ -135,21 +108,6 @@ def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: 
 def add_line(effect: str) -> str:
     """The exact line to add under ``effects:`` in configs/{robot}/model.yaml."""
     return f"- {effect}"
-
-
-def replaced_by(name: str, model_effects: Sequence[str]) -> list[str]:
-    """The effects of the model whose columns lie in the span of the candidate ``name``'s (:data:`SPANNED_BY`: a
-    payload in the link inertias'). Its trial drops them and the verdict says to remove their lines: both in one model
-    put the same torque in two sets of columns, a fit that only the inertial prior keeps from singular, and one that
-    goes wrong where the prior is weak."""
-    return [held for held in model_effects if held in SPANNED_BY.get(name, ())]
-
-
-def trial_effects(model_effects: Sequence[str], name: str) -> list[str]:
-    """The model a trial of ``name`` fits, as the user's model.yaml will list it: the candidate's line added at the end,
-    the lines it holds removed (:func:`replaced_by`)."""
-    replaced = replaced_by(name, model_effects)
-    return [e for e in model_effects if e not in replaced] + [name]
 
 
 def _sse(residual: np.ndarray) -> np.ndarray:
@@ -205,90 +163,6 @@ def _confounded(
             if float(np.sqrt(np.mean((residuals[a] - residuals[b]) ** 2))) <= tolerance:
                 pairs.append((a, b))
     return pairs
-
-
-def candidates_to_try(model_effects: Sequence[str], torque_source: str, forward: bool,
-                      candidates: Sequence[str] | None = None) -> tuple[list[str], list[Note]]:
-    """The effects of ``candidates`` (default: the library) :func:`diagnose` fits on top of ``model_effects``, and
-    those it does not, each a note of why; ``torque_source`` is the judged torque's, ``forward`` the signals' (the
-    drive side predicts the measured torque from the command)."""
-    tried: list[str] = []
-    skipped: list[Note] = []
-    for name in candidates if candidates is not None else EFFECTS:
-        effect = EFFECTS[name]
-        if name in model_effects:
-            continue
-        holder = next((held for held in model_effects if name in NESTED_IN.get(held, ())), None)
-        if effect.per_run:
-            skipped.append(Note(NoteKind.PER_RUN, effect=name))
-        elif holder is not None:
-            skipped.append(Note(NoteKind.NESTED, effect=name, figures={"holder": holder}))
-        elif effect.needs_commands and torque_source != "tau_cmd" and not forward:
-            skipped.append(Note(NoteKind.DRIVE_BEHIND_SENSOR, effect=name))
-        elif effect.sensor_side and (torque_source == "tau_cmd" or forward):
-            skipped.append(Note(NoteKind.SENSOR_ON_COMMANDS, effect=name))
-        else:
-            tried.append(name)
-    return tried, skipped
-
-
-def _trial_way(item: tuple[str, Mapping[str, Any]], model_effects: Sequence[str], **inputs: Any,
-               ) -> tuple[fitting.FitResult, np.ndarray] | None:
-    """One way (:func:`sim2real.identification.fitting.previous_ways`) of fitting the candidate ``item[0]`` on the current model,
-    and its holdout residual (:func:`sim2real.identification.fitting.rung.fit_way`)."""
-    name, way = item
-    replaced = replaced_by(name, model_effects)
-    # the held or starting nonlinear parameters of the lines the candidate replaces have no place in its model
-    way = {key: ({e: v for e, v in value.items() if e not in replaced} if isinstance(value, Mapping) else value)
-           for key, value in way.items()}
-    return fitting.fit_way(way, effect_names=trial_effects(model_effects, name), **inputs)
-
-
-def trial_fits(names: Sequence[str], model_effects: Sequence[str], context: fitting.FitContext,
-               nonlinear_fixed: Mapping[str, np.ndarray] | None) -> dict[str, tuple[fitting.FitResult, np.ndarray]]:
-    """Each candidate of ``names`` fitted as its rung will be: the current nonlinear parameters (``nonlinear_fixed``)
-    refined again or held, whichever predicts better (:func:`sim2real.identification.fitting.fit_on_the_previous`);
-    (fit, holdout residual).
-
-    Every way of every candidate is one piece of work, on up to ``context.workers`` processes side by side
-    (:func:`sim2real.forked.map_forked`: the same numbers as one after the other). The candidates' first ways
-    go first (they refine, and take longest).
-    """
-    previous = fitting.previous_nonlinear(nonlinear_fixed)
-    ways = fitting.previous_ways(previous, uncertainty=False)
-    items = [(name, way) for way in ways for name in names]
-    if context.workers > 1 and len(items) > 1:
-        import_solver()
-    inputs = {key: value for key, value in fitting.way_inputs([], context).items() if key != "effect_names"}
-    fits = map_forked(_trial_way, items, context.workers, {"model_effects": list(model_effects), **inputs})
-    out = {}
-    for name in names:
-        candidate = [fit for (item_name, _), fit in zip(items, fits, strict=True) if item_name == name]
-        result, residual, _ = fitting.better_way(
-            candidate, trial_effects(model_effects, name), context,
-            {e: v for e, v in previous.items() if e not in replaced_by(name, model_effects)}, uncertainty=False)
-        out[name] = (result, residual)
-    return out
-
-
-def _tried(model_effects: Sequence[str], context: fitting.FitContext, now: CurrentResidual,
-           current: fitting.FitResult | None, limits: Mapping[str, float],
-           candidates: Sequence[str] | None) -> tuple[dict[str, tuple[fitting.FitResult, np.ndarray]], list[str], list[Note]]:
-    """The trials of the candidates worth one (screened: :mod:`~sim2real.identification.diagnosis.lags`,
-    :mod:`~sim2real.identification.diagnosis.screens`), the names tried in order and the notes of those skipped."""
-    tried, skipped = candidates_to_try(model_effects, context.holdout_data.torque_source,
-                                       context.holdout_signals.forward, candidates)
-    # A lag is fitted only where it could matter (diagnosis.lags): screened, or waiting for its other shape's trial.
-    waiting = screen_lags(tried, skipped, current, context, now, limits)
-    # A ripple is fitted only where some joint's residual repeats with its position (diagnosis.screens).
-    screen_ripples(tried, skipped, current, context, now, limits)
-    fixed = current.nonlinear if current is not None else None
-    trials = trial_fits(tried, model_effects, context, fixed)
-    second = after_other_shape(waiting, trials, skipped, now, limits)
-    if second:
-        trials.update(trial_fits(second, model_effects, context, fixed))
-        tried += second
-    return trials, tried, skipped
 
 
 def _scores(residual: np.ndarray, now: CurrentResidual, broken: bool,

@@ -30,7 +30,7 @@ NESTED_IN: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",), "asymmetr
                                         "sensor_drift": ("torque_bias",), "load_friction": ("coulomb_friction",)}
 # Of those, the special cases whose columns lie in the span of the larger effect's (a payload's are the last link's
 # inertial columns): both in one model fit the same torque twice, a fit only the inertial prior keeps from singular,
-# so the larger effect replaces the line (diagnosis.candidates.replaced_by). A Coulomb friction beside an asymmetric
+# so the larger effect replaces the line (diagnosis.trials.replaced_by). A Coulomb friction beside an asymmetric
 # one is not: a second sigmoid of its own slope, another shape of friction. A load friction's unloaded level is the
 # Coulomb friction's very column.
 SPANNED_BY: dict[str, tuple[str, ...]] = {"link_inertia": ("payload",), "load_friction": ("coulomb_friction",)}
@@ -92,7 +92,7 @@ def trades_with_model(trial: fitting.FitResult, current: fitting.FitResult, name
     if own is None:
         return []
     for effect in current.effects:
-        # a line the candidate replaces (diagnosis.candidates.replaced_by) hands it its term by design: what the
+        # a line the candidate replaces (diagnosis.trials.replaced_by) hands it its term by design: what the
         # candidate adds of its own is its term less that one
         replaced = effect_term(current, effect, nominal, data, signals) if effect not in trial.effects else None
         if replaced is not None:
