@@ -422,7 +422,7 @@ FEATURE_TEXT = {
 
 
 def feature_text(feature: Mapping[str, Any] | str) -> str:
-    """A learner's feature (:func:`sim2real.identification.diagnosis.ceiling.feature`) in words."""
+    """A learner's feature (:func:`sim2real.identification.diagnosis.ceiling_features.feature`) in words."""
     if isinstance(feature, str):
         return feature
     if feature["feature"] == "periodic_position":

@@ -15,6 +15,7 @@
 * :mod:`~sim2real.identification.diagnosis.ceiling`: the model-free ceiling, a flexible learner on the motion fitted to the
   last rung's residual: how much any function of the motion could still explain, and, when that is little,
   what the rest follows (time within a run, the run, the history since a reversal).
+  The features its learners read: :mod:`~sim2real.identification.diagnosis.ceiling_features`.
 
 Nothing here writes a sentence: :mod:`sim2real.report.verdicts` words the diagnosis. The diagnosis never looks at the
 lab's truth.yaml: it sees only runs.

@@ -16,17 +16,22 @@ holdout runs, like every rung. Per joint, above its floor:
   of motion, fitted on the fit runs and judged on the holdout: hysteresis, presliding friction).
 
 The learner runs on one OpenMP thread with a fixed seed: the same numbers on every machine's core count.
+This module fits the learners and reads them; the features they read are built in
+:mod:`~sim2real.identification.diagnosis.ceiling_features`.
 """
 
 from __future__ import annotations
 
 import importlib
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from sim2real.identification.diagnosis.ceiling_features import (
+    DYNAMICS_LEARNER, DYNAMICS_TREES, POSE_LEARNERS, LearnerFeatures, _chosen_features, dynamics_features, feature,
+    motion_features, period_harmonics, pose_features, position_harmonics, signed_products, since_reversal,
+)
 from sim2real.identification.effects.position_ripple import best_periods
 
 # The learner's holdout RMSE at or above this fraction of the rung's: what is left is not a function of the
@@ -47,28 +52,13 @@ LEARNER = ("per joint, the best on the holdout runs of five learners fitted on t
            "position fits best (a ripple of any period), and two ridge regressions on the pose, which carry a function of "
            "it to poses the fit runs never visited: on the joint's gravity torque under unit gravity along the base's x, "
            "y and z, and on those with the sine and cosine of every joint's angle")
-DYNAMICS_TREES = "trees on the joint's dynamics"
-# Ridge regressions on features of the pose that carry a function of it to poses the fit runs never visited (trees
-# on a 7-dimensional pose do not): the joint's generalized gravity under unit gravity along the base's x, y and z
-# (what a gravity turned sideways, a mount off level, adds: exactly linear in them), and those beside the sine and
-# cosine of every joint's angle (what the kinematics turns a pose into: a cable's or a spring's pull). Their
-# regularisation is chosen on contiguous blocks of the fit runs: a pose the next block visits is not one the
-# learner saw (leave-one-sample-out would choose by neighbours and extrapolate noise).
-GRAVITY_LEARNER = "a ridge regression on the joint's gravity torque under unit gravity along x, y and z"
-POSE_LEARNER = "a ridge regression on the pose"
-POSE_LEARNERS = (GRAVITY_LEARNER, POSE_LEARNER)
+# The pose learners' regularisation is chosen on contiguous blocks of the fit runs: a pose the next block
+# visits is not one the learner saw (leave-one-sample-out would choose by neighbours and extrapolate noise).
 POSE_BLOCKS = 5
 # The pose's features that a gravity turned sideways follows: where they carry a pose learner's gain, the effect
 # of the library that models it is named.
 SIDEWAYS = ("gravity_along_x", "gravity_along_y")
 MOUNT_EFFECT = "base_mount"
-DYNAMICS_LEARNER = "a ridge regression on the joint's dynamics times the sign of its velocity"
-# Harmonics of a joint's own position: sin and cos of k * q for k = 1..POSITION_HARMONICS (periods down to 2 pi / 40
-# = 0.16 rad of the joint), what a cogging or a gear's ripple follows, periodic wherever the runs go.
-POSITION_HARMONICS = 40
-# A ripple whose period is no whole fraction of a turn parts from those harmonics beyond the positions the fit runs
-# visit: its own period (position_ripple.best_periods, on the fit runs) and this many of its harmonics.
-PERIOD_HARMONICS = 3
 # What sits at an offset of its own in each run or drifts within one is the sensor's, not the robot's; yet every fit
 # takes part of it for the robot (a link inertia fitted to one run's offset misses the next run's, and a candidate
 # the library has can then fail its trial): said where the ceiling finds it, with what a user does about it.
@@ -96,82 +86,10 @@ def _train_rows(n: int) -> slice:
     return slice(None, None, max(1, -(-n // MAX_TRAIN_ROWS)))
 
 
-def position_harmonics(q: np.ndarray) -> np.ndarray:
-    """(N, 2K) sin and cos of k * q, k = 1..:data:`POSITION_HARMONICS`, of one joint's position."""
-    k = np.arange(1, POSITION_HARMONICS + 1)
-    return np.hstack([np.sin(np.outer(q, k)), np.cos(np.outer(q, k))])
-
-
-def period_harmonics(q: np.ndarray, period: float) -> np.ndarray:
-    """(N, 2K) sin and cos of 2 pi k q / ``period``, k = 1..:data:`PERIOD_HARMONICS`, of one joint's position."""
-    k = np.arange(1, PERIOD_HARMONICS + 1)
-    angle = np.outer(q, 2 * np.pi * k / period)
-    return np.hstack([np.sin(angle), np.cos(angle)])
-
-
 def _harmonic_learner() -> Any:
     from sklearn.linear_model import RidgeCV
 
     return RidgeCV(alphas=np.logspace(-3, 3, 13))
-
-
-def motion_features(data: Any) -> tuple[np.ndarray, list[dict[str, str]]]:
-    """(N, 3n) q, qd, qdd of every joint, and each column's feature (:func:`feature`)."""
-    joints = list(data.joint_names)
-    names = [feature(kind, joint) for kind in ("position", "velocity", "acceleration") for joint in joints]
-    return np.hstack([data.q, data.qd, data.qdd]), names
-
-
-def feature(kind: str, joint: str, **figures: float) -> dict[str, Any]:
-    """A learner's feature as data (the report words it): its ``kind`` (``position``, ``velocity``, ``acceleration``,
-    ``predicted_torque``, ``velocity_sign``, ``speed``, ``gravity_torque``, ``torque_times_sign``,
-    ``abs_torque_times_sign``, ``periodic_position``), the joint it is of, and its figures (a ripple's ``period``)."""
-    return {"feature": kind, "joint": joint, **figures}
-
-
-def dynamics_features(data: Any, residual: np.ndarray, gravity: np.ndarray | None) -> np.ndarray:
-    """(N, n, k) per joint: the torque the last rung predicts (the judged torque less its residual), the sign and the
-    magnitude of the velocity, and the gravity torque when the nominal model gives it (``gravity``, (N, n))."""
-    features = [np.asarray(data.tau, dtype=float) - residual, np.sign(data.qd), np.abs(data.qd)]
-    if gravity is not None:
-        features.append(np.asarray(gravity, dtype=float))
-    return np.stack(features, axis=2)
-
-
-def dynamics_names(joint: str, k: int) -> list[dict[str, Any]]:
-    """The features of :func:`dynamics_features`' ``k`` columns of ``joint``."""
-    return [feature(kind, joint) for kind in ("predicted_torque", "velocity_sign", "speed", "gravity_torque")][:k]
-
-
-def signed_products(features: np.ndarray) -> np.ndarray:
-    """(N, 3) of one joint's :func:`dynamics_features` (N, k): the sign of its velocity, and the torque the rung
-    predicts times that sign, as it is and in magnitude. A friction that grows with the load is such a product: trees
-    on the factors cannot carry it to a run whose torques lie elsewhere, a line on the products can. The gravity
-    torque and the speed stay out: nearly the predicted torque on a shoulder, a line in them extrapolates noise."""
-    sign = features[:, 1]
-    return np.column_stack([sign, features[:, 0] * sign, np.abs(features[:, 0]) * sign])
-
-
-def signed_names(joint: str) -> list[dict[str, Any]]:
-    """The features of :func:`signed_products`' columns of ``joint``."""
-    return [feature(kind, joint) for kind in ("velocity_sign", "torque_times_sign", "abs_torque_times_sign")]
-
-
-def pose_features(q: np.ndarray, unit_gravity: np.ndarray, j: int, learner: str = POSE_LEARNER) -> np.ndarray:
-    """(N, 3 + 2n) of joint ``j``: its generalized gravity under unit gravity along x, y, z (``unit_gravity``, (N, n,
-    3): :meth:`sim2real.assets.dynamics.RigidBodyModel.unit_gravity`), and sin, cos of every joint's angle; the
-    first three alone for :data:`GRAVITY_LEARNER`."""
-    if learner == GRAVITY_LEARNER:
-        return np.asarray(unit_gravity[:, j, :], dtype=float)
-    return np.hstack([unit_gravity[:, j, :], np.sin(q), np.cos(q)])
-
-
-def pose_names(joints: Sequence[str], j: int, learner: str = POSE_LEARNER) -> list[dict[str, Any]]:
-    """The features of :func:`pose_features`' columns of joint ``j``."""
-    gravity = [feature(kind, joints[j]) for kind in ("gravity_along_x", "gravity_along_y", "gravity_along_z")]
-    if learner == GRAVITY_LEARNER:
-        return gravity
-    return gravity + [feature("sin_position", joint) for joint in joints] + [feature("cos_position", joint) for joint in joints]
 
 
 def _pose_learner() -> Any:
@@ -190,18 +108,6 @@ def _dynamics_learner() -> Any:
 
     # Standardised: a torque of tens of N*m and a sign of one are penalised alike.
     return make_pipeline(StandardScaler(), RidgeCV(alphas=np.logspace(-3, 3, 13)))
-
-
-def since_reversal(q: np.ndarray, qd: np.ndarray, segments: Sequence[slice]) -> np.ndarray:
-    """(N, n) displacement since the last change of the velocity's sign (per run, from its first sample)."""
-    out = np.zeros_like(q)
-    for seg in segments:
-        qs, vs = q[seg], np.sign(qd[seg])
-        rows = np.arange(qs.shape[0])[:, None]
-        changed = np.vstack([np.ones((1, qs.shape[1]), dtype=bool), (vs[1:] != vs[:-1]) & (vs[1:] != 0)])
-        last = np.maximum.accumulate(np.where(changed, rows, 0), axis=0)
-        out[seg] = qs - np.take_along_axis(qs, last, axis=0)
-    return out
 
 
 def _excess_share(before: np.ndarray, after: np.ndarray, floor: float) -> float:
@@ -308,16 +214,6 @@ def _gain_regime(before: np.ndarray, after: np.ndarray, qd: np.ndarray, qdd: np.
 
 def _at_floor(rung: float, floor: float, noise_floor_factor: float) -> bool:
     return floor > 0 and rung <= noise_floor_factor * floor
-
-
-@dataclass(frozen=True)
-class LearnerFeatures:
-    """The features of the fit and the holdout runs the ceiling's ridge and tree learners read beside the motion:
-    ``dynamics`` (:func:`dynamics_features`) and ``pose`` (the nominal model's unit gravity, (N, n, 3) each, the
-    first columns of :func:`pose_features`); None: no such learner."""
-
-    dynamics: tuple[np.ndarray, np.ndarray] | None = None
-    pose: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def _learners(j: int, fit_data: Any, fit_column: np.ndarray, holdout_data: Any, holdout_column: np.ndarray,
@@ -427,22 +323,6 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
             row["beyond_motion"] = shares
             row["follows"] = _named(shares)
     return row, after
-
-
-def _chosen_features(chosen: str, j: int, holdout_data: Any,
-                     features: LearnerFeatures | None) -> tuple[np.ndarray, list[dict[str, Any]]]:
-    """The holdout features the ``chosen`` learner of joint ``j`` read, and their names (what its gain is read off)."""
-    joints = list(holdout_data.joint_names)
-    if chosen in (DYNAMICS_TREES, DYNAMICS_LEARNER):
-        assert features is not None and features.dynamics is not None
-        x_holdout = features.dynamics[1][:, j]
-        if chosen == DYNAMICS_LEARNER:
-            return signed_products(x_holdout), signed_names(joints[j])
-        return x_holdout, dynamics_names(joints[j], x_holdout.shape[1])
-    if chosen in POSE_LEARNERS:
-        assert features is not None and features.pose is not None
-        return pose_features(holdout_data.q, features.pose[1], j, chosen), pose_names(joints, j, chosen)
-    return motion_features(holdout_data)
 
 
 def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
