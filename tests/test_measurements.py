@@ -354,7 +354,7 @@ def test_a_piece_too_short_is_left_out_and_said_and_a_log_of_only_such_pieces_is
 @settings(max_examples=40, deadline=None)
 def test_split_at_gaps_keeps_every_row_once_in_order(cuts, threshold):
     """Whatever the losses, the pieces hold every logged row once, in order, and no step inside a piece is a gap."""
-    from sim2real.measurements.prepare import split_at_gaps
+    from sim2real.measurements.cleaning import split_at_gaps
 
     t = np.arange(3000) * 0.001
     for cut in sorted(cuts):
@@ -372,7 +372,7 @@ def test_lone_torque_spikes_are_replaced_and_counted_steps_and_turns_are_not():
     """A bus error puts one torque sample far off: the median of it and its neighbours replaces it. A real torque's
     steps (friction reversing at 30 Hz) and smooth turns are never taken for one, with noise or without (a torque
     logged in quanta has no white noise to measure)."""
-    from sim2real.measurements.prepare import lone_spikes, without_spikes
+    from sim2real.measurements.cleaning import lone_spikes, without_spikes
 
     rng = np.random.default_rng(3)
     t = np.arange(20000) * 0.001
@@ -398,7 +398,7 @@ def test_lone_torque_spikes_are_replaced_and_counted_steps_and_turns_are_not():
        gain=st.floats(0.01, 100.0))
 @settings(max_examples=60, deadline=None)
 def test_a_monotone_torque_has_no_spike_whatever_its_offset_and_units(steps, offset, gain):
-    from sim2real.measurements.prepare import lone_spikes
+    from sim2real.measurements.cleaning import lone_spikes
 
     torque = offset + gain * np.cumsum(steps)[:, None] * np.array([1.0, -1.0])
     assert not lone_spikes(torque).any()

@@ -5,6 +5,7 @@
   list, writing a run;
 * :mod:`~sim2real.measurements.records`: what a run says of itself (``RunMeta``) and what its preparation did
   (``FilterSettings``), typed, each with the document it is written as;
+* :mod:`~sim2real.measurements.cleaning`: what a logger got wrong (gaps, lone spikes, held columns), found and repaired;
 * :mod:`~sim2real.measurements.prepare`: a run on a uniform grid, filtered, differentiated (the rule
   ``prepare_runs``);
 * :mod:`~sim2real.measurements.noise`: the noise floors, measured once when a run is prepared and read back;

@@ -60,7 +60,7 @@ class StepRange:
 
 @dataclass(frozen=True)
 class SpikeRecord:
-    """The lone samples replaced (:func:`sim2real.measurements.prepare.lone_spikes`): ``replaced[kind][joint]``, how
+    """The lone samples replaced (:func:`sim2real.measurements.cleaning.lone_spikes`): ``replaced[kind][joint]``, how
     many, for the signal kinds and joints that had any; ``scales``: the threshold."""
 
     scales: float
@@ -69,7 +69,7 @@ class SpikeRecord:
 
 @dataclass(frozen=True)
 class HeldRecord:
-    """The columns whose samples a logger held (:func:`sim2real.measurements.prepare.held_samples`): a value repeated
+    """The columns whose samples a logger held (:func:`sim2real.measurements.cleaning.held_samples`): a value repeated
     from the row before while the rest of the row changed, a signal updated slower than the log. ``held[kind][joint]``,
     how many of ``of`` rows, for the columns held often enough to matter; each such column was rebuilt from its update
     instants (the samples where its value changed) before anything was filtered or differentiated."""

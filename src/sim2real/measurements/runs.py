@@ -492,7 +492,7 @@ def _settings(data: Mapping[str, Any]) -> dict[str, Any]:
         "cutoff_hz": float(data.get("filter", {}).get("cutoff_hz", DEFAULT_CUTOFF_HZ)),
         "order": int(data.get("filter", {}).get("order", DEFAULT_FILTER_ORDER)),
         "horizon_s": float(data.get("replay", {}).get("horizon_s", 0.5)),
-        # None: the default of sim2real.measurements.prepare.gap_threshold_s, from each run's own steps
+        # None: the default of sim2real.measurements.cleaning.gap_threshold_s, from each run's own steps
         "max_step_s": data.get("gaps", {}).get("max_step_s"),
     }
 

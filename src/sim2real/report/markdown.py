@@ -191,7 +191,7 @@ def _incomplete_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
 
 
 def _spike_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
-    """The lone samples each run had replaced (sim2real.measurements.prepare.lone_spikes); nothing when none."""
+    """The lone samples each run had replaced (sim2real.measurements.cleaning.lone_spikes); nothing when none."""
     rows = []
     for r in runs:
         spikes = r["filter"].get("spikes")
@@ -253,7 +253,7 @@ def _runs_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
 
 
 def _held_lines(runs: Sequence[Mapping[str, Any]]) -> list[str]:
-    """The position columns each run's logger held (sim2real.measurements.prepare.held_columns) and what the
+    """The position columns each run's logger held (sim2real.measurements.cleaning.held_columns) and what the
     preparation did about them; nothing when no column was held."""
     rows = [f"- {r['name']}: " + "; ".join(
         f"`{kind}` " + ", ".join(f"{joint} {count} of {r['filter']['held']['of']} rows "
