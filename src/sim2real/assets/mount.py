@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.assets.mjcf import rpy_to_quat
+from sim2real.assets.mjcf_geometry import rpy_to_quat
 
 
 def turn_base_body(spec: Any, tilt_x: float, tilt_y: float) -> None:
