@@ -13,7 +13,7 @@ from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
 from sim2real.errors import InputError
 from sim2real.measurements import load_run, prepare_for_model, prepare_run, write_run
 from sim2real.measurements.records import FilterSettings
-from sim2real.report.markdown import _runs_lines
+from sim2real.report.runs_section import runs_lines
 
 META = {"robot": "panda", "source": "real", "control_mode": "torque", "sample_rate_hz": 200.0}
 
@@ -103,7 +103,7 @@ def test_held_positions_are_stated_and_never_differentiated_as_a_stop(tmp_path, 
     assert np.max(np.abs(prepared.qd - true_velocity(prepared.time))) < 2.5e-4
     document = {"name": "held", "role": "fit", "torque_source": "tau", "samples": prepared.time.size,
                 "duration_s": 5.0, "has_commands": False, "filter": prepared.filter.as_document()}
-    text = "\n".join(_runs_lines([document]))
+    text = "\n".join(runs_lines([document]))
     assert "Held samples (a column repeating the row before while the rest of the row changes" in text
     assert "- held: `q` " + ", ".join(f"{j} 4500 of 6000 rows (75%)" for j in joints) + "." in text
     assert "taken at its own update instants" in text
@@ -115,7 +115,7 @@ def test_a_log_without_holds_says_nothing_of_them(tmp_path):
     assert prepared.filter.held is None and "held" not in prepared.filter.as_document()
     document = {"name": "clean", "role": "fit", "torque_source": "tau", "samples": 1, "duration_s": 5.0,
                 "has_commands": False, "filter": prepared.filter.as_document()}
-    assert "Held samples" not in "\n".join(_runs_lines([document]))
+    assert "Held samples" not in "\n".join(runs_lines([document]))
 
 
 def _still_wrist_runs(tmp_path):

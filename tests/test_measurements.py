@@ -322,7 +322,7 @@ def test_rows_with_an_empty_cell_are_samples_the_logger_lost(tmp_path):
         assert got.filter.as_document()["incomplete_rows"] == {"run": "one", "dropped": len(blank), "of": 9000,
                                                                "first_row": f"row {first} (line {first + 2})"}
         assert dataclasses.replace(got.filter, incomplete_rows=None) == want.filter
-    from sim2real.report.markdown import _incomplete_lines
+    from sim2real.report.runs_section import _incomplete_lines
     assert f"- one: {len(blank)} of 9000 rows (3.8%), the first row {first}" in "\n".join(
         _incomplete_lines([{"filter": p.filter.as_document()} for p in prepared]))
     # a position in degrees after the dropped rows: named at its row of the file

@@ -19,6 +19,7 @@ from sim2real.report.verdicts import NOTE_TEXT, verdict, worded
 
 SOURCE = Path(__file__).resolve().parents[1] / "src" / "sim2real"
 IDENTIFICATION = SOURCE / "identification"
+VERDICTS = SOURCE / "report" / "verdicts"  # the package that words the diagnosis, one module per subject
 # Calls whose words are an error's or a log's, not a verdict's.
 ERROR_CALLS = {"InputError", "ValueError", "RuntimeError", "TypeError", "KeyError", "InfeasibleFit", "info", "warning",
                "debug", "error"}
@@ -129,6 +130,7 @@ def test_a_new_rule_is_a_note_kind_with_one_renderer():
                      NoteKind.DRIVE_PLACEMENT, NoteKind.SENSOR_LAG, NoteKind.SENSOR_LAG_TRIAL, NoteKind.OTHER_SIDE,
                      NoteKind.HELD_ON_OTHER_SIDE, NoteKind.RAISES_JOINTS, NoteKind.RELABELLED, NoteKind.NEAR_THRESHOLD}
     assert set(NOTE_TEXT) == verdict_kinds
-    outside = [path for path in SOURCE.rglob("*.py") if "report" not in path.relative_to(SOURCE).parts
+    assert (VERDICTS / "__init__.py").is_file() and "def verdict(" in (VERDICTS / "headline.py").read_text()
+    outside = [path for path in SOURCE.rglob("*.py") if not path.is_relative_to(VERDICTS)
                and ("NOTE_TEXT" in path.read_text(encoding="utf-8") or "def verdict(" in path.read_text(encoding="utf-8"))]
     assert not outside, outside

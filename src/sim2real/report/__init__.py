@@ -7,7 +7,9 @@ Each module does one job of the rules ``gap_report`` and ``fleet`` (``rules/gap.
 * :mod:`~sim2real.report.replay`: the commands replayed in MuJoCo (multiple shooting), the state domain;
 * :mod:`~sim2real.report.regimes`: the regimes an error can live in, where the model fails, the worst windows;
 * :mod:`~sim2real.report.figures`, :mod:`~sim2real.report.first_screen` and :mod:`~sim2real.report.markdown`: what a
-  reviewer sees (gap.md's first screen: the verdict, the ladder, the joints; then the rest);
+  reviewer sees (gap.md's first screen: the verdict, the ladder, the joints; then the rest; its runs section,
+  :mod:`~sim2real.report.runs_section`);
+* :mod:`~sim2real.report.verdicts`: every word of the diagnosis;
 * :mod:`~sim2real.report.gapdiff`: the pull-request comment, two reports compared;
 * :mod:`~sim2real.report.fleet`: every arm and campaign side by side, what drifted.
 
@@ -25,3 +27,8 @@ def rung_label(effects: Sequence[str], whole: bool = False) -> str:
     if not effects:
         return "nominal"
     return "+ " + (", ".join(effects) if whole else effects[-1])
+
+
+def details(summary: str, body: Sequence[str]) -> list[str]:
+    """A collapsible block (GitHub renders the Markdown inside it)."""
+    return ["<details>", f"<summary>{summary}</summary>", "", *body, "", "</details>", ""]
