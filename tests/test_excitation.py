@@ -256,8 +256,8 @@ def test_gap_md_names_the_design_when_the_inertias_are_poorly_pinned() -> None:
 @given(st.lists(st.floats(min_value=-0.05, max_value=0.05), max_size=60))
 def test_each_stretch_short_of_clearance_is_named_by_its_closest_sample(distances: list[float]) -> None:
     """The active set's clearance rows and the dense check's first look when it scales a design
-    (design._closest_of_each_stretch): one sample per run of consecutive samples below the margin, its smallest."""
-    from sim2real.excitation.design import _closest_of_each_stretch
+    (program._closest_of_each_stretch): one sample per run of consecutive samples below the margin, its smallest."""
+    from sim2real.excitation.design.program import _closest_of_each_stretch
 
     margin = 0.01
     values = np.asarray(distances, dtype=float)
@@ -351,7 +351,7 @@ def test_the_symbolic_regressor_and_its_gradient(designed: Path) -> None:
 
 def test_the_torque_jacobian_is_the_derivative_of_the_torque(designed: Path) -> None:
     """d tau / d x from Pinocchio's RNEA derivatives, chained through the Fourier basis, against central differences."""
-    from sim2real.excitation.design import _Grid, _torque_jacobian
+    from sim2real.excitation.design.program import _Grid, _torque_jacobian
     from sim2real.excitation.fourier import FourierSeries, random_start
 
     nominal = _panda_nominal(designed)

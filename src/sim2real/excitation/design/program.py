@@ -1,6 +1,6 @@
 """The nonlinear program of an excitation design, solved by IPOPT through CasADi.
 
-Decision variables: the Fourier coefficients of the excited joints (:mod:`.fourier`). Constraints:
+Decision variables: the Fourier coefficients of the excited joints (:mod:`..fourier`). Constraints:
 at rest at t = 0 (linear equalities), position, velocity and acceleration limits on a grid of one period
 (linear in the coefficients, tightened by what a trigonometric polynomial can gain between the grid's
 points), joint torques of the nominal model within the usable effort (nonlinear, on the objective's samples
@@ -8,31 +8,26 @@ where the torque comes near its limit), and the distance to collision (nonlinear
 comes near the margin). The nonlinear rows are active sets: IPOPT's cost grows with its rows (a dense torque
 row per sample and joint cost more than the objective), so each pass carries the rows near their limits,
 and the pass is repeated from where it ended when a check of every row (torques on the objective's samples,
-MuJoCo on a grid four times the limits') finds one short. The objective (:mod:`.information`) and the
-torques enter the program as CasADi callbacks with exact Jacobians.
-
-The result is then checked at every sample of the written trajectory. Constraints imposed on a grid can be
-missed between its points by a hair; if any check fails, the motion is scaled towards the start pose (which
-every check passes) until all pass, and the report says by how much.
+MuJoCo on a grid four times the limits') finds one short. The objective (:mod:`..information`) and the
+torques enter the program as CasADi callbacks with exact Jacobians (:mod:`.adapters`).
 """
 
 from __future__ import annotations
 
-import time as clock
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import casadi as ca
 import numpy as np
-import scipy.sparse
 
 from sim2real.errors import InputError
 from sim2real.excitation.clearance import Clearance
 from sim2real.excitation.config import Design, Limits, limits, start_pose
+from sim2real.excitation.design.adapters import _Numeric, _sparse
 from sim2real.excitation.fourier import FourierSeries, random_start
-from sim2real.excitation.information import Identification, condition_number, identification_effects
+from sim2real.excitation.information import Identification, identification_effects
 from sim2real.excitation.separation import Separation
 from sim2real.identification.fitting import NominalModel
 
@@ -55,82 +50,6 @@ LBFGS_HISTORY = 20  # pairs IPOPT's quasi-Newton Hessian keeps (default 6): a be
 # Woodbury update, which backsolves once per column of the low-rank update at every iteration (11 of a pass's 27 s of
 # CPU): about half the time per iteration.
 LBFGS_AUG_SOLVER = "extended"
-
-
-@dataclass
-class Trajectory:
-    time: np.ndarray
-    q: np.ndarray
-    qd: np.ndarray
-    qdd: np.ndarray
-
-
-@dataclass
-class DesignResult:
-    design: Design
-    joints: list[str]
-    coefficients: np.ndarray  # (excited joints, 2 * harmonics)
-    start: np.ndarray
-    limits: Limits
-    trajectory: Trajectory
-    torque: np.ndarray  # nominal joint torque at every sample (N, n)
-    clearance: np.ndarray  # smallest distance to collision at every sample of one period
-    closest_pair: str | None
-    summary: dict[str, Any] = field(default_factory=dict)
-
-
-class _Numeric(ca.Callback):
-    """A numeric function of the coefficients with its numeric Jacobian, as a CasADi function."""
-
-    def __init__(self, name: str, size_in: int, size_out: int, value: Callable[[np.ndarray], np.ndarray],
-                 jacobian: Callable[[np.ndarray], np.ndarray]) -> None:
-        ca.Callback.__init__(self)
-        self.size_in, self.size_out, self.value, self.jac = size_in, size_out, value, jacobian
-        self.construct(name, {})
-
-    def get_n_in(self) -> int:
-        return 1
-
-    def get_n_out(self) -> int:
-        return 1
-
-    def get_sparsity_in(self, i: int) -> ca.Sparsity:
-        return ca.Sparsity.dense(self.size_in, 1)
-
-    def get_sparsity_out(self, i: int) -> ca.Sparsity:
-        return ca.Sparsity.dense(self.size_out, 1)
-
-    def eval(self, arg: Sequence[Any]) -> list[np.ndarray]:
-        return [np.asarray(self.value(np.asarray(arg[0]).ravel()), dtype=float).reshape(-1, 1)]
-
-    def has_jacobian(self) -> bool:
-        return True
-
-    def get_jacobian(self, name: str, inames: Any, onames: Any, opts: Any) -> ca.Callback:
-        self._jacobian = _Jacobian(name, self)  # CasADi holds no reference: keep one
-        return self._jacobian
-
-
-class _Jacobian(ca.Callback):
-    def __init__(self, name: str, parent: _Numeric) -> None:
-        ca.Callback.__init__(self)
-        self.parent = parent
-        self.construct(name, {})
-
-    def get_n_in(self) -> int:
-        return 2
-
-    def get_n_out(self) -> int:
-        return 1
-
-    def get_sparsity_in(self, i: int) -> ca.Sparsity:
-        return ca.Sparsity.dense(self.parent.size_in if i == 0 else self.parent.size_out, 1)
-
-    def get_sparsity_out(self, i: int) -> ca.Sparsity:
-        return ca.Sparsity.dense(self.parent.size_out, self.parent.size_in)
-
-    def eval(self, arg: Sequence[Any]) -> list[np.ndarray]:
-        return [np.asarray(self.parent.jac(np.asarray(arg[0]).ravel()), dtype=float)]
 
 
 class _Grid:
@@ -201,27 +120,6 @@ def _scaled_start(series: FourierSeries, grid: _Grid, lim: Limits, excited: np.n
     return (START_FILL * ratios[:, None] * x.reshape(len(excited), -1)).ravel()
 
 
-def check_trajectory(nominal: NominalModel, trajectory: Trajectory, lim: Limits, clearance: Clearance,
-                     margin: float, excited: np.ndarray) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """Every limit at every sample: the failures (empty when none), the torques and the clearances."""
-    failures = []
-    tol = 1e-9
-    q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
-    for label, bad in (("position", (q < lim.lower - tol) | (q > lim.upper + tol)),
-                       ("velocity", np.abs(qd) > lim.velocity + tol),
-                       ("acceleration", np.abs(qdd) > lim.acceleration + tol)):
-        bad[:, [j for j in range(q.shape[1]) if j not in excited]] = False
-        if bad.any():
-            failures.append(label)
-    torque = nominal.dynamics.inverse_dynamics(q, qd, qdd)
-    if np.any(np.abs(torque) > lim.torque + tol):
-        failures.append("torque")
-    distances = clearance.distances(q)
-    if np.any(distances < margin):
-        failures.append("collision")
-    return failures, torque, distances
-
-
 @dataclass(frozen=True)
 class DesignRobot:
     """The robot a design is for: the nominal model of the design's joints, the built URDF (its limits) and MJCF (its
@@ -282,46 +180,6 @@ class _Solved:
     iterations: int
     active: list[float]  # the times (one period) where the clearance was constrained
 
-
-@dataclass(frozen=True)
-class _Checked:
-    """The designed motion at the controller rate that passed the check at every sample."""
-
-    x: np.ndarray  # the coefficients, scaled
-    scale: float
-    time: np.ndarray
-    one_period: np.ndarray  # which samples of ``time`` are the first period's
-    trajectory: Trajectory
-    torque: np.ndarray
-    distances: np.ndarray  # the clearance at every sample of the first period
-
-
-def design_trajectory(design: Design, robot: DesignRobot, model_effects: Sequence[str],
-                      log: Callable[[str], None] = lambda message: None,
-                      separation: Separation | None = None,
-                      start_coefficients: np.ndarray | None = None) -> DesignResult:
-    """Design one excitation: the optimised coefficients and the checked trajectory at the controller rate.
-
-    ``separation``: design the run that tells two confounded candidates apart (:mod:`.separation`) instead of
-    one that conditions the identification; ``start_coefficients``: the coefficients IPOPT starts from (excited
-    joints x 2 harmonics; :func:`design_start`), instead of a random series at a fraction of the limits.
-    """
-    started = clock.perf_counter()
-    program = _program(design, robot, model_effects, separation)
-    series = program.series
-    if start_coefficients is None:
-        x0 = _scaled_start(series, program.limit_grid, program.lim, program.excited, int(design.settings["solver"]["seed"]))
-    else:
-        x0 = np.asarray(start_coefficients, dtype=float).ravel().copy()
-        assert x0.size == series.size, f"a start of {x0.size} coefficients for a series of {series.size}"
-    initial = x0.copy()
-    solved = _optimise(program, x0, log)
-    checked = _check_every_sample(program, solved.x, log)
-    log(f"designed in {clock.perf_counter() - started:.1f} s")  # the log, not the outputs: those stay byte-identical
-    summary = _summary(program, initial, solved, checked, separation)
-    return DesignResult(design=design, joints=list(design.joints), coefficients=checked.x.reshape(len(program.excited), -1),
-                        start=program.start, limits=program.lim, trajectory=checked.trajectory, torque=checked.torque,
-                        clearance=checked.distances, closest_pair=summary["closest_pair"], summary=summary)
 
 
 def _program(design: Design, robot: DesignRobot, model_effects: Sequence[str],
@@ -402,113 +260,6 @@ def _optimise(program: _Program, x0: np.ndarray, log: Callable[[str], None]) -> 
     return _Solved(x, status, iterations, active)
 
 
-def _check_every_sample(program: _Program, x: np.ndarray, log: Callable[[str], None]) -> _Checked:
-    """The motion at the controller rate, checked at every sample of one period and scaled towards the start pose
-    (by 0.97 a step) until every check passes."""
-    settings = program.design.settings
-    series, margin, clearance = program.series, program.margin, program.clearance
-    rate = float(settings["sample_rate_hz"])
-    time = np.arange(int(round(float(settings["duration_s"]) * rate))) / rate
-    one_period = time < series.period - 0.5 / rate
-    scale = 1.0
-    closest: list[int] = []  # the closest sample of each stretch short of clearance in the last check of every sample
-    for _ in range(40):
-        trajectory = _trajectory(series, x * scale, time, program.start, program.excited, program.n)
-        head = _head(trajectory, one_period)
-        # A stretch short of clearance mostly stays short over the next steps: its closest samples are looked at
-        # first (milliseconds), every sample (seconds) only when they pass. The same steps and scale as checking
-        # every sample at every step.
-        if closest and np.any(clearance.distances(head.q[closest]) < margin):
-            failures = ["collision"]
-        else:
-            failures, tau, distances = check_trajectory(program.nominal, head, program.lim, clearance, margin,
-                                                        program.excited)
-            if not failures:
-                break
-            closest = _closest_of_each_stretch(distances, margin)
-        log(f"dense check at {rate:g} Hz failed ({', '.join(failures)}); scaling the motion by {scale * 0.97:.3g}")
-        scale *= 0.97
-    else:
-        raise RuntimeError(f"the design '{program.design.name}' violates {failures} even scaled to {scale:.3g}")
-    x = x * scale
-    tau = program.nominal.dynamics.inverse_dynamics(trajectory.q, trajectory.qd, trajectory.qdd)
-    return _Checked(x, scale, time, one_period, trajectory, tau, distances)
-
-
-def _summary(program: _Program, initial: np.ndarray, solved: _Solved, checked: _Checked,
-             separation: Separation | None) -> dict[str, Any]:
-    """The design's report: the objective and condition number before and after, the solver, the closest approach
-    and the peaks against the limits."""
-    ident, trajectory = program.ident, checked.trajectory
-    head = _head(trajectory, checked.one_period)
-    before = _trajectory(program.series, initial, checked.time, program.start, program.excited, program.n)
-    before_head = _head(before, checked.one_period)
-    _, closest = program.clearance.closest(head.q[int(np.argmin(checked.distances))])
-    summary: dict[str, Any] = {
-        "objective": program.objective,
-        "identified": {"inertial": "base parameters of the moving bodies", "effects": program.effects,
-                       "base_parameters": ident.size},
-        "objective_value": {"initial": round(program.f(initial)[0], 6), "designed": round(program.f(checked.x)[0], 6)},
-        "condition_number": {"initial": round(condition_number(ident.matrix(before_head.q, before_head.qd,
-                                                                             before_head.qdd)), 4),
-                             "designed": round(condition_number(ident.matrix(head.q, head.qd, head.qdd)), 4)},
-        "solver": {"status": solved.status, "iterations": solved.iterations,
-                   "active_clearance_samples": len(solved.active), "scaled_by": round(checked.scale, 6)},
-        "min_clearance_m": round(float(checked.distances.min()), 6),
-        "closest_pair": closest,
-        "peak": _peaks(program.design.joints, program.lim, trajectory, checked.torque),
-    }
-    if separation is not None:
-        summary["separation"] = {
-            "candidates": separation.names,
-            "difference_x_floor": {"initial": round(separation.rms_x_floor(before_head.q, before_head.qd,
-                                                                           before_head.qdd), 4),
-                                   "designed": round(separation.rms_x_floor(head.q, head.qd, head.qdd), 4)},
-        }
-    return summary
-
-
-def _peaks(joints: Sequence[str], lim: Limits, trajectory: Trajectory, tau: np.ndarray) -> dict[str, dict[str, float]]:
-    """Each joint's peak torque, velocity and acceleration and its range of motion, beside its usable limits."""
-    return {
-        "torque_Nm": _per_joint(joints, np.abs(tau).max(axis=0)),
-        "torque_limit_Nm": _per_joint(joints, lim.torque),
-        "velocity_rad_s": _per_joint(joints, np.abs(trajectory.qd).max(axis=0)),
-        "velocity_limit_rad_s": _per_joint(joints, lim.velocity),
-        "acceleration_rad_s2": _per_joint(joints, np.abs(trajectory.qdd).max(axis=0)),
-        "acceleration_limit_rad_s2": _per_joint(joints, lim.acceleration),
-        "position_min_rad": _per_joint(joints, trajectory.q.min(axis=0)),
-        "position_max_rad": _per_joint(joints, trajectory.q.max(axis=0)),
-        "position_lower_rad": _per_joint(joints, lim.lower),
-        "position_upper_rad": _per_joint(joints, lim.upper),
-    }
-
-
-def design_start(design: Design, robot: DesignRobot, log: Callable[[str], None] = lambda message: None) -> np.ndarray:
-    """Where a design for any model starts: the same design for the nominal model and friction alone (what
-    ``effects: []`` identifies), from a random series. It reads nothing of model.yaml, so a change of the model's
-    effects designs from here (a few seconds) rather than from a random series, and the result is the same bytes
-    whatever was designed before. Coefficients: excited joints x 2 harmonics."""
-    return design_trajectory(design, robot, [], log=log).coefficients
-
-
-def _per_joint(joints: Sequence[str], values: np.ndarray) -> dict[str, float]:
-    return {j: round(float(v), 6) for j, v in zip(joints, values, strict=True)}
-
-
-def _head(trajectory: Trajectory, keep: np.ndarray) -> Trajectory:
-    return Trajectory(trajectory.time[keep], trajectory.q[keep], trajectory.qd[keep], trajectory.qdd[keep])
-
-
-def _trajectory(series: FourierSeries, x: np.ndarray, time: np.ndarray, start: np.ndarray, excited: np.ndarray,
-                n: int) -> Trajectory:
-    q = np.tile(start, (len(time), 1))
-    qd, qdd = np.zeros_like(q), np.zeros_like(q)
-    qe, qde, qdde = series.motion(x, time, start[excited])
-    q[:, excited], qd[:, excited], qdd[:, excited] = qe, qde, qdde
-    return Trajectory(time, q, qd, qdd)
-
-
 def _short_samples(distances: np.ndarray, grid: _Grid, margin: float) -> list[float]:
     """Times of the grid where the clearance is below the margin: one per run of consecutive samples (its worst)."""
     return [float(grid.time[k]) for k in _closest_of_each_stretch(distances, margin)]
@@ -529,12 +280,6 @@ def _closest_of_each_stretch(distances: np.ndarray, margin: float) -> list[int]:
         else:
             k += 1
     return out
-
-
-def _sparse(matrix: np.ndarray) -> ca.DM:
-    """A CasADi sparse matrix: each joint's limit rows touch its own coefficients only, and IPOPT's KKT system
-    stays small when CasADi knows it."""
-    return ca.DM(scipy.sparse.csc_matrix(matrix))
 
 
 def _solve(program: _Program, rows: np.ndarray, usable: np.ndarray, active: Sequence[float], least: float,
