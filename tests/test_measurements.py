@@ -438,7 +438,7 @@ def _two_logged_runs(tmp_path):
 
 
 def _counting_reads(monkeypatch):
-    from sim2real.measurements import runs as measurements
+    from sim2real.measurements.runs import measurement_list, reading
 
     reads: Counter[str] = Counter()
 
@@ -448,8 +448,9 @@ def _counting_reads(monkeypatch):
             return reader(path, *args, **kwargs)
         return read
 
-    monkeypatch.setattr(measurements, "_read_table", counting(measurements._read_table))
-    monkeypatch.setattr(measurements, "read_validated_yaml", counting(measurements.read_validated_yaml))
+    monkeypatch.setattr(reading, "_read_table", counting(reading._read_table))
+    for module in (reading, measurement_list):
+        monkeypatch.setattr(module, "read_validated_yaml", counting(module.read_validated_yaml))
     return reads
 
 

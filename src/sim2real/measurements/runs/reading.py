@@ -1,201 +1,28 @@
-"""Measurement runs: the table format, reading and checking a run, the measurement list, writing a run.
-
-Format (a contract shared with real robot logs and the virtual lab):
-
-* A table, CSV or Parquet: ``time`` in seconds and, per joint named as in the URDF, ``q.<joint>``
-  (rad or m), optionally ``qd.<joint>``, ``tau.<joint>`` (torque measured at the joint),
-  ``tau_cmd.<joint>`` (torque the controller commanded at that stamp), ``q_cmd.<joint>``.
-  ``q`` and at least one of ``tau`` / ``tau_cmd`` are required; a signal kind is given for all
-  joints or for none.
-* Beside it ``<stem>.yaml`` validated by ``schemas/measurement.schema.yaml``.
-
-A rule reads each run file once: :func:`read_runs` reads every run of a measurement list; the caller
-builds its model from the runs' joints and prepares them (:mod:`sim2real.measurements.prepare`).
-"""
+"""Reading a run and checking it: the table and its metadata beside it against the format (:mod:`.format`),
+then the joints and their positions against a model."""
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generic, Literal, Protocol, TypeVar
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.files import read_validated_yaml
-from sim2real.measurements.records import FilterSettings, IncompleteRows, RunMeta, TorqueSensor
+from sim2real.measurements.records import IncompleteRows, RunMeta
+from sim2real.measurements.runs.format import (
+    DEGREES_THRESHOLD_RAD, MAX_INCOMPLETE_FRACTION, MIN_DURATION_S, MIN_SAMPLES, SIGNAL_KINDS, Run,
+)
 
 if TYPE_CHECKING:
     import pandas as pd
-
-SIGNAL_KINDS = ("q", "qd", "tau", "tau_cmd", "q_cmd")
-TORQUE_SENSORS: tuple[TorqueSensor, ...] = ("motor", "link")
-DEFAULT_TORQUE_SENSOR: TorqueSensor = "motor"
-MIN_DURATION_S = 1.0
-MIN_SAMPLES = 100
-# A uniform grid more than this many times denser than the logged samples means a gap, a stamp in other
-# units or a sample_rate_hz that is not the log's: refused before it is allocated.
-MAX_GRID_PER_SAMPLE = 20
-# More than a turn plus a margin: no revolute joint angle in rad, but common in degrees.
-DEGREES_THRESHOLD_RAD = 2 * np.pi + 0.5
-# A row with an empty cell (blank, NaN) is a sample the logger lost: dropped, and a stretch of them splits the run
-# like any gap (sim2real.measurements.prepare). Beyond this share of a column's or of the table's rows it is no
-# loss but a table put together from signals on different clocks, or a column that was not logged: refused.
-MAX_INCOMPLETE_FRACTION = 0.2
-DEFAULT_CUTOFF_HZ = 10.0
-DEFAULT_FILTER_ORDER = 4
-Role = Literal["fit", "holdout"]
-
-
-@dataclass(frozen=True)
-class MeasurementEntry:
-    """A run of the measurement list: its name there, its file, and its role (``fit`` or ``holdout``)."""
-
-    name: str
-    path: Path
-    role: str  # "fit" | "holdout"
-
-
-@dataclass(frozen=True)
-class Run:
-    """A measurement run as loaded and validated (original, possibly irregular stamps)."""
-
-    name: str
-    path: Path
-    joint_names: list[str]
-    time: np.ndarray
-    q: np.ndarray
-    qd: np.ndarray | None
-    tau: np.ndarray | None
-    tau_cmd: np.ndarray | None
-    q_cmd: np.ndarray | None
-    meta: RunMeta
-    contact: np.ndarray | None = None  # (N,) bool contact flag when the log has a `contact` column
-    # where rows with an empty cell were dropped (:data:`MAX_INCOMPLETE_FRACTION`): the file's data row of each
-    # sample, and what was dropped; None when every row was whole
-    rows: np.ndarray | None = None
-    incomplete: IncompleteRows | None = None
-    entry: MeasurementEntry | None = None  # the run's line of the measurement list (None: read on its own)
-
-    @property
-    def role(self) -> str | None:
-        """``fit`` or ``holdout``, as the measurement list says (None: the run was read on its own)."""
-        return None if self.entry is None else self.entry.role
 
 
 def file_row(run: Run, index: int) -> str:
     """Sample ``index`` of ``run`` as a location in its file (:func:`_row_label`), across rows that were dropped."""
     return _row_label(run.path, int(run.rows[index]) if run.rows is not None else index)
-
-
-@dataclass(frozen=True)
-class PreparedRun:
-    """A run cleaned and put on a uniform time grid: what fits and comparisons use."""
-
-    name: str
-    joint_names: list[str]
-    time: np.ndarray
-    dt: float
-    q: np.ndarray
-    qd: np.ndarray
-    qdd: np.ndarray
-    tau: np.ndarray
-    torque_source: str
-    tau_cmd: np.ndarray | None
-    q_cmd: np.ndarray | None
-    # what the preparation did (None: a run not prepared here, e.g. the residuals read back at the fit's rate)
-    filter: FilterSettings | None
-    torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR  # where tau is measured (metadata `torque_sensor`)
-    qd_measured: np.ndarray | None = None  # logged velocity on the grid (unfiltered), if any
-    contact: np.ndarray | None = None
-    raw_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per-joint white-noise std
-    # per joint, the RMS of tau that no actuator model can explain from tau_cmd (with_command_floor); empty
-    # until computed, and unless the run logs both
-    command_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    # the line of the measurement list the run (or this piece of it, split at a logging gap) was prepared from
-    entry: MeasurementEntry | None = None
-
-    @property
-    def role(self) -> str | None:
-        """``fit`` or ``holdout``, as the measurement list says (None: the run was prepared on its own)."""
-        return None if self.entry is None else self.entry.role
-
-
-class _HasEntry(Protocol):
-    @property
-    def entry(self) -> MeasurementEntry | None: ...
-
-    @property
-    def role(self) -> str | None: ...
-
-
-R = TypeVar("R", bound=_HasEntry)
-
-
-@dataclass(frozen=True)
-class RunSet(Generic[R]):
-    """The runs of a measurement list, in its order, each with its line of the list (its role, its file), and the
-    list's preparation settings (:func:`measurement_settings`). A run split at its logging gaps is there as its
-    pieces, each with the run's line."""
-
-    runs: tuple[R, ...]
-    settings: dict[str, Any]
-
-    def __iter__(self) -> Iterator[R]:
-        return iter(self.runs)
-
-    def __len__(self) -> int:
-        return len(self.runs)
-
-    def __getitem__(self, index: int) -> R:
-        return self.runs[index]
-
-    def of_role(self, role: Role) -> tuple[R, ...]:
-        """The runs of ``role``, in the list's order."""
-        return tuple(run for run in self.runs if run.role == role)
-
-    @property
-    def fit(self) -> tuple[R, ...]:
-        """The runs the model is fitted on."""
-        return self.of_role("fit")
-
-    @property
-    def holdout(self) -> tuple[R, ...]:
-        """The runs the model is judged on."""
-        return self.of_role("holdout")
-
-    @property
-    def entries(self) -> tuple[MeasurementEntry | None, ...]:
-        """Each run's line of the measurement list (its name there, its file, its role)."""
-        return tuple(run.entry for run in self.runs)
-
-
-class _HasTorqueSensor(Protocol):
-    name: str
-    torque_source: str
-    torque_sensor: TorqueSensor
-
-
-def torque_sensor_of(runs: Sequence[_HasTorqueSensor]) -> TorqueSensor:
-    """Where the ``tau`` of ``runs`` (prepared runs, or the fit's :class:`~sim2real.identification.fitting.RunSamples`)
-    is measured: one place for all of them, checked here once. Runs that mix sensor positions are refused: one arm's
-    sensor is fitted together."""
-    measured = [run for run in runs if run.torque_source == "tau"]
-    places = {run.torque_sensor for run in measured}
-    if len(places) > 1:
-        listing = ", ".join(f"{run.name} ({run.torque_sensor})" for run in measured)
-        raise InputError(None, "torque_sensor", f"the runs mix torque sensor positions: {listing}",
-                         "fit runs of one arm's sensor together: every run's metadata `torque_sensor` the same "
-                         "(motor or link)")
-    return places.pop() if places else DEFAULT_TORQUE_SENSOR
-
-
-def measured_after_drive(torque_source: str, torque_sensor: str) -> bool:
-    """Whether the judged torque is measured after the drive (a link-side sensor's ``tau``): it then does not hold
-    the drive's rotor inertia and friction."""
-    return torque_source == "tau" and torque_sensor == "link"
 
 
 def _read_table(path: Path) -> pd.DataFrame:
@@ -464,79 +291,3 @@ def load_run(
     run = read_run(path)
     check_run(run, known_joints, position_limits)
     return run
-
-
-def load_measurement_list(path: str | Path) -> list[MeasurementEntry]:
-    """``configs/{robot}/measurements.yaml`` -> entries (name, path, role), names unique."""
-    return _entries(Path(path), read_validated_yaml(path, "measurements.schema.yaml"))
-
-
-def _entries(path: Path, data: Mapping[str, Any]) -> list[MeasurementEntry]:
-    entries: list[MeasurementEntry] = []
-    seen: set[str] = set()
-    for i, item in enumerate(data["runs"]):
-        if item["name"] in seen:
-            raise InputError(path, f"runs/{i}/name", f"duplicate run name '{item['name']}'", "give each run a unique name")
-        seen.add(item["name"])
-        entries.append(MeasurementEntry(name=item["name"], path=Path(item["path"]), role=item["role"]))
-    return entries
-
-
-def measurement_settings(path: str | Path) -> dict[str, Any]:
-    """Filter and replay settings of measurements.yaml, with defaults filled in."""
-    return _settings(read_validated_yaml(path, "measurements.schema.yaml"))
-
-
-def _settings(data: Mapping[str, Any]) -> dict[str, Any]:
-    return {
-        "cutoff_hz": float(data.get("filter", {}).get("cutoff_hz", DEFAULT_CUTOFF_HZ)),
-        "order": int(data.get("filter", {}).get("order", DEFAULT_FILTER_ORDER)),
-        "horizon_s": float(data.get("replay", {}).get("horizon_s", 0.5)),
-        # None: the default of sim2real.measurements.cleaning.gap_threshold_s, from each run's own steps
-        "max_step_s": data.get("gaps", {}).get("max_step_s"),
-    }
-
-
-def read_runs(measurement_list: str | Path, root: str | Path = ".") -> RunSet[Run]:
-    """Every run of a measurement list read once (:func:`read_run`), named as in the list, each with its line of it.
-
-    Returns the runs in the list's order with the settings of :func:`measurement_settings`. Every run must
-    log the same joints; the caller builds its model from ``runs[0].joint_names`` and hands it to
-    :func:`prepare_runs`.
-    """
-    path = Path(measurement_list)
-    data = read_validated_yaml(path, "measurements.schema.yaml")
-    entries = _entries(path, data)
-    runs = [dataclasses.replace(read_run(Path(root) / e.path), name=e.name, entry=e) for e in entries]
-    joints = runs[0].joint_names
-    for run in runs:
-        if run.joint_names != joints:
-            raise InputError(run.path, "columns q.<joint>", "joints differ from the first run's",
-                             f"log the same joints in every run: {', '.join(joints)}")
-    return RunSet(tuple(runs), _settings(data))
-
-
-def write_run(
-    path: str | Path, time: np.ndarray, joint_names: Sequence[str], signals: Mapping[str, np.ndarray],
-    meta: RunMeta | Mapping[str, Any],
-) -> None:
-    """Write a run (CSV or Parquet by extension) plus its metadata YAML, atomically and deterministically.
-    ``meta``: the run's metadata, or its document (the ``.yaml``'s content, written as given)."""
-    import pandas as pd
-    from sim2real.files import atomic_path, validate, write_yaml
-
-    path = Path(path)
-    columns: dict[str, np.ndarray] = {"time": np.asarray(time, dtype=float)}
-    for kind in SIGNAL_KINDS:
-        if kind in signals and signals[kind] is not None:
-            for i, joint in enumerate(joint_names):
-                columns[f"{kind}.{joint}"] = np.asarray(signals[kind], dtype=float)[:, i]
-    frame = pd.DataFrame(columns)
-    document = meta.as_document() if isinstance(meta, RunMeta) else dict(meta)
-    validate(document, "measurement.schema.yaml", path.with_suffix(".yaml"))
-    with atomic_path(path) as tmp:
-        if path.suffix.lower() == ".parquet":
-            frame.to_parquet(tmp, index=False)
-        else:
-            frame.to_csv(tmp, index=False, float_format="%.9g")
-    write_yaml(path.with_suffix(".yaml"), document)
