@@ -66,7 +66,7 @@ def test_runs_without_the_inert_meshes_are_the_same_to_the_bit(dev, monkeypatch)
     """The lab compiles its arms without the mesh geoms that cannot move a number (most of each compile):
     a run with a link-side sensor (three arms: nominal, real, link side), a payload, changed inertias,
     friction and noise, against the same run with every mesh kept."""
-    import sim2real.lab.simulate as simulate
+    import sim2real.lab.loop as loop
     from sim2real.assets.arm import compile_arm
 
     config = load_lab_config(dev["lab"])
@@ -77,9 +77,9 @@ def test_runs_without_the_inert_meshes_are_the_same_to_the_bit(dev, monkeypatch)
         meshes.append(len(spec.meshes))
         return compile_arm(spec, joints)
 
-    monkeypatch.setattr(simulate, "compile_arm", compile_counting)
+    monkeypatch.setattr(loop, "compile_arm", compile_counting)
     time, lean, _ = simulate_run(dev["mjcf"], config["joints"], scenario, seed=3)
-    monkeypatch.setattr(simulate, "drop_inert_meshes", lambda spec: None)
+    monkeypatch.setattr(loop, "drop_inert_meshes", lambda spec: None)
     time_full, full, _ = simulate_run(dev["mjcf"], config["joints"], scenario, seed=3)
     assert len(meshes) == 6 and max(meshes[:3]) < min(meshes[3:]), meshes
     assert np.array_equal(time, time_full) and set(lean) == set(full) == {"q", "qd", "tau", "tau_cmd", "q_cmd"}

@@ -87,8 +87,9 @@ default, scaled to stay inside the position and velocity limits.
 Its modules: :mod:`~sim2real.lab.config` (lab.yaml, its scenarios and runs, a designed excitation),
 :mod:`~sim2real.lab.spec_effects` (the hidden effects that live in the model, written into the torque-driven arm of
 :mod:`sim2real.assets.arm`, which the gap report's replay shares), :mod:`~sim2real.lab.hidden` (the hidden effects
-that act as torques or on the sensor: friction laws, Dahl's memory, cogging, drift) and
-:mod:`~sim2real.lab.simulate` (the controller, the sensors and the loop).
+that act as torques or on the sensor: friction laws, Dahl's memory, cogging, drift), :mod:`~sim2real.lab.loop`
+(the controller and the loop), :mod:`~sim2real.lab.logger` (what the logger writes of the sensors) and
+:mod:`~sim2real.lab.simulate` (one run put together, and the files it writes).
 """
 
 from __future__ import annotations
@@ -103,7 +104,8 @@ _MODULE_OF = {
                      "scenario_runs"], "config"),
     **dict.fromkeys(["cogging_torque", "dahl_step", "gaz_friction", "load_friction_level", "passive_friction",
                      "stribeck_friction"], "hidden"),
-    **dict.fromkeys(["fourier_excitation", "run_lab_scenario_run", "simulate_run", "write_truth"], "simulate"),
+    "fourier_excitation": "loop",
+    **dict.fromkeys(["run_lab_scenario_run", "simulate_run", "write_truth"], "simulate"),
 }
 __all__ = sorted(_MODULE_OF)
 
@@ -112,7 +114,8 @@ if TYPE_CHECKING:
                                      scenario_runs)
     from sim2real.lab.hidden import (cogging_torque, dahl_step, gaz_friction, load_friction_level, passive_friction,
                                      stribeck_friction)
-    from sim2real.lab.simulate import fourier_excitation, run_lab_scenario_run, simulate_run, write_truth
+    from sim2real.lab.loop import fourier_excitation
+    from sim2real.lab.simulate import run_lab_scenario_run, simulate_run, write_truth
 
 
 def __getattr__(name: str) -> Any:
