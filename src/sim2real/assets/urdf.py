@@ -1,7 +1,6 @@
-"""Xacro -> validated URDF, and resolution of ``package://`` mesh URIs.
-
-The built URDF keeps ``package://`` URIs (no absolute path reaches an output); validation resolves
-them with :func:`resolve_package_uri`, the one place that knows where packages live.
+"""Xacro -> validated URDF: the URDF's checks, and the build that expands the Xacro in its sandbox
+(:mod:`sim2real.assets.xacro_sandbox`) and validates the result. Mesh URIs are resolved by
+:mod:`sim2real.assets.packages`.
 
 Calibration YAML (Xacro argument ``calibration:=<path>``, written by the system-identification
 stage; every key optional, values in SI units, frames as in the URDF)::
@@ -26,217 +25,21 @@ The flange is ``panda_link8`` (Panda) / ``tool0`` (UR5), see ``robots/common/cal
 from __future__ import annotations
 
 import math
-
-import os
-import sys
 import xml.etree.ElementTree as ET
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from sim2real.assets.packages import resolve_package_uri
+from sim2real.assets.xacro_sandbox import XACRO_LIMITS, run_xacro
 from sim2real.errors import InputError
 from sim2real.files import atomic_path
-from sim2real.forked import ChildGaveNoAnswer, Limits, TimeLimit, call_limited
+from sim2real.forked import Limits
 
-PROJECT_ROOT = Path(__file__).resolve().parents[3]
-PACKAGE_PREFIX = "package://"
 ACTUATED_TYPES = ("revolute", "prismatic", "continuous")
 MESH_KINDS = ("visual", "collision")
-
-
-# --------------------------------------------------------------------------------------------
-# package:// resolution
-
-
-def package_search_dirs(robots_dir: str | Path | None = None) -> list[Path]:
-    """Directories that may hold a package, in search order.
-
-    1. ``<site-packages>/cmeel.prefix/share`` (example-robot-data installs there),
-    2. the project's ``robots/`` directory (``package://panda/...`` = ``robots/panda/...``),
-    3. every entry of ``ROS_PACKAGE_PATH``.
-    """
-    dirs: list[Path] = []
-    for entry in sys.path:
-        share = Path(entry or ".") / "cmeel.prefix" / "share"
-        if share.is_dir() and share.resolve() not in dirs:
-            dirs.append(share.resolve())
-    dirs.append(Path(robots_dir) if robots_dir is not None else PROJECT_ROOT / "robots")
-    for entry in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep):
-        if entry:
-            dirs.append(Path(entry))
-    return dirs
-
-
-def resolve_package_uri(
-    uri: str,
-    *,
-    source: str | Path | None = None,
-    where: str | None = None,
-    robots_dir: str | Path | None = None,
-) -> Path:
-    """Absolute path of ``package://NAME/rel`` (or of a plain relative/absolute path).
-
-    A package that no search directory holds is an :class:`InputError` naming ``source``/``where``.
-    The file itself need not exist (callers check that, to give their own message).
-    """
-    if not uri.startswith(PACKAGE_PREFIX):
-        if uri.startswith("file://"):
-            uri = uri[len("file://"):]
-        path = Path(uri)
-        if not path.is_absolute() and source is not None:
-            path = Path(source).parent / path
-        return path
-    package, _, relative = uri[len(PACKAGE_PREFIX):].partition("/")
-    searched = package_search_dirs(robots_dir)
-    for base in searched:
-        candidate = base / package
-        if candidate.is_dir():
-            return candidate / relative
-    raise InputError(
-        source,
-        where,
-        f"unknown package '{package}' in '{uri}' (searched {', '.join(str(d) for d in searched)})",
-        "use package://example-robot-data/... for the example-robot-data meshes, put the package under "
-        "robots/, or add its parent directory to ROS_PACKAGE_PATH",
-    )
-
-
-# --------------------------------------------------------------------------------------------
-# Xacro
-
-
-# A pull request's Xacro runs in the untrusted CI job: it is expanded in a child process held to these limits (a
-# robot's Xacro takes well under a second and tens of MB), and may read only files of the robot's packages.
-XACRO_LIMITS = Limits(seconds=60.0, memory_bytes=1024 * 2**20)
-
-
-def xacro_roots(xacro_path: str | Path) -> list[Path]:
-    """The directories a Xacro may read from (its includes, its ``xacro.load_yaml``): the one holding its own
-    package (``robots/`` for ``robots/<name>/<name>.urdf.xacro``) and every package search directory
-    (:func:`package_search_dirs`), symlinks resolved."""
-    roots = [Path(xacro_path).resolve().parent.parent, *package_search_dirs()]
-    return list(dict.fromkeys(Path(os.path.realpath(root)) for root in roots))
-
-
-def run_xacro(xacro_path: str | Path, args: Mapping[str, object] | None = None, *,
-              allowed: tuple[str | Path, ...] = (), limits: Limits = XACRO_LIMITS) -> str:
-    """Expand a Xacro file to URDF text in a child process held to ``limits``; it may read files under
-    :func:`xacro_roots` and the files ``allowed`` (a calibration YAML). A Xacro error, a file outside, or a limit
-    reached becomes one InputError naming the file and the element."""
-    xacro_path = Path(xacro_path)
-    if not xacro_path.exists():
-        raise InputError(xacro_path, None, "Xacro file does not exist", "create it or correct the path")
-    mappings = {str(k): ("" if v is None else _xacro_arg(v)) for k, v in (args or {}).items()}
-    readable = (tuple(xacro_roots(xacro_path)), frozenset(Path(os.path.realpath(f)) for f in allowed))
-    try:
-        return call_limited(_expand_xacro, xacro_path, mappings, readable, limits, limits=limits)
-    except ChildGaveNoAnswer as exc:
-        problem = (f"expanding it ran past its time limit of {limits.seconds:g} s" if exc.timed_out else
-                   f"expanding it ended without an answer (exit code {exc.exitcode}; its memory limit is "
-                   f"{limits.memory_bytes / 2**20:.0f} MB)")
-        raise InputError(xacro_path, "Xacro expansion", problem, XACRO_LIMIT_FIX) from None
-
-
-XACRO_LIMIT_FIX = ("bound the macro recursion (a macro that calls itself until a condition) and the ranges and "
-                   "repetitions of ${...} expressions")
-
-
-def _expand_xacro(xacro_path: Path, mappings: Mapping[str, str], readable: tuple[tuple[Path, ...], frozenset[Path]],
-                  limits: Limits) -> str:
-    """The child's work (:func:`run_xacro`): xacro reads through :func:`_reading_within`; what stops it becomes an
-    InputError naming the file xacro was in and the macro it was expanding."""
-    import xacro  # imported lazily: xacro keeps global state, keep it out of module import
-
-    xacro.all_includes = []
-    xacro.filestack = []
-    try:
-        # xacro's module namespace is searched before the builtins: every file it opens (its parse of an include,
-        # its load_yaml) passes the check; where the work runs in a child, the child's copy of the module is patched.
-        xacro.open = _reading_within(*readable, xacro)
-        return _urdf_text(xacro.process_file(str(xacro_path), mappings=mappings), xacro_path)
-    except (Exception, TimeLimit) as exc:  # xacro: XacroException, NameError...; the limits: TimeLimit, MemoryError
-        raise _xacro_error(exc, xacro_path, xacro, limits) from None
-    finally:
-        vars(xacro).pop("open", None)
-
-
-def _urdf_text(doc: Any, xacro_path: Path) -> str:
-    """The expanded document as the URDF's text, with sim2real's banner for xacro's (which names the input path,
-    so that the output does not depend on where it ran)."""
-    for node in list(doc.childNodes):
-        if node.nodeType == node.COMMENT_NODE:
-            doc.removeChild(node)
-    root = doc.documentElement
-    for node in list(root.childNodes):
-        if node.nodeType == node.COMMENT_NODE:
-            root.removeChild(node)
-    text = doc.toprettyxml(indent="  ")
-    lines = [line for line in text.splitlines() if line.strip()]
-    banner = f"<!-- Generated by sim2real from {xacro_path.name}; do not edit (edit the Xacro). -->"
-    return "\n".join([lines[0], banner, *lines[1:]]) + "\n"
-
-
-def _reading_within(roots: tuple[Path, ...], allowed: frozenset[Path], xacro: Any) -> Callable[..., Any]:
-    """xacro's ``open``: a file under ``roots`` or ``allowed`` (symlinks resolved) opens; any other is an InputError
-    naming the element that reads it, told by xacro's caller: its parse of an include or its load_yaml."""
-    def open_within(file: str, *args: Any, **kwargs: Any) -> Any:
-        real = Path(os.path.realpath(file))
-        if real in allowed or any(real.is_relative_to(root) for root in roots):
-            return open(file, *args, **kwargs)
-        stack = [str(f) for f in xacro.filestack if f]
-        if sys._getframe(1).f_code.co_name == "load_yaml":
-            source, element = stack[-1], f"xacro.load_yaml('{file}')"
-        elif len(stack) > 1:
-            source, element = stack[-2], f'<xacro:include filename="{stack[-1]}">'
-        else:
-            source, element = file, "the Xacro file itself"
-        raise InputError(source, element, f"reads {real}, outside the robot's package roots "
-                         f"({', '.join(map(str, roots))})",
-                         "read only files of the robot's packages (its folder under robots/, robots/common, "
-                         "example-robot-data's share directory, ROS_PACKAGE_PATH); copy the file there")
-    return open_within
-
-
-def _cause(exc: BaseException, kind: type[BaseException] | tuple[type[BaseException], ...]) -> BaseException | None:
-    """The exception of ``kind`` that ``exc`` is or wraps (xacro keeps the wrapped one in ``exc``)."""
-    seen: set[int] = set()
-    current: BaseException | None = exc
-    while current is not None and id(current) not in seen:
-        if isinstance(current, kind):
-            return current
-        seen.add(id(current))
-        current = getattr(current, "exc", None) or current.__cause__ or current.__context__
-    return None
-
-
-def _xacro_error(exc: BaseException, xacro_path: Path, xacro: Any, limits: Limits) -> InputError:
-    """What stopped xacro, as one InputError line: a file read outside, a limit reached, or xacro's own error, in
-    the file it was in and the macro it was expanding."""
-    refused = _cause(exc, InputError)
-    if isinstance(refused, InputError):
-        return refused
-    stack = [str(f) for f in (getattr(xacro, "filestack", None) or []) if f]
-    failing = stack[-1] if stack else str(xacro_path)
-    macros = getattr(xacro, "macrostack", None) or []
-    name = macros[-1].body.getAttribute("name") if macros and macros[-1].body is not None else ""
-    where = f"macro '{name}'" if name else "Xacro expansion"  # the macro xacro was expanding, as xacro names it
-    if _cause(exc, TimeLimit) is not None:
-        return InputError(failing, where, f"expanding it ran past its time limit of {limits.seconds:g} s",
-                          XACRO_LIMIT_FIX)
-    if _cause(exc, MemoryError) is not None:
-        return InputError(failing, where, f"expanding it ran past its memory limit of "
-                          f"{limits.memory_bytes / 2**20:.0f} MB", XACRO_LIMIT_FIX)
-    return InputError(failing, where, f"Xacro cannot expand it: {' '.join(str(exc).split())}",
-                      "fix the ${...} expression, macro call or argument named above")
-
-
-def _xacro_arg(value: object) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    return str(value)
 
 
 # --------------------------------------------------------------------------------------------
