@@ -29,14 +29,19 @@ JOINTS = [f"panda_joint{i}" for i in range(1, 8)]
 def lab(tmp_path_factory):
     directory = tmp_path_factory.mktemp("noise_floor")
     urdf, mjcf = build_dev_panda(directory)
-    config = short_lab_config(directory, duration_s=8.0)
+    return {"urdf": urdf, "scenario": _scenarios(directory, mjcf, "panda")}
+
+
+def _scenarios(directory: Path, mjcf: Path, robot: str):
+    """A lab scenario's fit and holdout runs on 8 s runs (made once), their measurement list and the lab's truth."""
+    config = short_lab_config(directory, duration_s=8.0, robot=robot)
 
     def scenario(name: str) -> tuple[Path, dict]:
         entries = []
         for run in ("fit", "holdout"):
             out = directory / name / f"{run}.csv"
             if not out.exists():
-                run_lab_scenario_run(mjcf, config, "panda", name, run, out)
+                run_lab_scenario_run(mjcf, config, robot, name, run, out)
             entries.append({"name": f"{name}_{run}", "path": out.as_posix(), "role": run})
         listing = directory / f"{name}_measurements.yaml"
         listing.write_text(yaml.safe_dump({"runs": entries}))
@@ -44,7 +49,7 @@ def lab(tmp_path_factory):
         write_truth(config, mjcf, name, truth)
         return listing, yaml.safe_load(truth.read_text())
 
-    return {"urdf": urdf, "scenario": scenario}
+    return scenario
 
 
 @pytest.mark.parametrize("name, method", [("real_arm_like_smoothed_200hz", "spectrum"),
@@ -175,23 +180,8 @@ def iiwa_lab(tmp_path_factory):
     """The shipped iiwa 14's lab arm (configs/iiwa14/lab.yaml) on 8 s runs: its link-side sensors, per-run offsets
     and wrist torques a hundred times smaller than the shoulder's, logged through a sensor chain."""
     directory = tmp_path_factory.mktemp("noise_floor_iiwa")
-    urdf, mjcf = build_dev_iiwa14(directory)
-    config = short_lab_config(directory, duration_s=8.0, robot="iiwa14")
-
-    def scenario(name: str) -> tuple[Path, dict]:
-        entries = []
-        for run in ("fit", "holdout"):
-            out = directory / name / f"{run}.csv"
-            if not out.exists():
-                run_lab_scenario_run(mjcf, config, "iiwa14", name, run, out)
-            entries.append({"name": f"{name}_{run}", "path": out.as_posix(), "role": run})
-        listing = directory / f"{name}_measurements.yaml"
-        listing.write_text(yaml.safe_dump({"runs": entries}))
-        truth = directory / name / "truth.yaml"
-        write_truth(config, mjcf, name, truth)
-        return listing, yaml.safe_load(truth.read_text())
-
-    return scenario
+    _, mjcf = build_dev_iiwa14(directory)
+    return _scenarios(directory, mjcf, "iiwa14")
 
 
 @pytest.mark.parametrize("name, methods", [("real_arm_like_smoothed_200hz", {"spectrum"}),
