@@ -663,7 +663,7 @@ def test_lone_torque_glitches_cost_the_loop_nothing(shared_lab, monkeypatch):
     logged, the same model misses by several floors."""
     import pandas as pd
 
-    import sim2real.measurements.prepare as prepare
+    import sim2real.measurements.cleaning as cleaning
 
     lab = shared_lab
     whole = yaml.safe_load(lab.measurement_list("real_arm_like").read_text())["runs"]
@@ -679,7 +679,7 @@ def test_lone_torque_glitches_cost_the_loop_nothing(shared_lab, monkeypatch):
         == [{"q": 10, "tau": 20}] * 2
     _, clean = _last_rung_x_floor(lab, lab.measurement_list("real_arm_like"))
     assert np.all(clean <= 1.5) and np.allclose(replaced, clean, rtol=0.02), (replaced, clean)
-    monkeypatch.setattr(prepare, "SPIKE_SCALES", np.inf)  # judged as logged
+    monkeypatch.setattr(cleaning, "SPIKE_SCALES", np.inf)  # judged as logged
     _, as_logged = _last_rung_x_floor(lab, listing)
     assert as_logged.max() > 3.0, as_logged
 

@@ -114,8 +114,10 @@ def test_intervals_from_stacked_replicates_are_each_replicates_own_values(seed, 
     samples = 50
     motion = [rng.normal(size=(samples, len(joints))) for _ in range(3)]
     nominal = {key: rng.uniform(0.0, 2.0, len(joints)) for key in ("friction", "damping", "armature")}
+    gravity = rng.normal(size=(samples, len(joints), 3))  # a generalized gravity under unit gravity along x, y, z
     signals = Signals(joints, np.arange(samples) * 5e-3, *motion, np.zeros((samples, len(joints))),
-                      [slice(0, samples)], tau=rng.normal(size=(samples, len(joints))), nominal=nominal, forward=forward)
+                      [slice(0, samples)], tau=rng.normal(size=(samples, len(joints))), nominal=nominal, forward=forward,
+                      gravity_fn=lambda: gravity)
     stacked_effects = [e for e in EFFECTS.values() if e.values_stacked]
     assert {e.name for e in stacked_effects} >= {"coulomb_friction", "viscous_friction", "rotor_inertia"}
     for effect in stacked_effects:

@@ -124,7 +124,9 @@ class BaseMount(Effect):
         return STANDARD_GRAVITY * ((np.sin(b) - b) * g[:, :, 0] - (np.sin(a) * np.cos(b) - a) * g[:, :, 1]
                                    + (1.0 - np.cos(a) * np.cos(b)) * g[:, :, 2])
 
-    values_stacked = True
+    # Not stacked: the gravity vector it reports is a function of both angles together, which a replicate-wise
+    # mean of stacked angles would not give.
+    values_stacked = False
 
     def values(self, theta, nonlinear, signals, state):
         a, b = self._angles(theta, state)
