@@ -55,7 +55,6 @@ class NoteKind(enum.StrEnum):
     TIED = "tied"  # ties with the best, the one recommended (figures: others, best_first, best)
     CAUTION = "caution"  # what the named candidate's fit does that makes it less trustworthy (figures: troubles)
     FAILED_TRIALS = "failed_trials"  # trials that did not solve (figures: failed)
-    RAISES_JOINTS = "raises_joints"  # the candidate set aside for raising joints (figures: lowers, raises, explained)
     # decisions that take the conservative side (sim2real.identification.diagnosis.margins, caveats.relabelling)
     RELABELLED = "relabelled"  # candidates whose term is the model's own relabelled (figures: relabelled)
     NEAR_THRESHOLD = "near_threshold"  # figures within the arithmetic's margin (figures: candidates, joints, ties)

@@ -62,9 +62,9 @@ from sim2real.identification.diagnosis.caveats import (
 )
 from sim2real.identification.diagnosis.current import CurrentResidual
 from sim2real.identification.diagnosis.lags import other_shapes, same_lag, shapes_note
-from sim2real.identification.diagnosis.raises import raise_notes, set_aside_raisers
 from sim2real.identification.diagnosis.margins import (
-    CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor, near_threshold_notes, near_thresholds,
+    AT_THRESHOLD, CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor, near_threshold_notes,
+    near_thresholds,
 )
 from sim2real.identification.diagnosis.result import Candidate, Diagnosis
 from sim2real.identification.diagnosis.trials import _tried, failed_trial, replaced_by
@@ -228,8 +228,9 @@ def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: 
     seen = [True] * len(joints) if own is None else [bool(o >= OWN_TERM_MIN) for o in own]
     # A joint above its floor whose excess the candidate mostly removes names it on that joint, however small that
     # joint's share of the arm; never at the price of the arm as a whole, nor of another joint (diagnosis.margins).
-    # Each threshold read with the arithmetic's margin against the decision: a figure within it names nothing.
-    decision = decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, CONSERVATIVE)
+    # Decided on the thresholds themselves; where reading them with the arithmetic's margin either way would decide
+    # otherwise, the evidence says so (near_threshold) and the verdict words it.
+    decision = decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, AT_THRESHOLD)
     arm_wide, on_joints = decision.arm_wide, list(decision.on_joints)
     acting = [j for j, v, ok in zip(joints, scores["per_joint_beyond"], seen, strict=True)
               if v >= limits["joint_min_explained"] and ok]
@@ -237,7 +238,8 @@ def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: 
     evidence = _evidence(name, trial, scores, context, now, current, own)
     if broken is not None:
         evidence["fit_failed"] = broken
-    elif decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, PERMISSIVE).decisive != decisive:
+    elif (decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, PERMISSIVE).decisive
+          != decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, CONSERVATIVE).decisive):
         evidence["near_threshold"] = [n.as_document() for n in
                                       near_thresholds(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN)]
     return {
@@ -349,7 +351,6 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
             residuals_after[name] = scaled
         else:
             failed[name] = broken
-    raised = set_aside_raisers(tried_candidates, residuals_after, now, joints)  # no rung raises a joint
     relabelled, trades_of = _relabellings(tried_candidates, failed, trials, current, context, now)
     ranked = _rank([c for c in tried_candidates if c["effect"] not in failed], float(limits["parsimony_noise_fraction"]))
     ranked += [c for c in tried_candidates if c["effect"] in failed]  # last, whatever they would have scored
@@ -364,7 +365,6 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
     status = _status(best, recommended, above)
     notes = _named_notes(best, ranked, group, confounded, residuals_after, limits) \
         if status == Status.ADD_EFFECT and best is not None else []
-    notes += raise_notes(raised, best)
     if failed:
         notes.append(Note(NoteKind.FAILED_TRIALS, figures={"failed": {k: failed[k] for k in sorted(failed)}}))
     if relabelled:

@@ -176,21 +176,3 @@ NOTE_KEYS: dict[NoteKind, str] = {
     NoteKind.DRIVE_PLACEMENT: "sensor_note", NoteKind.SENSOR_LAG: "lag_note", NoteKind.SENSOR_LAG_TRIAL: "lag_note",
     NoteKind.OTHER_SIDE: "other_link_note", NoteKind.HELD_ON_OTHER_SIDE: "held_note",
 }
-
-
-
-# ---- No rung raises a joint (sim2real.identification.diagnosis.raises): the candidate set aside for it.
-
-def _raises_joints(note: Note, robot: str) -> str:
-    figures = note.figures
-
-    def moves(rows: Mapping[str, Mapping[str, float]]) -> str:
-        return ", ".join(f"{j} {floor_multiple(r['from'])} -> {floor_multiple(r['to'])}" for j, r in rows.items())
-
-    lowers = f"lowers {moves(figures['lowers'])} (x each joint's floor) but " if figures["lowers"] else ""
-    return (f" {note.effect} {lowers}raises {moves(figures['raises'])} beyond what the noise floor and the holdout's "
-            f"blocks can resolve: no rung may raise a joint, so it is not recommended. configs/{robot}/model.yaml has "
-            f"no line that keeps an effect on some joints only, so its line '- {note.effect}' is added on none.")
-
-
-NOTE_TEXT[NoteKind.RAISES_JOINTS] = _raises_joints
