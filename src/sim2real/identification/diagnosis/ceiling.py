@@ -93,12 +93,12 @@ def _harmonic_learner() -> Any:
 
 
 def _pose_learner() -> Any:
-    from sklearn.linear_model import RidgeCV
-    from sklearn.model_selection import KFold
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    return make_pipeline(StandardScaler(), RidgeCV(alphas=np.logspace(-3, 3, 13), cv=KFold(POSE_BLOCKS)))
+    from sim2real.identification.diagnosis.blocked_ridge import BlockedRidgeCV
+
+    return make_pipeline(StandardScaler(), BlockedRidgeCV(alphas=np.logspace(-3, 3, 13), blocks=POSE_BLOCKS))
 
 
 def _dynamics_learner() -> Any:
