@@ -90,10 +90,17 @@ class Lab:
         prepared = load_prepared_runs(measurement_list, self.joints, "/")
         return {"fit": list(prepared.fit), "holdout": list(prepared.holdout)}
 
+    def cache(self, scenario: str) -> FitCache:
+        """The scenario's fit cache: every model and ladder fitted on its runs reads back the rungs and diagnoses
+        another test (or round) already fitted, as the sysid rule does between rounds. A hit is what the fit would
+        compute (its key digests the data, effects, settings and code), so sharing it changes no number; a test that
+        patches the code at run time fits through ``side_ladder`` instead."""
+        return FitCache(self.dir / f"{scenario}_fits")
+
     def model(self, scenario: str, effects: list[str], with_sensor: bool = True,
               cache: FitCache | None = None, kept_on: dict[str, str] | None = None) -> dict[str, Any]:
         """ladder.json content of both sides, with its words (``sysid.fit_model``, :func:`sim2real.report.verdicts.worded`); ``with_sensor=False`` drops tau; ``cache``:
-        rungs and diagnoses of earlier rounds read back, as the sysid rule does; ``kept_on``: the drive lines
+        rungs and diagnoses of earlier rounds read back, as the sysid rule does (None: :meth:`cache`); ``kept_on``: the drive lines
         model.yaml keeps on one link (``- asymmetric_friction: actuator``)."""
         # the actuator link's settings too: a test may change them to see another way of fitting
         key = ("model", scenario, tuple(effects), with_sensor, repr(sorted(sides.DRIVE_FIT_SETTINGS.items())),
@@ -102,7 +109,8 @@ class Lab:
             listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
             with threadpool_limits(limits=1, user_api="blas"):  # one BLAS thread per worker, as in run_sysid
                 document, _ = sysid.fit_model(model_config(effects, kept_on=kept_on), self.nominal,
-                                              self.prepared(listing), self.robot, workers=WORKERS, cache=cache)
+                                              self.prepared(listing), self.robot, workers=WORKERS,
+                                              cache=cache if cache is not None else self.cache(scenario))
                 self._documents[key] = worded(document, self.robot)
         return copy.deepcopy(self._documents[key])
 
@@ -122,7 +130,7 @@ class Lab:
             if key not in self._followed:
                 self._followed[key] = self.follow(scenario, rounds, report=lambda *_: None, start=start)
             return copy.deepcopy(self._followed[key])
-        cache = FitCache(self.dir / f"{scenario}_fits")
+        cache = self.cache(scenario)
         effects: list[str] = list(start)
         kept_on: dict[str, str] = {}
         documents: list[dict[str, Any]] = []
@@ -170,7 +178,8 @@ class Lab:
             with threadpool_limits(limits=1, user_api="blas"):
                 context = FitContext.on_nominal(self.nominal, fit_data, holdout_data,
                                                 {**fitting.DEFAULT_SETTINGS, **FAST_FIT}, workers=WORKERS)
-                side = sysid.fit_ladder(effects, context, diagnosed=diagnose, candidates=candidates)
+                side = sysid.fit_ladder(effects, context, diagnosed=diagnose, candidates=candidates,
+                                        cache=self.cache(scenario))
                 self._documents[key] = worded({"robot": self.robot, **side.as_document()}, self.robot)
         return copy.deepcopy(self._documents[key])
 

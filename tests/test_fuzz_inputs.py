@@ -309,7 +309,9 @@ VALID_URDF = {"mass": 1.5, "ixx": 0.02, "iyy": 0.03, "izz": 0.04, "ixy": 0.001, 
               "lower": -2.0, "upper": 2.0, "effort": 80.0, "velocity": 2.0}
 
 
-@fuzz(500)
+# Each example expands its Xacro in the sandbox's forked child (a fork of the test process): 200 here, the
+# benchmark's 2000 beyond the suite.
+@fuzz(200)
 @given(broken_fields=st.dictionaries(st.sampled_from(URDF_FIELDS), NUMBER, max_size=3),
        removed=st.lists(st.sampled_from(["lower", "upper", "effort", "velocity", "limit"]), max_size=2),
        jtype=st.sampled_from(["revolute", "revolute", "prismatic", "continuous", "fixed", "hinge"]))
