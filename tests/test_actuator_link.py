@@ -210,8 +210,9 @@ def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
     from sim2real.assets.arm import arm_spec
 
     runs = lab.prepared(lab.measurement_list("actuator_gain"))
-    document, results = sysid.fit_model(model_config(["actuator_gain", "actuation_delay", "command_bias"]),
-                                        lab.nominal, runs, "panda")
+    fitted = sysid.fit_model(model_config(["actuator_gain", "actuation_delay", "command_bias"]), lab.nominal, runs,
+                             "panda")
+    document, results = fitted.document, fitted.results
     params = sysid.params_document(results, lab.nominal, document["torque_source"], "panda")
     assert set(params["effects"]) == {"actuation_delay", "actuator_gain", "command_bias"}
     spec = arm_spec(lab.mjcf, lab.nominal.joint_names)  # the dev MJCF driven by joint torque motors
@@ -341,8 +342,9 @@ def test_a_drive_line_kept_on_the_actuator_link_stays_off_the_body_link(lab):
 
     effects = ["link_inertia", "asymmetric_friction"]
     kept = model_config(effects, kept_on={"asymmetric_friction": "actuator"})
-    document, results = fit_model(kept, lab.nominal, lab.prepared(lab.measurement_list("link_side_sensor")),
-                                  lab.robot, workers=WORKERS)
+    fitted = fit_model(kept, lab.nominal, lab.prepared(lab.measurement_list("link_side_sensor")), lab.robot,
+                       workers=WORKERS)
+    document, results = fitted.document, fitted.results
     assert document["ladder"][-1]["effects"] == ["link_inertia"]
     assert document["actuator"]["ladder"][-1]["effects"] == ["asymmetric_friction"]
     assert document["links"]["kept_on"] == {"asymmetric_friction": "actuator"}
