@@ -23,7 +23,7 @@ This module fits the learners and reads them; the features they read are built i
 from __future__ import annotations
 
 import importlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -32,6 +32,7 @@ from sim2real.identification.diagnosis.ceiling_features import (
     DYNAMICS_LEARNER, DYNAMICS_TREES, POSE_LEARNERS, LearnerFeatures, _chosen_features, dynamics_features, feature,
     motion_features, period_harmonics, pose_features, position_harmonics, signed_products, since_reversal,
 )
+from sim2real.identification.diagnosis.result import CeilingReading
 from sim2real.identification.effects.position_ripple import best_periods
 
 # The learner's holdout RMSE at or above this fraction of the rung's: what is left is not a function of the
@@ -365,7 +366,7 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
     per_joint = {joint: row for joint, (row, _) in zip(joints, rows, strict=True)}
     after = np.column_stack([column for _, column in rows])
     overall = float(np.sqrt(np.mean(after**2)))
-    offsets = offset_joints(per_joint)
+    offsets = offset_joints({j: CeilingReading.from_document(row) for j, row in per_joint.items()})
     declare = ({"effect": DRIFT_EFFECT, "joints": offsets, "line": f"- {DRIFT_EFFECT}"}
                if offsets and DRIFT_EFFECT not in model_effects else None)
     mounted = [j for j, r in per_joint.items() if r.get("effect") == MOUNT_EFFECT]
@@ -382,17 +383,16 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
     }
 
 
-def offset_joints(per_joint: dict[str, Any]) -> list[str]:
+def offset_joints(per_joint: Mapping[str, CeilingReading]) -> list[str]:
     """The joints where what is left sits at an offset of each run's own or drifts: no function of the motion, or
     one a drift removes as much of (:func:`imitated_joints`). Not a joint whose leftover follows a gravity turned
     sideways (``effect``): a held-out run judges the mount that carries it, no drift estimated on every run stands in
     for it."""
-    return [j for j, r in per_joint.items() if r["kind"] != "at_floor" and r.get("follows") in OFFSET_KINDS
-            and not r.get("effect")]
+    return [j for j, r in per_joint.items() if r.kind != "at_floor" and r.follows in OFFSET_KINDS and not r.effect]
 
 
-def imitated_joints(per_joint: dict[str, Any]) -> list[str]:
+def imitated_joints(per_joint: Mapping[str, CeilingReading]) -> list[str]:
     """The joints where a learner on the motion explains much of what is left, yet an offset or drift of each run's
     own removes at least as much, and without it the learner explains nothing more: the motion merely follows the
     run's time."""
-    return [j for j, r in per_joint.items() if r["kind"] == "motion" and r.get("imitated")]
+    return [j for j, r in per_joint.items() if r.kind == "motion" and r.imitated]
