@@ -229,15 +229,18 @@ def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
 
 def typed(document: dict, side: str):
     """A diagnosis as data (:class:`sim2real.identification.diagnosis.Diagnosis`) from the few fields a test gives:
-    its status, candidates and per-joint rows."""
+    its status, candidates and per-joint rows (the rest of each row: a plain trial's, no candidate closest)."""
+    from diagnosis_rows import evidence_document
     from sim2real.identification.diagnosis import Diagnosis
 
     candidates = [{"link": side, "joints": [], "explained_beyond_noise": c["explained"], "add": f"- {c['effect']}",
-                   **c} for c in document.get("candidates", [])]
+                   **c, "evidence": {**evidence_document(), **c.get("evidence", {})}} for c in document.get("candidates", [])]
     return Diagnosis.from_document({
         "link": side, "status": document["status"], "candidates": candidates, "confounded": [], "tied": [],
         "residual_rmse": 0.1, "noise_floor_ratio": 1.0, "noise_rmse": 0.1, "noise_floor_factor": 1.5,
-        "min_explained": 0.3, "per_joint": document.get("per_joint", {}), "above_floor": [], "skipped": [],
+        "min_explained": 0.3, "above_floor": [], "skipped": [],
+        "per_joint": {j: {"closest": None, "closest_explained_beyond_noise": 0.0, "closest_x_floor_after": row["x_floor"],
+                          **row} for j, row in document.get("per_joint", {}).items()},
         "failed": [], "notes": []})
 
 

@@ -29,7 +29,6 @@ from sim2real.forked import Forked
 from sim2real.identification import sides
 from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, Diagnosis, diagnose, model_free_ceiling
 from sim2real.identification.diagnosis.across import across_sides
-from sim2real.identification.diagnosis.result import ModelFreeCeiling
 from sim2real.identification.documents import params_document, round_floats
 from sim2real.identification.effects import get_effect
 from sim2real.identification.formats import (
@@ -187,10 +186,10 @@ def _diagnose_side(effect_names: Sequence[str], context: FitContext, holdout_res
                                    context.settings.get(STILL_JOINTS_SETTING) or ())
     if side == Side.DRIVE:
         return diagnosis  # predicted forward from the command: the motion is not what it is a function of
-    ceiling = ModelFreeCeiling.from_document(model_free_ceiling(
-        context.fit_data, fit_residual, context.holdout_data, holdout_residual,
-        float(options["limits"]["noise_floor_factor"]), workers=context.workers, model_effects=effect_names,
-        nominal_dynamics=context.nominal.dynamics if context.nominal else None))
+    ceiling = model_free_ceiling(context.fit_data, fit_residual, context.holdout_data, holdout_residual,
+                                 float(options["limits"]["noise_floor_factor"]), workers=context.workers,
+                                 model_effects=effect_names,
+                                 nominal_dynamics=context.nominal.dynamics if context.nominal else None)
     if diagnosis.status == Status.ADD_EFFECT and ceiling.declare is not None:
         # A candidate a held-out run judged comes first: a drift estimated on every run, holdout included, could
         # stand in for it; the next round's ceiling declares the drift if it is still there.
