@@ -89,3 +89,49 @@ def test_a_file_of_another_kind_is_no_residuals(tmp_path):
     (tmp_path / "residuals.npz").write_text("not an archive", encoding="utf-8")
     with pytest.raises(zipfile.BadZipFile):
         formats.read_model_residuals(tmp_path / "residuals.npz")
+
+
+def test_the_diagnosis_rows_round_trip_with_and_without_their_optional_figures():
+    """ladder.json's diagnosis: each typed row (a candidate's evidence, a joint's standing, the model-free ceiling and
+    its reading of a joint) writes its document and reads it back, an optional figure present or not."""
+    from diagnosis_rows import evidence
+    from sim2real.identification.diagnosis.result import (
+        Candidate, CeilingReading, Diagnosis, EffectAdvice, JointStanding, ModelFreeCeiling,
+    )
+    from sim2real.identification.records import Note, NoteKind, Status
+
+    plain = evidence(JOINTS, x_floor_after=1.4, fitted={"damping": {"panda_joint1": 0.5}})
+    full = dataclasses.replace(plain, per_joint_own_term_x_floor={"panda_joint1": 0.7, "panda_joint2": 0.1},
+                               fit_failed={"fit_x_floor": 9.0}, near_threshold=({"kind": "near_threshold"},),
+                               relabels=({"effect": "coulomb_friction"},), trades_with=(),
+                               tie_with_best={"difference": 0.1, "spread": 0.2, "blocks": 8},
+                               implausible_bodies=({"body": "panda_link3", "reasons": ["mass"]},),
+                               bounds_pushed={"panda_link4": ("hull",)}, bounds_released={"panda_link2": ("mass",)})
+    at_floor = CeilingReading(0.05, 0.05, 1.0, 1.0, 1.0, 0.0, "at_floor", False)
+    motion = CeilingReading(0.3, 0.1, 6.0, 2.0, 0.33, 0.8, "motion", True, learner="trees on the motion",
+                            gains_most_with=({"feature": "velocity", "joint": "panda_joint2"},), gains_most_in=None,
+                            effect="base_mount", beyond_motion={"time": 0.9, "run": 0.1}, follows="time",
+                            imitated=True)
+    still = CeilingReading(0.3, 0.29, 6.0, 5.8, 0.97, 0.02, "not_motion", True, learner="trees on the motion",
+                           beyond_motion={"time": 0.0, "run": 0.0, "history": 0.0}, follows=None)
+    ceiling = ModelFreeCeiling("trees", 0.2, {"panda_joint1": 0.05, "panda_joint2": 0.1}, 0.8,
+                               {"panda_joint1": at_floor, "panda_joint2": motion},
+                               declare=EffectAdvice("sensor_drift", ("panda_joint2",), "- sensor_drift"))
+    for row in (plain, full):
+        assert type(row).from_document(row.as_document()) == row
+    for reading in (at_floor, motion, still):
+        assert CeilingReading.from_document(reading.as_document()) == reading
+    diagnosis = Diagnosis(
+        side=Side.BODY, status=Status.ADD_EFFECT,
+        candidates=(Candidate("viscous_friction", Side.BODY, ("panda_joint1",), "joints", 0.4, 0.6, True, full,
+                              "- viscous_friction", ("payload",)),),
+        confounded=(), tied=(), residual_rmse=0.2, noise_floor_ratio=2.5, noise_rmse=0.08, noise_floor_factor=1.5,
+        min_explained=0.3, above_floor=("panda_joint1",),
+        per_joint={"panda_joint1": JointStanding(2.5, "viscous_friction", 0.6, 1.4),
+                   "panda_joint2": JointStanding(1.1, None, 0.0, 1.1, judged=False)},
+        notes=(Note(NoteKind.FAILED_TRIALS, figures={"failed": {}}),), model_free=ceiling, joints=JOINTS)
+    document = diagnosis.as_document()
+    assert Diagnosis.from_document(document) == diagnosis
+    assert "judged" not in document["per_joint"]["panda_joint1"] and document["per_joint"]["panda_joint2"]["judged"] is False
+    assert "imitated" not in still.as_document() and still.as_document()["follows"] is None
+    assert "points_to" not in document["model_free"] and "follows" not in at_floor.as_document()
