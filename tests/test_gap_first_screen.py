@@ -46,15 +46,9 @@ def test_the_demos_first_screen_holds_verdict_ladder_and_joints(built_tree: Path
 
 def _evidence(x_floor_after: float) -> dict:
     """A candidate's evidence as ladder.json holds it: nothing implausible, no bound pushed, no trade."""
-    from sim2real.identification.diagnosis.result import CandidateEvidence
+    from diagnosis_rows import evidence_document
 
-    per_joint = {j: 0.5 for j in ("j1", "j2", "j3", "j4")}
-    return CandidateEvidence(
-        signature="correlation with qd", statistic="correlation", per_joint=per_joint, per_joint_explained=per_joint,
-        per_joint_explained_beyond_noise=per_joint, rmse_after=0.06, x_floor_after=x_floor_after,
-        per_joint_x_floor_after=per_joint, harmed_joints=(), fitted={}, linear_coefficients=(0.1,),
-        nonlinear_coefficients=(), parameters=1, implausible_bodies=(), bounds_pushed={}, bounds_released={},
-    ).as_document()
+    return evidence_document(("j1", "j2", "j3", "j4"), x_floor_after=x_floor_after)
 
 
 def _reading(kind: str, follows: str | None = None, gains: tuple[str, ...] = ()):
@@ -78,8 +72,9 @@ def _diagnosis(status: str) -> dict:
                                torque_rmse_per_joint={j: r.ceiling_rmse for j, r in readings.items()},
                                close_to_rung=0.8, per_joint=readings)
     return {"link": "body", "status": status, "above_floor": ["j1", "j2", "j3"], "tied": ["a", "b"],
-            "candidates": [{"effect": "viscous_friction", "joints": ["j1", "j3"], "add": "- viscous_friction",
-                            "explained_beyond_noise": 0.8, "evidence": _evidence(1.2), "replaces": []}],
+            "candidates": [{"effect": "viscous_friction", "link": "body", "joints": ["j1", "j3"], "decided_on": "arm",
+                            "explained": 0.3, "explained_beyond_noise": 0.8, "decisive": True,
+                            "add": "- viscous_friction", "evidence": _evidence(1.2), "replaces": []}],
             "model_free": ceiling.as_document()}
 
 

@@ -12,7 +12,7 @@ from dataclasses import replace
 from typing import Any
 
 from sim2real.identification.diagnosis.caveats import troubles
-from sim2real.identification.diagnosis.result import CandidateEvidence, CeilingReading, ModelFreeCeiling
+from sim2real.identification.diagnosis.result import Candidate, CeilingReading, ModelFreeCeiling
 from sim2real.identification.records import Status
 from sim2real.report.verdicts.names import SIDE_TEXT, separating_runs
 from sim2real.stats import floor_multiple
@@ -44,17 +44,22 @@ def _kinds_left(ceiling: Mapping[str, Any] | None, above: Sequence[str]) -> str:
     return "; ".join(f"{kind} ({count} joint{'s' if count > 1 else ''})" for kind, count in kinds.items())
 
 
+def _best(diagnosis: Mapping[str, Any]) -> Candidate | None:
+    """The candidate a diagnosis of gap.json ranks first (None: none tried)."""
+    candidates = diagnosis.get("candidates") or []
+    return Candidate.from_document(candidates[0]) if candidates else None
+
+
 def _first_status(diagnosis: Mapping[str, Any], side: str) -> str:
-    status, best = diagnosis.get("status"), (diagnosis.get("candidates") or [None])[0]
-    if status == Status.ADD_EFFECT and best and best.get("decided_on") == "joints":
+    status, best = diagnosis.get("status"), _best(diagnosis)
+    if status == Status.ADD_EFFECT and best and best.decided_on == "joints":
         # decided on its own joints (the table's "closest candidate there"), not on the arm-wide share
-        return (f"On {side}, the model lacks {best['effect']} on {len(best['joints'])} joint"
-                f"{'s' if len(best['joints']) > 1 else ''}, where it removes most of what lies above their floors.")
+        return (f"On {side}, the model lacks {best.effect} on {len(best.joints)} joint"
+                f"{'s' if len(best.joints) > 1 else ''}, where it removes most of what lies above their floors.")
     if status == Status.ADD_EFFECT and best:
-        after = CandidateEvidence.from_document(best["evidence"]).x_floor_after
-        reach = (f": it removes {best['explained_beyond_noise']:.0%} of what lies above the noise floor"
-                 f", to {floor_multiple(after)} the floor arm-wide")
-        return f"On {side}, the model lacks {best['effect']}{reach}."
+        reach = (f": it removes {best.explained_beyond_noise:.0%} of what lies above the noise floor"
+                 f", to {floor_multiple(best.evidence.x_floor_after)} the floor arm-wide")
+        return f"On {side}, the model lacks {best.effect}{reach}."
     if status == Status.NOT_TOLD_APART:
         return (f"On {side}, {' and '.join(diagnosis.get('tied') or [])} each remove part of what is left, but no "
                 "line is recommended: these runs do not tell a trustworthy effect.")
@@ -64,12 +69,11 @@ def _first_status(diagnosis: Mapping[str, Any], side: str) -> str:
 
 
 def _first_action(diagnosis: Mapping[str, Any], robot: str) -> str | None:
-    status, best = diagnosis.get("status"), (diagnosis.get("candidates") or [None])[0]
+    status, best = diagnosis.get("status"), _best(diagnosis)
     if status == Status.ADD_EFFECT and best:
-        removal = "".join(f" and remove '- {r}'" for r in best.get("replaces") or [])
-        caution = ("; read its caution in the diagnosis below first"
-                   if troubles(CandidateEvidence.from_document(best["evidence"])) else "")
-        return f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml{removal}{caution}."
+        removal = "".join(f" and remove '- {r}'" for r in best.replaces)
+        caution = "; read its caution in the diagnosis below first" if troubles(best.evidence) else ""
+        return f"Add the line '{best.add}' under 'effects:' in configs/{robot}/model.yaml{removal}{caution}."
     tied = list(diagnosis.get("tied") or [])
     if status == Status.NOT_TOLD_APART and len(tied) > 1:
         return (f"The run that would tell them apart: {separating_runs(tied[0], tied[1:], robot)} designs it; record "
