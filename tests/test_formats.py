@@ -101,7 +101,8 @@ def test_the_diagnosis_rows_round_trip_with_and_without_their_optional_figures()
     from sim2real.identification.records import Note, NoteKind, Status
 
     plain = evidence(JOINTS, x_floor_after=1.4, fitted={"damping": {"panda_joint1": 0.5}})
-    full = dataclasses.replace(plain, per_joint_own_term_x_floor={"panda_joint1": 0.7, "panda_joint2": 0.1},
+    full = dataclasses.replace(plain, lag_s={"panda_joint1": 0.004, "panda_joint2": 0.0},
+                               per_joint_own_term_x_floor={"panda_joint1": 0.7, "panda_joint2": 0.1},
                                fit_failed={"fit_x_floor": 9.0}, near_threshold=({"kind": "near_threshold"},),
                                relabels=({"effect": "coulomb_friction"},), trades_with=(),
                                tie_with_best={"difference": 0.1, "spread": 0.2, "blocks": 8},

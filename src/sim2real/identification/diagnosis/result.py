@@ -27,7 +27,8 @@ def _optional(document: Mapping[str, Any], key: str, kind: Any) -> Any:
 @dataclass(frozen=True)
 class CandidateEvidence:
     """A trial's evidence: the effect's residual signature on the current holdout residual (``signature``, its
-    ``statistic``, per joint: :meth:`sim2real.identification.effects.base.Effect.evidence`), what its fit removes
+    ``statistic``, per joint, and for a lag the lag that best aligns the torques, ``lag_s``: None for another effect
+    or without a measured torque; :meth:`sim2real.identification.effects.base.Effect.evidence`), what its fit removes
     (per joint, of the residual and of its excess above the floor), what is left (``rmse_after``, N*m; x the floor,
     arm-wide and per joint), the joints it pushes further above their floor, its own term per joint (x the floor;
     None for an effect without linear coefficients), its fitted values, coefficients and number of parameters, the
@@ -51,6 +52,7 @@ class CandidateEvidence:
     implausible_bodies: tuple[Figures, ...]
     bounds_pushed: Mapping[str, tuple[str, ...]]
     bounds_released: Mapping[str, tuple[str, ...]]
+    lag_s: Mapping[str, float] | None = None
     per_joint_own_term_x_floor: Mapping[str, float] | None = None
     fit_failed: Figures | None = None
     near_threshold: tuple[Figures, ...] | None = None
@@ -71,8 +73,8 @@ class CandidateEvidence:
             "bounds": {"pushes": {k: list(v) for k, v in self.bounds_pushed.items()},
                        "releases": {k: list(v) for k, v in self.bounds_released.items()}},
         }
-        optional = {"per_joint_own_term_x_floor": self.per_joint_own_term_x_floor, "fit_failed": self.fit_failed,
-                    "tie_with_best": self.tie_with_best}
+        optional = {"lag_s": self.lag_s, "per_joint_own_term_x_floor": self.per_joint_own_term_x_floor,
+                    "fit_failed": self.fit_failed, "tie_with_best": self.tie_with_best}
         out.update({key: dict(value) for key, value in optional.items() if value is not None})
         listed = {"near_threshold": self.near_threshold, "relabels": self.relabels, "trades_with": self.trades_with}
         out.update({key: [dict(v) for v in value] for key, value in listed.items() if value is not None})
@@ -92,7 +94,7 @@ class CandidateEvidence:
             nonlinear_coefficients=tuple(document["coefficients"]["nonlinear"]),
             parameters=document["parameters"], implausible_bodies=tuple(document["implausible_bodies"]),
             bounds_pushed={k: tuple(v) for k, v in bounds["pushes"].items()},
-            bounds_released={k: tuple(v) for k, v in bounds["releases"].items()},
+            bounds_released={k: tuple(v) for k, v in bounds["releases"].items()}, lag_s=document.get("lag_s"),
             per_joint_own_term_x_floor=document.get("per_joint_own_term_x_floor"),
             fit_failed=document.get("fit_failed"), near_threshold=_optional(document, "near_threshold", tuple),
             relabels=_optional(document, "relabels", tuple), trades_with=_optional(document, "trades_with", tuple),
