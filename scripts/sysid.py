@@ -3,6 +3,7 @@
 import logging
 
 from sim2real.cli import rule_entry
+from sim2real.identification.diagnosis import Diagnosis, candidate_named
 from sim2real.identification.sysid import SysidFiles, run_sysid
 
 with rule_entry(snakemake):
@@ -18,6 +19,7 @@ with rule_entry(snakemake):
     )
     document = run_sysid(snakemake.wildcards.robot, files, threads=snakemake.threads, cache_dir=snakemake.params.fits,
                          robot_settings=snakemake.params.robot)
-    diagnosis = document.get("diagnosis") or {}
-    named = (diagnosis.get("candidates") or [{}])[0].get("effect") if diagnosis.get("status") == "add_effect" else None
-    logging.info("diagnosis: %s%s (gap.md words it)", diagnosis.get("status"), f", add {named}" if named else "")
+    diagnosis = Diagnosis.from_document(document["diagnosis"]) if "diagnosis" in document else None
+    named = candidate_named(diagnosis)
+    logging.info("diagnosis: %s%s (gap.md words it)", diagnosis.status if diagnosis else None,
+                 f", add {named.effect}" if named else "")

@@ -79,8 +79,8 @@ def demo_effects() -> list[str]:
 def loop_document(lab: Lab, workers: int) -> dict[str, Any]:
     """Both sides' ladder.json content for the demo's effects, with its words (BLAS on one thread, as run_sysid holds it)."""
     with threadpool_limits(limits=1, user_api="blas"):
-        document, _ = sysid.fit_model(model_config(demo_effects()), lab.nominal,
-                                      lab.prepared(lab.measurement_list(SCENARIO)), "panda", workers=workers)
+        document = sysid.fit_model(model_config(demo_effects()), lab.nominal,
+                                   lab.prepared(lab.measurement_list(SCENARIO)), "panda", workers=workers).document
     return json.loads(json.dumps(worded(document, "panda")))
 
 

@@ -108,9 +108,9 @@ class Lab:
         if key not in self._documents:
             listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
             with threadpool_limits(limits=1, user_api="blas"):  # one BLAS thread per worker, as in run_sysid
-                document, _ = sysid.fit_model(model_config(effects, kept_on=kept_on), self.nominal,
-                                              self.prepared(listing), self.robot, workers=WORKERS,
-                                              cache=cache if cache is not None else self.cache(scenario))
+                document = sysid.fit_model(model_config(effects, kept_on=kept_on), self.nominal,
+                                           self.prepared(listing), self.robot, workers=WORKERS,
+                                           cache=cache if cache is not None else self.cache(scenario)).document
                 self._documents[key] = worded(document, self.robot)
         return copy.deepcopy(self._documents[key])
 

@@ -210,8 +210,9 @@ def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
     from sim2real.assets.arm import arm_spec
 
     runs = lab.prepared(lab.measurement_list("actuator_gain"))
-    document, results = sysid.fit_model(model_config(["actuator_gain", "actuation_delay", "command_bias"]),
-                                        lab.nominal, runs, "panda")
+    fitted = sysid.fit_model(model_config(["actuator_gain", "actuation_delay", "command_bias"]), lab.nominal, runs,
+                             "panda")
+    document, results = fitted.document, fitted.results
     params = sysid.params_document(results, lab.nominal, document["torque_source"], "panda")
     assert set(params["effects"]) == {"actuation_delay", "actuator_gain", "command_bias"}
     spec = arm_spec(lab.mjcf, lab.nominal.joint_names)  # the dev MJCF driven by joint torque motors
@@ -228,15 +229,18 @@ def test_the_calibrated_mjcf_carries_the_actuator_effects(lab):
 
 def typed(document: dict, side: str):
     """A diagnosis as data (:class:`sim2real.identification.diagnosis.Diagnosis`) from the few fields a test gives:
-    its status, candidates and per-joint rows."""
+    its status, candidates and per-joint rows (the rest of each row: a plain trial's, no candidate closest)."""
+    from diagnosis_rows import evidence_document
     from sim2real.identification.diagnosis import Diagnosis
 
     candidates = [{"link": side, "joints": [], "explained_beyond_noise": c["explained"], "add": f"- {c['effect']}",
-                   **c} for c in document.get("candidates", [])]
+                   **c, "evidence": {**evidence_document(), **c.get("evidence", {})}} for c in document.get("candidates", [])]
     return Diagnosis.from_document({
         "link": side, "status": document["status"], "candidates": candidates, "confounded": [], "tied": [],
         "residual_rmse": 0.1, "noise_floor_ratio": 1.0, "noise_rmse": 0.1, "noise_floor_factor": 1.5,
-        "min_explained": 0.3, "per_joint": document.get("per_joint", {}), "above_floor": [], "skipped": [],
+        "min_explained": 0.3, "above_floor": [], "skipped": [],
+        "per_joint": {j: {"closest": None, "closest_explained_beyond_noise": 0.0, "closest_x_floor_after": row["x_floor"],
+                          **row} for j, row in document.get("per_joint", {}).items()},
         "failed": [], "notes": []})
 
 
@@ -341,8 +345,9 @@ def test_a_drive_line_kept_on_the_actuator_link_stays_off_the_body_link(lab):
 
     effects = ["link_inertia", "asymmetric_friction"]
     kept = model_config(effects, kept_on={"asymmetric_friction": "actuator"})
-    document, results = fit_model(kept, lab.nominal, lab.prepared(lab.measurement_list("link_side_sensor")),
-                                  lab.robot, workers=WORKERS)
+    fitted = fit_model(kept, lab.nominal, lab.prepared(lab.measurement_list("link_side_sensor")), lab.robot,
+                       workers=WORKERS)
+    document, results = fitted.document, fitted.results
     assert document["ladder"][-1]["effects"] == ["link_inertia"]
     assert document["actuator"]["ladder"][-1]["effects"] == ["asymmetric_friction"]
     assert document["links"]["kept_on"] == {"asymmetric_friction": "actuator"}

@@ -14,6 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from diagnosis_rows import evidence
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
 from sysid_lab import side_ladder
 from sim2real.identification import fitting
@@ -83,9 +84,10 @@ def _fit(bodies: dict) -> SimpleNamespace:
 
 def _candidate(effect: str, trial: SimpleNamespace, current: SimpleNamespace, x_floor: float) -> dict:
     return {"effect": effect, "decisive": True, "joints": ["panda_joint2"], "explained": 0.5,
-            "evidence": {"x_floor_after": x_floor, "trades_with": [], "parameters": 7,
-                         "implausible_bodies": implausible_bodies(trial, current),
-                         "bounds": bound_changes(trial, current)}}
+            "evidence": evidence(x_floor_after=x_floor, trades_with=(), parameters=7,
+                                 implausible_bodies=tuple(implausible_bodies(trial, current)),
+                                 bounds_pushed=bound_changes(trial, current)["pushes"],
+                                 bounds_released=bound_changes(trial, current)["releases"])}
 
 
 def test_a_candidate_is_judged_on_what_it_changes_never_on_the_state_it_inherits():
@@ -101,7 +103,8 @@ def test_a_candidate_is_judged_on_what_it_changes_never_on_the_state_it_inherits
     keeps = _candidate("rotor_inertia", same, current, 1.2)
     released = _fit({"panda_link3": ([], ["mass changed by +80%"])})
     releases = _candidate("torque_gain", released, current, 1.25)
-    assert releases["evidence"]["bounds"] == {"pushes": {}, "releases": {"panda_link2": ["mass_upper"]}}
+    assert releases["evidence"].bounds_pushed == {} and releases["evidence"].bounds_released == {
+        "panda_link2": ["mass_upper"]}
     pushed = _fit({"panda_link2": (["mass_upper"], []), "panda_link4": (["hull"], []),
                    "panda_link3": ([], ["mass changed by +80%"])})
     pushes = _candidate("viscous_friction", pushed, current, 1.1)

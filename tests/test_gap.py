@@ -200,7 +200,10 @@ def test_a_candidate_that_replaces_a_line_says_so_in_gap_md():
     line to remove; the schema takes the list of lines it replaces, and nothing else there."""
     from sim2real.report.markdown import _diagnosis_markdown
 
-    candidate = {"effect": "link_inertia", "joints": ["panda_joint7"], "explained": 0.9, "evidence": {},
+    from diagnosis_rows import evidence_document
+
+    candidate = {"effect": "link_inertia", "link": "body", "joints": ["panda_joint7"], "decided_on": "arm",
+                 "explained": 0.9, "explained_beyond_noise": 0.9, "decisive": True, "evidence": evidence_document(),
                  "add": "- link_inertia", "replaces": ["payload"]}
     lines = _diagnosis_markdown({"verdict": "v", "candidates": [candidate]})
     listed = next(line for line in lines if line.startswith("- `link_inertia`"))

@@ -44,14 +44,38 @@ def test_the_demos_first_screen_holds_verdict_ladder_and_joints(built_tree: Path
     assert all(f"<td>{joint}</td>" in html for joint in gap["joints"])
 
 
+def _evidence(x_floor_after: float) -> dict:
+    """A candidate's evidence as ladder.json holds it: nothing implausible, no bound pushed, no trade."""
+    from diagnosis_rows import evidence_document
+
+    return evidence_document(("j1", "j2", "j3", "j4"), x_floor_after=x_floor_after)
+
+
+def _reading(kind: str, follows: str | None = None, gains: tuple[str, ...] = ()):
+    """A joint's ceiling reading as gap.json holds it (its features in words)."""
+    from sim2real.identification.diagnosis.result import CeilingReading
+
+    return CeilingReading(
+        rung_rmse=0.2, ceiling_rmse=0.1 if kind == "motion" else 0.19, rung_x_floor=4.0, ceiling_x_floor=2.0,
+        ratio=0.5, explained_beyond_noise=0.6, kind=kind, fitted=kind != "at_floor",
+        learner=None if kind == "at_floor" else "trees on the motion",
+        gains_most_with=gains if kind == "motion" else None,
+        beyond_motion={"time": 0.7, "run": 0.2, "history": 0.0} if kind == "not_motion" else None, follows=follows)
+
+
 def _diagnosis(status: str) -> dict:
-    per_joint = {"j1": {"kind": "motion", "follows": None, "gains_most_with": ["velocity of j1"]},
-                 "j2": {"kind": "not_motion", "follows": "time"}, "j3": {"kind": "motion", "follows": None},
-                 "j4": {"kind": "at_floor", "follows": None}}
+    from sim2real.identification.diagnosis.result import ModelFreeCeiling
+
+    readings = {"j1": _reading("motion", gains=("velocity of j1",)), "j2": _reading("not_motion", "time"),
+                "j3": _reading("motion"), "j4": _reading("at_floor")}
+    ceiling = ModelFreeCeiling(learner="trees", torque_rmse_overall=0.1,
+                               torque_rmse_per_joint={j: r.ceiling_rmse for j, r in readings.items()},
+                               close_to_rung=0.8, per_joint=readings)
     return {"link": "body", "status": status, "above_floor": ["j1", "j2", "j3"], "tied": ["a", "b"],
-            "candidates": [{"effect": "viscous_friction", "joints": ["j1", "j3"], "add": "- viscous_friction",
-                            "explained_beyond_noise": 0.8, "evidence": {"x_floor_after": 1.2}, "replaces": []}],
-            "model_free": {"per_joint": per_joint}}
+            "candidates": [{"effect": "viscous_friction", "link": "body", "joints": ["j1", "j3"], "decided_on": "arm",
+                            "explained": 0.3, "explained_beyond_noise": 0.8, "decisive": True,
+                            "add": "- viscous_friction", "evidence": _evidence(1.2), "replaces": []}],
+            "model_free": ceiling.as_document()}
 
 
 def test_the_verdict_says_status_action_and_worst_joint_and_names_kinds_not_joints() -> None:

@@ -808,8 +808,9 @@ def test_a_torque_sensor_that_lags_is_named_and_the_loop_ends_at_its_floor(share
     assert max(actuator["metrics"]["torque_x_floor"]["per_joint"].values()) <= 1.5
     assert held in last["actuator"]["diagnosis"]["lag_note"]  # the actuator link's verdict says whose lag
     assert "lag_note" not in lab.follow("real_arm_like")[-1]["actuator"]["diagnosis"]
-    document, results = sysid.fit_model(model_config([*effects, "actuation_lag"]), lab.nominal, lab.prepared(listing),
-                                        "panda", workers=WORKERS, cache=lab.cache("real_arm_like_sensor_lag"))
+    fitted = sysid.fit_model(model_config([*effects, "actuation_lag"]), lab.nominal, lab.prepared(listing), "panda",
+                             workers=WORKERS, cache=lab.cache("real_arm_like_sensor_lag"))
+    document, results = fitted.document, fitted.results
     params = params_document(results, lab.nominal, document["torque_source"], "panda")
     assert params["effects"]["actuation_lag"]["time_constant"] < 0.001, params["effects"]["actuation_lag"]
     assert params["by_link"]["actuation_lag"]["actuator"]["time_constant"] > 0.003

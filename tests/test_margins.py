@@ -11,11 +11,13 @@ solve Clarabel stops short of its tolerances) on purpose, on this one.
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import clarabel
 import numpy as np
 import pytest
 
+from diagnosis_rows import evidence
 from sim2real.identification.diagnosis import candidates as ranking
 from sim2real.identification.diagnosis import margins
 from sim2real.identification.diagnosis.caveats import caveat_notes, recommend, relabelling
@@ -32,7 +34,7 @@ def candidate(effect: str, explained: float, beyond: float, joints: list[str], x
     """A decisive candidate as the ranking holds it (diagnosis.candidates._candidate)."""
     return {"effect": effect, "link": "body", "joints": joints, "decided_on": "joints", "explained": explained,
             "explained_beyond_noise": beyond, "decisive": True, "add": f"- {effect}",
-            "evidence": {"x_floor_after": x_after, "implausible_bodies": [], "bounds": {}, "parameters": 7}}
+            "evidence": evidence(x_floor_after=x_after, parameters=7)}
 
 
 def words(note: Note) -> str:
@@ -56,7 +58,7 @@ def test_a_candidate_that_relabels_the_models_own_term_is_never_recommended():
                              "net_x_floor": 3.1}])
     for alone in ([relabel], [relabel, real]):
         tried = copy.deepcopy(alone)
-        demoted = {c["effect"]: c["evidence"].get("relabels") for c in tried
+        demoted = {c["effect"]: list(c["evidence"].relabels) for c in tried
                    if ranking.demote_relabelling(c, trades[c["effect"]])}
         assert set(demoted) == {"load_friction"}
         ranked, recommended = recommend(ranking._rank(tried, 0.1), [])
@@ -66,7 +68,8 @@ def test_a_candidate_that_relabels_the_models_own_term_is_never_recommended():
             assert status == Status.AT_NOISE_FLOOR and recommended is None, (status, recommended)
         else:  # the real one is still named, with its trade said as a caution
             assert status == Status.ADD_EFFECT and recommended["effect"] == "viscous_friction"
-            recommended["evidence"]["trades_with"] = trades["viscous_friction"]
+            recommended["evidence"] = dataclasses.replace(recommended["evidence"],
+                                                          trades_with=tuple(trades["viscous_friction"]))
             assert "Caution: it trades places with coulomb_friction" in "".join(map(words, caveat_notes(
                 recommended, [])))
         said = words(Note(NoteKind.RELABELLED, figures={"relabelled": demoted}))

@@ -52,13 +52,10 @@ def test_a_friction_that_eases_as_the_joint_warms_is_not_the_motion_on_any_joint
     fit_data, holdout_data = shared_lab.data("real_arm_like_warming")
     context = FitContext.on_nominal(shared_lab.nominal, fit_data, holdout_data,
                                     {**fitting.DEFAULT_SETTINGS, **FAST_FIT})
-    residuals: dict[str, np.ndarray] = {}
-    sysid.fit_ladder(["link_inertia", "load_friction", "rotor_inertia"], context, diagnosed=False,
-                     residuals_out=residuals)
-    result = model_free_ceiling(fit_data, residuals["fit"], holdout_data, residuals["holdout"], 1.5,
+    side = sysid.fit_ladder(["link_inertia", "load_friction", "rotor_inertia"], context, diagnosed=False)
+    result = model_free_ceiling(fit_data, side.fit_residual, holdout_data, side.holdout_residual, 1.5,
                                 nominal_dynamics=shared_lab.nominal.dynamics)
-    left = {j: row for j, row in result["per_joint"].items() if row["kind"] != "at_floor"}
+    left = {j: row for j, row in result.per_joint.items() if row.kind != "at_floor"}
     assert left, "the warming leaves something above the floor"
-    assert all(row["kind"] == "not_motion" for row in left.values()), {j: (r["kind"], r.get("learner"))
-                                                                       for j, r in left.items()}
-    assert "points_to" not in result
+    assert all(row.kind == "not_motion" for row in left.values()), {j: (r.kind, r.learner) for j, r in left.items()}
+    assert result.points_to is None

@@ -15,7 +15,7 @@ from typing import Any
 
 from sim2real.dr.parameters import fmt
 from sim2real.errors import InputError
-from sim2real.files import read_yaml
+from sim2real.identification.formats import read_params
 
 
 # Names the sysid step may use for a parameter -> the randomized channel it corresponds to.
@@ -203,7 +203,7 @@ def coverage_summary(
     ``strict``, else they are listed under ``warnings``."""
     if params_path is None or not Path(params_path).exists():
         return {"status": "skipped", "reason": "no identified parameters (sysid/params.yaml absent)", "records": [], "warnings": []}
-    records = check_coverage(resolved, read_identified(read_yaml(params_path)))
+    records = check_coverage(resolved, read_identified(read_params(params_path)))
     uncovered = [r for r in records if not r["covered"]]
     warnings = [
         f"{r['term']}/{r['element']}: identified {r['identified_as']} {fmt(r['value'])} "

@@ -105,9 +105,9 @@ def plot_summary(rows: Sequence[Mapping[str, Any]], title: str, target: str | Pa
 def build_summary(
     dr_json: str | Path,
     params_path: str | Path | None,
-    coverage_out: str | Path,
-    table_out: str | Path,
-    figure_out: str | Path,
+    coverage_json: str | Path,
+    table_tsv: str | Path,
+    figure_svg: str | Path,
     *,
     strict: bool = False,
 ) -> dict[str, Any]:
@@ -117,8 +117,8 @@ def build_summary(
     resolved = load_resolved(dr_json)
     coverage = coverage_summary(resolved, params_path, strict=strict)
     rows = summary_rows(resolved, coverage)
-    write_json(coverage_out, coverage)
-    write_text(table_out, summary_table(rows))
+    write_json(coverage_json, coverage)
+    write_text(table_tsv, summary_table(rows))
     robot = resolved.get("robot") or "robot"
-    plot_summary(rows, f"Domain randomization: {robot} (level ranges at scale 1)", figure_out)
+    plot_summary(rows, f"Domain randomization: {robot} (level ranges at scale 1)", figure_svg)
     return coverage

@@ -5,7 +5,6 @@ Every number is written with a fixed format, so the same inputs give the same by
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -21,6 +20,7 @@ import numpy as np  # noqa: E402
 from sim2real.excitation.config import Design, design_from_spec, load_design  # noqa: E402
 from sim2real.excitation.design import DesignResult, DesignRobot, design_start, design_trajectory  # noqa: E402
 from sim2real.identification.fitting import load_nominal  # noqa: E402
+from sim2real.identification.formats import read_ladder  # noqa: E402
 from sim2real.errors import InputError  # noqa: E402
 from sim2real.excitation.names import confounded_pair  # noqa: E402
 from sim2real.excitation.separation import Separation, fitted_candidates  # noqa: E402
@@ -252,7 +252,7 @@ def _separation(inputs: ExcitationInputs, design: Design, robot: DesignRobot, pa
     if ladder is None:
         raise InputError(inputs.config, f"designs/{inputs.name}", "a separating design needs the diagnosis",
                          f"build it with snakemake results/{inputs.robot}/excitation/{inputs.name}.csv")
-    document = json.loads(Path(ladder).read_text(encoding="utf-8"))
+    document = read_ladder(ladder)
     if document.get("joints") != design.joints:
         raise InputError(inputs.config, "joints", f"are not the joints of {ladder} ({document.get('joints')})",
                          "list the identified joints in the excitation.yaml `joints`")

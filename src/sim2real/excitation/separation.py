@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from sim2real.identification.diagnosis.result import Candidate
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Signals
 from sim2real.errors import InputError
@@ -26,18 +27,20 @@ from sim2real.identification.fitting import NominalModel
 FD_STEP = 1e-6
 
 
-def fitted_candidates(ladder: Mapping[str, Any], pair: Sequence[str], path: str) -> list[dict[str, Any]]:
+def fitted_candidates(ladder: Mapping[str, Any], pair: Sequence[str], path: str) -> list[Candidate]:
     """The diagnosis's candidates of the pair (body link, then the actuator link), each with its coefficients."""
     sections = [ladder, ladder.get("actuator") or {}]
     for section in sections:
         diagnosis = section.get("diagnosis") or {}
         found = {c["effect"]: c for c in diagnosis.get("candidates", [])}
         if all(name in found for name in pair):
-            out = [found[name] for name in pair]
-            missing = [c["effect"] for c in out if "coefficients" not in c["evidence"]]
-            if missing:
-                raise InputError(path, f"diagnosis candidate {missing[0]}", "has no fitted coefficients",
-                                 "rebuild it with this version: snakemake results/{robot}/gap.json")
+            out = []
+            for name in pair:
+                try:
+                    out.append(Candidate.from_document(found[name]))
+                except KeyError as exc:
+                    raise InputError(path, f"diagnosis candidate {name}", f"has no `{exc.args[0]}` (a ladder.json of an older release)",
+                                     "rebuild it with this version: snakemake results/{robot}/gap.json") from exc
             return out
     raise InputError(path, "diagnosis/candidates", f"{' and '.join(pair)} were not both tried on the current rung",
                      "design a separating run only for a pair gap.md lists as not told apart")
@@ -46,22 +49,21 @@ def fitted_candidates(ladder: Mapping[str, Any], pair: Sequence[str], path: str)
 class Separation:
     """The predicted-torque difference of two fitted candidates as a design objective."""
 
-    def __init__(self, nominal: NominalModel, candidates: Sequence[Mapping[str, Any]], noise_floor: np.ndarray,
+    def __init__(self, nominal: NominalModel, candidates: Sequence[Candidate], noise_floor: np.ndarray,
                  path: str) -> None:
         self.nominal = nominal
         self.dynamics = nominal.dynamics
         self.effects = []
         for candidate in candidates:
-            effect = EFFECTS[candidate["effect"]]
+            effect = EFFECTS[candidate.effect]
             if type(effect).prepare is not type(EFFECTS["viscous_friction"]).prepare:
                 raise InputError(path, f"diagnosis candidate {effect.name}",
                                  "depends on a basis computed from the fit data (an inertial effect)",
                                  "separate effects with their own columns (friction, rotor inertia, gains, biases)")
-            coefficients = candidate["evidence"]["coefficients"]
-            self.effects.append((effect, np.asarray(coefficients["linear"], dtype=float),
-                                 np.asarray(coefficients["nonlinear"], dtype=float)))
+            self.effects.append((effect, np.asarray(candidate.evidence.linear_coefficients, dtype=float),
+                                 np.asarray(candidate.evidence.nonlinear_coefficients, dtype=float)))
         self.row_weight = 1.0 / np.asarray(noise_floor, dtype=float)
-        self.names = [c["effect"] for c in candidates]
+        self.names = [c.effect for c in candidates]
 
     def difference(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """(tau_a - tau_b) / floor at each sample (N, n)."""

@@ -1,12 +1,12 @@
 """What the sysid rule reads and writes besides the ladder: model.yaml (:func:`load_model_config`, parsed in
 :mod:`sim2real.identification.model_config`), params.yaml
-(:func:`params_document`, with the drive effects of two sides merged by :func:`merge_side_values`) and the last rung's
-residuals (:func:`write_model_residuals`); :func:`round_floats` keeps every document's numbers stable and readable."""
+(:func:`params_document`, with the drive effects of two sides merged by :func:`merge_side_values`);
+:func:`round_floats` keeps every document's numbers stable and readable. The files themselves are read and written
+by :mod:`sim2real.identification.formats`."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -139,25 +139,3 @@ def params_document(
         "nonlinear parameters",
         "notes": [note for result in results for note in result.notes],
     })
-
-
-def write_model_residuals(path: str | Path, current: Mapping[str, Any]) -> None:
-    """The body side's last rung on every run, at the fit's rate (:func:`fit_model`'s ``current_out``): time,
-    motion, judged torque and residual by role and run, what the gap report judges the current model by
-    (:func:`sim2real.report.gap.read_model_residuals`)."""
-    from sim2real.files import write_array_archive
-
-    header: dict[str, Any] = {"link": current["link"], "effects": current["effects"], "roles": {}}
-    members = []
-    for role in ("fit", "holdout"):
-        data, residual = current[role]
-        header.update({"joints": list(data.joint_names), "torque_source": data.torque_source,
-                       "torque_sensor": data.torque_sensor})
-        header["roles"][role] = {
-            "noise_floor": [float(v) for v in data.noise_floor],
-            "runs": [{"name": name, "start": seg.start, "stop": seg.stop}
-                     for name, seg in zip(data.run_names, data.segments, strict=True)]}
-        members += [(f"{role}/{name}", value) for name, value in (
-            ("time", data.time), ("q", data.q), ("qd", data.qd), ("qdd", data.qdd), ("tau", data.tau),
-            ("residual", residual))]
-    write_array_archive(path, members, header)

@@ -29,8 +29,11 @@ from sim2real.forked import Forked
 from sim2real.identification import sides
 from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, Diagnosis, diagnose, model_free_ceiling
 from sim2real.identification.diagnosis.across import across_sides
-from sim2real.identification.documents import params_document, round_floats, write_model_residuals
+from sim2real.identification.documents import params_document, round_floats
 from sim2real.identification.effects import get_effect
+from sim2real.identification.formats import (
+    ModelResiduals, RoleResiduals, write_ladder, write_model_residuals, write_params,
+)
 from sim2real.identification.fitting import (
     DEFAULT_SETTINGS, PRIOR_START_SETTING, STILL_JOINTS_SETTING, FitContext, FitResult, NominalModel, Refinements,
     RunSamples, TorqueData, fit_on_the_previous, floor_units, holdout_metrics, load_nominal, predict, stack_runs,
@@ -45,12 +48,15 @@ from sim2real.stats import rmse
 
 @dataclasses.dataclass(frozen=True)
 class SideLadder:
-    """One side's ladder: its ``ladder.json`` content (``ladder``, ``noise_floor``, ...), the last rung's fit, and
-    the diagnosis of that rung (None when not asked for)."""
+    """One side's ladder: its ``ladder.json`` content (``ladder``, ``noise_floor``, ...), the last rung's fit, the
+    diagnosis of that rung (None when not asked for), and its residuals (judged minus predicted torque) on the
+    holdout and the fit data (the fit data's: None on the drive side, whose diagnosis has no model-free ceiling)."""
 
     document: dict[str, Any]
     result: FitResult
     diagnosis: Diagnosis | None
+    holdout_residual: np.ndarray
+    fit_residual: np.ndarray | None
 
     def as_document(self) -> dict[str, Any]:
         """The side's ``ladder.json`` content with its diagnosis's document (a side judged alone)."""
@@ -67,16 +73,15 @@ def state_domain_status(data: TorqueData) -> dict[str, str]:
 
 def fit_ladder(effect_names: Sequence[str], context: FitContext, *, side: Side = Side.BODY,
                candidates: Sequence[str] | None = None, limits: Mapping[str, float] | None = None,
-               diagnosed: bool = True, cache: FitCache | None = None,
-               residuals_out: dict[str, np.ndarray] | None = None) -> SideLadder:
+               diagnosed: bool = True, cache: FitCache | None = None) -> SideLadder:
     """Every rung (nominal, then each effect added in turn) fitted and judged on one side of the model
     (:mod:`sim2real.identification.sides`); the diagnosis of the last (``diagnosed``).
 
     ``context``: the side's data, signals and fit settings; ``candidates``: the effects the diagnosis tries;
     ``limits``: the diagnosis's (model.yaml ``diagnosis``); ``cache``: rungs and diagnoses of earlier rounds with the
-    same inputs are read back from it (:class:`sim2real.cache.FitCache`), the same to the last bit;
-    ``residuals_out``: filled with the last rung's residual on the fit and the holdout data (keys ``fit``,
-    ``holdout``: judged minus predicted torque), what the gap report judges the current model by.
+    same inputs are read back from it (:class:`sim2real.cache.FitCache`), the same to the last bit. Off the drive
+    side, the last rung's residual on the fit data is returned too: what the model-free ceiling learns from and,
+    with the holdout's, what the gap report judges the current model by.
     """
     cache = cache or FitCache(None)
     # Everything a rung depends on but its effects: a rung of an earlier round with the same is the same fit.
@@ -88,12 +93,10 @@ def fit_ladder(effect_names: Sequence[str], context: FitContext, *, side: Side =
     rungs, result, residual = _rungs(effect_names, context, cache, inputs)
     document = _ladder_document(rungs, context)
     # the model-free ceiling learns from the fit runs' residual (a side judged against the motion only)
-    fit_residual = context.fit_data.tau - predict(result, context.nominal, context.fit_data, context.fit_signals) if (
-        (diagnosed and side != Side.DRIVE) or residuals_out is not None) else None
-    if residuals_out is not None:
-        residuals_out.update({"fit": fit_residual, "holdout": residual})
+    fit_residual = (context.fit_data.tau - predict(result, context.nominal, context.fit_data, context.fit_signals)
+                    if side != Side.DRIVE else None)
     if not diagnosed:
-        return SideLadder(round_floats(document), result, None)
+        return SideLadder(round_floats(document), result, None, residual, fit_residual)
     prior = (result.consistency or {}).get("inertia_prior")
     # Every candidate is fitted with the prior weight the current rung chose: a candidate that merely let the
     # inertias move more would otherwise be credited with their fall, on joints where it does nothing. Its
@@ -105,7 +108,7 @@ def fit_ladder(effect_names: Sequence[str], context: FitContext, *, side: Side =
     diagnosis = cache.get_or_compute("diagnosis", key, functools.partial(
         _diagnose_side, effect_names, trials, residual, fit_residual, side=side, current=result, limits=limits,
         candidates=candidates))
-    return SideLadder(round_floats(document), result, diagnosis)
+    return SideLadder(round_floats(document), result, diagnosis, residual, fit_residual)
 
 
 def _rungs(effect_names: Sequence[str], context: FitContext, cache: FitCache,
@@ -187,10 +190,10 @@ def _diagnose_side(effect_names: Sequence[str], context: FitContext, holdout_res
                                  float(options["limits"]["noise_floor_factor"]), workers=context.workers,
                                  model_effects=effect_names,
                                  nominal_dynamics=context.nominal.dynamics if context.nominal else None)
-    if diagnosis.status == Status.ADD_EFFECT and "declare" in ceiling:
+    if diagnosis.status == Status.ADD_EFFECT and ceiling.declare is not None:
         # A candidate a held-out run judged comes first: a drift estimated on every run, holdout included, could
         # stand in for it; the next round's ceiling declares the drift if it is still there.
-        ceiling = {key: value for key, value in ceiling.items() if key != "declare"}
+        ceiling = dataclasses.replace(ceiling, declare=None)
     return dataclasses.replace(diagnosis, model_free=ceiling)
 
 
@@ -239,20 +242,30 @@ def _sides_of(runs: Mapping[str, Sequence[PreparedRun]], model: ModelConfig, rob
     return _Sides(mode, sensor, model.sides)
 
 
+@dataclasses.dataclass(frozen=True)
+class ModelFit:
+    """What :func:`fit_model` returns: the ``ladder.json`` content (``document``), the last rung's fit of each side
+    fitted, the body side's first (``results``), and the current model (the body side's last rung) on every run by
+    role (``residuals``, the gap report's ``residuals.npz``)."""
+
+    document: dict[str, Any]
+    results: list[FitResult]
+    residuals: ModelResiduals
+
+
 def fit_model(model: ModelConfig, nominal: NominalModel, runs: Mapping[str, Sequence[PreparedRun]],
-              robot: str = "{robot}", *, workers: int = 1, cache: FitCache | None = None, release_runs: bool = False,
-              current_out: dict[str, Any] | None = None) -> tuple[dict[str, Any], list[FitResult]]:
+              robot: str = "{robot}", *, workers: int = 1, cache: FitCache | None = None,
+              release_runs: bool = False) -> ModelFit:
     """Both sides of ``model`` (model.yaml: :mod:`sim2real.identification.sides`) on prepared runs by role (``fit``,
     ``holdout``).
 
     The body side's ladder and diagnosis are the document's ``ladder`` and ``diagnosis`` (on runs
     without a torque sensor: both sides together, judged on the command); with a sensor and commands the
-    drive side's are under ``actuator``; ``links`` says what these runs can tell apart. Returns the
-    ``ladder.json`` content and the last rung's fit of each side fitted. ``workers``: processes the
-    diagnoses fit their candidates on; ``cache``: fits of earlier rounds (:func:`fit_ladder`);
-    ``release_runs``: empty the lists of ``runs`` once both sides have what they need of them (the caller
-    holds no other reference: a 10-minute log's runs at 1 kHz are hundreds of MB the body side does not need);
-    ``current_out``: filled with the body side's data and last rung's residual by role (:func:`~sim2real.identification.documents.write_model_residuals`).
+    drive side's are under ``actuator``; ``links`` says what these runs can tell apart. Returns a
+    :class:`ModelFit`. ``workers``: processes the diagnoses fit their candidates on; ``cache``: fits of earlier
+    rounds (:func:`fit_ladder`); ``release_runs``: empty the lists of ``runs`` once both sides have what they need
+    of them (the caller holds no other reference: a 10-minute log's runs at 1 kHz are hundreds of MB the body side
+    does not need).
     """
     settings = model.as_settings()
     effect_names = list(model.effects)
@@ -270,16 +283,31 @@ def fit_model(model: ModelConfig, nominal: NominalModel, runs: Mapping[str, Sequ
         for listed in runs.values():
             if isinstance(listed, list):
                 listed.clear()
-    residuals: dict[str, np.ndarray] = {}
     body = fit_ladder(body_effects, FitContext.on_nominal(nominal, body_data["fit"], body_data["holdout"],
                                                           fit_settings, workers=workers),
-                      side=split.body, candidates=split.body_candidates(), limits=settings["diagnosis"],
-                      cache=cache, residuals_out=residuals)
-    if current_out is not None:
-        current_out.update({"link": str(split.body), "effects": list(body_effects),
-                            **{role: (body_data[role], residuals[role]) for role in ("fit", "holdout")}})
+                      side=split.body, candidates=split.body_candidates(), limits=settings["diagnosis"], cache=cache)
     drive = beside.result() if beside is not None else None
-    return _model_document(robot, body, drive, split, effect_names), [body.result] + ([drive.result] if drive else [])
+    return ModelFit(_model_document(robot, body, drive, split, effect_names),
+                    [body.result] + ([drive.result] if drive else []),
+                    _current_residuals(body, body_data, split.body, body_effects))
+
+
+def _current_residuals(body: SideLadder, data: Mapping[str, TorqueData], side: Side,
+                       effects: Sequence[str]) -> ModelResiduals:
+    """The body side's last rung (``effects``) on the fit and the holdout data, as residuals.npz holds it."""
+    assert body.fit_residual is not None  # the body side's ladder returns it
+    holdout = data["holdout"]
+    return ModelResiduals(side=side, effects=tuple(effects), joints=tuple(holdout.joint_names),
+                          torque_source=holdout.torque_source, torque_sensor=holdout.torque_sensor,
+                          roles={"fit": _role_residuals(data["fit"], body.fit_residual),
+                                 "holdout": _role_residuals(holdout, body.holdout_residual)})
+
+
+def _role_residuals(data: TorqueData, residual: np.ndarray) -> RoleResiduals:
+    """A role's stacked data and the last rung's residual on it."""
+    runs = tuple((name, int(seg.start), int(seg.stop)) for name, seg in zip(data.run_names, data.segments, strict=True))
+    return RoleResiduals(runs, np.asarray(data.noise_floor, dtype=float), data.time, data.q, data.qd, data.qdd,
+                         data.tau, np.asarray(residual))
 
 
 def _model_document(robot: str, body: SideLadder, drive: SideLadder | None, split: _Sides,
@@ -314,7 +342,8 @@ def _still_rows_marked(diagnosis: Diagnosis, still: Sequence[str]) -> Diagnosis:
     if not still:
         return diagnosis
     return dataclasses.replace(diagnosis, per_joint={
-        joint: {**row, "judged": False} if joint in still else row for joint, row in diagnosis.per_joint.items()})
+        joint: dataclasses.replace(row, judged=False) if joint in still else row
+        for joint, row in diagnosis.per_joint.items()})
 
 
 def _still_setting(fit_runs: Sequence[PreparedRun]) -> dict[str, list[str]]:
@@ -353,8 +382,8 @@ def _drive_side(effect_names: Sequence[str], nominal: NominalModel, runs: Mappin
 class SysidFiles:
     """The sysid rule's files: the URDF, robot.yaml, model.yaml and the runs (a measurement list, or the runs prepared
     from it: ``prepare_runs``, ``.npz``; relative paths of a list against ``root``) it reads; ladder.json,
-    params.yaml, calibration.yaml and the last rung's residuals (None: not written, :func:`write_model_residuals`)
-    it writes."""
+    params.yaml, calibration.yaml and the last rung's residuals (None: not written; each file's format:
+    :mod:`sim2real.identification.formats`) it writes."""
 
     urdf: str | Path
     robot_config: str | Path
@@ -377,7 +406,7 @@ def run_sysid(robot: str, files: SysidFiles, threads: int = 1, cache_dir: str | 
     None: not kept).
     """
     from sim2real.identification.effects import calibration_from_params
-    from sim2real.files import read_yaml, write_json, write_yaml
+    from sim2real.files import read_yaml, write_yaml
     from sim2real.measurements import FIT_ARRAYS, runs_for_model
 
     model_config = load_model_config(files.model_config)
@@ -393,14 +422,12 @@ def run_sysid(robot: str, files: SysidFiles, threads: int = 1, cache_dir: str | 
         if not by_role[role]:
             raise InputError(files.measurements, "runs", f"no run with role '{role}'",
                              "mark at least one run role: fit and one role: holdout")
-    current: dict[str, Any] = {}
-    document, results = fit_model(model_config, nominal, by_role, robot, workers=threads, cache=cache,
-                                  release_runs=True, current_out=current)
-    params = params_document(results, nominal, document["torque_source"], robot)
-    write_json(files.ladder, document)
-    write_yaml(files.params, params)
+    fitted = fit_model(model_config, nominal, by_role, robot, workers=threads, cache=cache, release_runs=True)
+    params = params_document(fitted.results, nominal, fitted.document["torque_source"], robot)
+    write_ladder(files.ladder, fitted.document)
+    write_params(files.params, params)
     write_yaml(files.calibration, round_floats(calibration_from_params(params)))
     if files.residuals is not None:
-        write_model_residuals(files.residuals, current)
+        write_model_residuals(files.residuals, fitted.residuals)
     cache.prune()
-    return document
+    return fitted.document

@@ -10,6 +10,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from sim2real.identification.diagnosis.result import JointStanding, ModelFreeCeiling
 from sim2real.report.verdicts import first_screen_verdict, left_text
 
 
@@ -153,7 +154,8 @@ def joints_table(side: SideView) -> Table:
     comes closest there and what it leaves, and what kind of thing is left (the model-free ceiling)."""
     floors = _floors(side)
     diagnosis = side.diagnosis or {}
-    per_joint, ceiling = diagnosis.get("per_joint") or {}, diagnosis.get("model_free")
+    per_joint = {j: JointStanding.from_document(row) for j, row in (diagnosis.get("per_joint") or {}).items()}
+    ceiling = ModelFreeCeiling.from_document(diagnosis["model_free"]) if diagnosis.get("model_free") else None
     head = ["joint", "RMSE [N m]", "noise floor [N m]", "x floor"]
     head += ["nominal URDF [N m]"] if side.nominal else []
     head += ["closest candidate there", "share of its excess removed", "x floor after"] if per_joint else []
@@ -163,12 +165,12 @@ def joints_table(side: SideView) -> Table:
         row = [joint, f"{value:.3g}", f"{floors[joint][1]:.3g}", fmt(floors[joint][0])]
         row += [f"{side.nominal[joint]:.3g}"] if side.nominal else []
         if per_joint:
-            r = per_joint.get(joint) or {}
-            row += [r.get("closest") or "none", f"{100 * r.get('closest_explained_beyond_noise', 0):.0f}%",
-                    fmt(r.get("closest_x_floor_after"))] if r else ["–", "–", "–"]
+            r = per_joint.get(joint)
+            row += [r.closest or "none", f"{100 * r.closest_explained_beyond_noise:.0f}%",
+                    fmt(r.closest_x_floor_after)] if r else ["–", "–", "–"]
         if ceiling:
-            c = ceiling["per_joint"].get(joint)
-            row += [f"{c['ceiling_rmse']:.3g} ({fmt(c.get('ceiling_x_floor'))})", left_text(c)] if c else ["–", "–"]
+            c = ceiling.per_joint.get(joint)
+            row += [f"{c.ceiling_rmse:.3g} ({fmt(c.ceiling_x_floor)})", left_text(c)] if c else ["–", "–"]
         rows.append(tuple(row))
     return Table(tuple(head), tuple(rows))
 

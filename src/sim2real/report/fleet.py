@@ -377,12 +377,12 @@ def build_fleet(
     ``report`` (gap.md), ``ladder`` (sysid ladder.json path), ``params`` (sysid params.yaml path)."""
     import json
 
-    from sim2real.files import read_yaml, relative_path, validate, write_json, write_text
+    from sim2real.files import relative_path, validate, write_json, write_text
+    from sim2real.identification.formats import read_ladder, read_params
 
     loaded = []
     for item in campaigns:
-        loaded.append({**item, "ladder": json.loads(Path(item["ladder"]).read_text(encoding="utf-8")),
-                       "params": read_yaml(item["params"]) or {}})
+        loaded.append({**item, "ladder": read_ladder(item["ladder"]), "params": read_params(item["params"])})
     fleet = fleet_document(loaded)
     fleet = json.loads(json.dumps(fleet))
     validate(fleet, "fleet.schema.json", "fleet.json")

@@ -40,6 +40,7 @@ from sim2real.cache import FitCache
 from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.errors import InputError
 from sim2real.files import relative_path, validate, write_json
+from sim2real.identification.formats import read_ladder, read_model_residuals
 from sim2real.measurements import PreparedRun, RunSet, measured_after_drive, noise_floor_of, runs_for_model
 from sim2real.measurements.motion import not_judged_document
 from sim2real.measurements.noise import floor_method_document
@@ -48,29 +49,25 @@ from sim2real.report.regimes import where_it_fails
 from sim2real.report.replay import ReplayModels, ladder_position_rmse, model_armature, state_domain
 from sim2real.report.verdicts import worded
 
-def read_model_residuals(path: str | Path, model: RigidBodyModel) -> list[TorqueComparison]:
-    """The last rung's holdout comparisons from the sysid rule's residuals (:func:`sim2real.identification.sysid.write_model_residuals`):
-    each holdout run at the fit's rate, its judged torque, the current model's prediction and residual."""
+def holdout_comparisons(path: str | Path, model: RigidBodyModel) -> list[TorqueComparison]:
+    """The last rung's holdout comparisons from the sysid rule's residuals (:func:`sim2real.identification.formats.
+    read_model_residuals`): each holdout run at the fit's rate, its judged torque, the current model's prediction
+    and residual."""
     import zipfile
 
-    from sim2real.files import read_array_archive
-
     try:
-        header, arrays = read_array_archive(path, lambda name: name.startswith("holdout/"))
-        joints = list(header["joints"])
-        out = []
-        for run in header["roles"]["holdout"]["runs"]:
-            rows = slice(int(run["start"]), int(run["stop"]))
-            part = {name: arrays[f"holdout/{name}"][rows] for name in ("time", "q", "qd", "qdd", "tau", "residual")}
-            dt = float(np.median(np.diff(part["time"]))) if part["time"].size > 1 else 0.0
-            prepared = PreparedRun(name=run["name"], joint_names=joints, time=part["time"], dt=dt, q=part["q"],
-                                   qd=part["qd"], qdd=part["qdd"], tau=part["tau"], torque_source=header["torque_source"],
-                                   tau_cmd=None, q_cmd=None, filter=None, torque_sensor=header["torque_sensor"])
-            out.append(TorqueComparison(run=prepared, role="holdout", model_tau=part["tau"] - part["residual"],
-                                        residual=part["residual"], gravity=model.gravity(part["q"])))
+        residuals = read_model_residuals(path, roles=("holdout",))
     except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
         raise InputError(path, None, f"not a file of the model's residuals ({exc})",
                          "rebuild it: snakemake --forcerun sysid") from exc
+    out = []
+    for name, part in residuals.roles["holdout"].by_run():
+        dt = float(np.median(np.diff(part["time"]))) if part["time"].size > 1 else 0.0
+        prepared = PreparedRun(name=name, joint_names=list(residuals.joints), time=part["time"], dt=dt, q=part["q"],
+                               qd=part["qd"], qdd=part["qdd"], tau=part["tau"], torque_source=residuals.torque_source,
+                               tau_cmd=None, q_cmd=None, filter=None, torque_sensor=residuals.torque_sensor)
+        out.append(TorqueComparison(run=prepared, role="holdout", model_tau=part["tau"] - part["residual"],
+                                    residual=part["residual"], gravity=model.gravity(part["q"])))
     return out
 
 
@@ -104,7 +101,7 @@ class GapInputs:
         """The ladder's sections (``ladder``, ``diagnosis``, ``actuator``, ``links``), None without a ladder file."""
         if self.ladder is None or not Path(self.ladder).exists():
             return None
-        return json.loads(Path(self.ladder).read_text(encoding="utf-8"))
+        return read_ladder(self.ladder)
 
 
 def compute_gap(
@@ -227,7 +224,7 @@ def _torque_domain(gap: dict[str, Any], comparisons: list[TorqueComparison], mod
     if current is None:
         gap.update({"runs": runs_out, "metrics": metrics, "where": nominal["where"]})
         return comparisons
-    judged = read_model_residuals(residuals_path, model)
+    judged = holdout_comparisons(residuals_path, model)
     last = torque_metrics(np.concatenate([c.run.tau for c in judged]),
                           np.concatenate([c.residual for c in judged]), joints)
     last["model"] = {

@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from sim2real.identification.diagnosis.result import Candidate, ModelFreeCeiling
 from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR
 from sim2real.report import details
 from sim2real.report.first_screen import (
@@ -105,15 +106,12 @@ def _diagnosis_markdown(diagnosis: Mapping[str, Any], side: SideView | None = No
     """The three best candidates and their evidence, the effects not tried and why, the diagnosis's verdict in full and
     the model-free ceiling's reasoning (collapsed); joint by joint where the first screen does not show ``side``."""
     lines = []
-    for cand in diagnosis["candidates"][:3]:
-        beyond = cand.get("explained_beyond_noise")
-        beyond_text = f" ({100 * beyond:.0f}% of what lies above the noise floor)" if beyond is not None else ""
-        after = cand["evidence"].get("x_floor_after")
-        lines.append(f"- `{cand['effect']}` on {', '.join(cand['joints']) or 'no joint in particular'}: explains "
-                     f"{100 * cand['explained']:.0f}% of the residual{beyond_text}, holdout RMSE after "
-                     f"{_fmt(cand['evidence'].get('rmse_after'))} N m"
-                     + (f" ({after:.2f}x the floor)" if after is not None else "") + f"; add `{cand['add']}`"
-                     + "".join(f", remove `- {r}`" for r in cand.get("replaces", [])))
+    for cand in (Candidate.from_document(c) for c in diagnosis["candidates"][:3]):
+        lines.append(f"- `{cand.effect}` on {', '.join(cand.joints) or 'no joint in particular'}: explains "
+                     f"{100 * cand.explained:.0f}% of the residual ({100 * cand.explained_beyond_noise:.0f}% of what "
+                     f"lies above the noise floor), holdout RMSE after {_fmt(cand.evidence.rmse_after)} N m "
+                     f"({cand.evidence.x_floor_after:.2f}x the floor); add `{cand.add}`"
+                     + "".join(f", remove `- {r}`" for r in cand.replaces))
     lines += [""] if lines else []
     skipped = [f"- `{skip['effect']}` not tried: {skip['reason']}" for skip in diagnosis.get("skipped", [])]
     if skipped:
@@ -127,7 +125,8 @@ def _diagnosis_markdown(diagnosis: Mapping[str, Any], side: SideView | None = No
         reading = "" if ceiling.get("text") and ceiling["text"] in diagnosis["verdict"] else " " + (
             ceiling.get("text") or "Nothing is left above the floors that a function of the motion, the time or the "
             "history explains.")
-        lines += details("The model-free ceiling", [f"Model-free ceiling: {ceiling['learner']}.{reading}"])
+        learner = ModelFreeCeiling.from_document(ceiling).learner
+        lines += details("The model-free ceiling", [f"Model-free ceiling: {learner}.{reading}"])
     return lines
 
 

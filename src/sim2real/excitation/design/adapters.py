@@ -14,10 +14,10 @@ import scipy.sparse
 class _Numeric(ca.Callback):
     """A numeric function of the coefficients with its numeric Jacobian, as a CasADi function."""
 
-    def __init__(self, name: str, size_in: int, size_out: int, value: Callable[[np.ndarray], np.ndarray],
+    def __init__(self, name: str, input_size: int, output_size: int, value: Callable[[np.ndarray], np.ndarray],
                  jacobian: Callable[[np.ndarray], np.ndarray]) -> None:
         ca.Callback.__init__(self)
-        self.size_in, self.size_out, self.value, self.jac = size_in, size_out, value, jacobian
+        self.input_size, self.output_size, self.value, self.jac = input_size, output_size, value, jacobian
         self.construct(name, {})
 
     def get_n_in(self) -> int:
@@ -27,10 +27,10 @@ class _Numeric(ca.Callback):
         return 1
 
     def get_sparsity_in(self, i: int) -> ca.Sparsity:
-        return ca.Sparsity.dense(self.size_in, 1)
+        return ca.Sparsity.dense(self.input_size, 1)
 
     def get_sparsity_out(self, i: int) -> ca.Sparsity:
-        return ca.Sparsity.dense(self.size_out, 1)
+        return ca.Sparsity.dense(self.output_size, 1)
 
     def eval(self, arg: Sequence[Any]) -> list[np.ndarray]:
         return [np.asarray(self.value(np.asarray(arg[0]).ravel()), dtype=float).reshape(-1, 1)]
@@ -56,10 +56,10 @@ class _Jacobian(ca.Callback):
         return 1
 
     def get_sparsity_in(self, i: int) -> ca.Sparsity:
-        return ca.Sparsity.dense(self.parent.size_in if i == 0 else self.parent.size_out, 1)
+        return ca.Sparsity.dense(self.parent.input_size if i == 0 else self.parent.output_size, 1)
 
     def get_sparsity_out(self, i: int) -> ca.Sparsity:
-        return ca.Sparsity.dense(self.parent.size_out, self.parent.size_in)
+        return ca.Sparsity.dense(self.parent.output_size, self.parent.input_size)
 
     def eval(self, arg: Sequence[Any]) -> list[np.ndarray]:
         return [np.asarray(self.parent.jac(np.asarray(arg[0]).ravel()), dtype=float)]

@@ -26,8 +26,8 @@ from sim2real.identification.diagnosis.candidates import (
 )
 from sim2real.identification.diagnosis.caveats import NESTED_IN
 from sim2real.identification.diagnosis.ceiling import model_free_ceiling
-from sim2real.identification.diagnosis.result import Candidate, Diagnosis
+from sim2real.identification.diagnosis.result import Candidate, Diagnosis, candidate_named
 from sim2real.identification.diagnosis.trials import candidates_to_try, trial_fits
 
 __all__ = ["CONFOUNDED_NOISE_FRACTION", "DEFAULT_DIAGNOSIS", "HARM_TOLERANCE", "NESTED_IN", "Candidate", "Diagnosis",
-           "add_line", "candidates_to_try", "diagnose", "model_free_ceiling", "trial_fits"]
+           "add_line", "candidate_named", "candidates_to_try", "diagnose", "model_free_ceiling", "trial_fits"]

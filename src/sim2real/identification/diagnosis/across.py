@@ -88,8 +88,8 @@ def sensor_lag(drive: Diagnosis, drive_result: FitResult, body_result: FitResult
         return None
     trial = _body_lag_trial(body)
     own = (sum(_lag_value(name, drive_result.values.get(name) or {}) for name in held) if held
-           else _lag_value(top.effect, top.evidence["fitted"]) if top is not None else 0.0)
-    found = _lag_value(trial.effect, trial.evidence["fitted"]) if trial else 0.0
+           else _lag_value(top.effect, top.evidence.fitted) if top is not None else 0.0)
+    found = _lag_value(trial.effect, trial.evidence.fitted) if trial else 0.0
     # The body side's lag must be this one, and show above the body's noise, to say whose it is.
     if not own or not AGREEING_LAGS[0] <= found / float(own) <= AGREEING_LAGS[1] \
             or trial is None or trial.explained_beyond_noise < DEFAULT_DIAGNOSIS["joint_min_explained"]:
@@ -102,10 +102,10 @@ def _body_lag_trial(body: Diagnosis | None) -> Candidate | None:
     """Of the body side's trials of a sensor lag, the shape its ranking would name: the delay where the filter does no
     better than the data can tell (sim2real.identification.diagnosis.candidates._rank)."""
     trials = [c for c in (body.candidates if body else ()) if _sensor_lag(c.effect)]
-    reach = min((c.evidence["x_floor_after"] for c in trials), default=0.0)
-    return min((c for c in trials if c.evidence["x_floor_after"]
+    reach = min((c.evidence.x_floor_after for c in trials), default=0.0)
+    return min((c for c in trials if c.evidence.x_floor_after
                 <= reach + float(DEFAULT_DIAGNOSIS["parsimony_noise_fraction"])),
-               key=lambda c: (get_effect(c.effect).lowpass, c.evidence["x_floor_after"]), default=None)
+               key=lambda c: (get_effect(c.effect).lowpass, c.evidence.x_floor_after), default=None)
 
 
 def other_side(named: Diagnosis, other: Diagnosis | None, sensor: str) -> Note | None:
@@ -120,8 +120,8 @@ def other_side(named: Diagnosis, other: Diagnosis | None, sensor: str) -> Note |
     if trial is None or not effects_of_side([best.effect], other.side, sensor):
         return None
     factor = float(DEFAULT_DIAGNOSIS["noise_floor_factor"])
-    now = {j: row["x_floor"] for j, row in other.per_joint.items()}
-    after = trial.evidence.get("per_joint_x_floor_after") or {}
+    now = {j: row.x_floor for j, row in other.per_joint.items()}
+    after = trial.evidence.per_joint_x_floor_after
     worse = [j for j, a in now.items() if j in after and after[j] > a
              and (after[j] > factor or after[j] > a + HARM_TOLERANCE)]
     if not worse:

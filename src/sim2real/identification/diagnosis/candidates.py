@@ -52,6 +52,7 @@ each joint still above its floor and the candidate that comes closest there (``p
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -66,7 +67,7 @@ from sim2real.identification.diagnosis.margins import (
     AT_THRESHOLD, CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor, near_threshold_notes,
     near_thresholds,
 )
-from sim2real.identification.diagnosis.result import Candidate, Diagnosis
+from sim2real.identification.diagnosis.result import Candidate, CandidateEvidence, Diagnosis, JointStanding
 from sim2real.identification.diagnosis.trials import _tried, failed_trial, replaced_by
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.effects.base import Signals, per_joint_dict
@@ -129,23 +130,15 @@ def _rank(candidates: list[dict[str, Any]], tolerance: float) -> list[dict[str, 
     best = ranked[0]
     if not best["decisive"]:
         return ranked  # nothing is named: the order is only what comes closest
-    limit = best["evidence"]["x_floor_after"] + tolerance
-    close = [c for c in ranked if c["decisive"] == best["decisive"] and c["evidence"]["x_floor_after"] <= limit]
-    # Among those that do as well, one that keeps every inertia plausible first, then one that pushes fewer bounds,
-    # then the simplest: of two shapes of
-    # one lag, the delay (a filter gives the simulation a state of its own).
-    simplest = min(close, key=lambda c: (bool(c["evidence"]["implausible_bodies"]), _bounds_pushed(c),
-                                         c["evidence"]["parameters"],
+    limit = best["evidence"].x_floor_after + tolerance
+    close = [c for c in ranked if c["decisive"] == best["decisive"] and c["evidence"].x_floor_after <= limit]
+    # Among those that do as well, one that keeps every inertia plausible first, then one that pushes fewer bounds
+    # (the one that leaves the links freer names what acted like mass), then the simplest: of two shapes of one lag,
+    # the delay (a filter gives the simulation a state of its own).
+    simplest = min(close, key=lambda c: (bool(c["evidence"].implausible_bodies), c["evidence"].bounds_pushed_net,
+                                         c["evidence"].parameters,
                                          EFFECTS[c["effect"]].lowpass, -c["explained"], c["effect"]))
     return [simplest] + [c for c in ranked if c is not simplest]
-
-
-def _bounds_pushed(candidate: Mapping[str, Any]) -> int:
-    """How many bounds a candidate's fit pushes the link inertias to, less those it releases (:func:`bound_changes`):
-    of two that do as well, the one that leaves the links freer names what acted like mass."""
-    bounds = candidate["evidence"].get("bounds") or {}
-    return (sum(len(v) for v in (bounds.get("pushes") or {}).values())
-            - sum(len(v) for v in (bounds.get("releases") or {}).values()))
 
 
 def _confounded(
@@ -189,28 +182,31 @@ def _scores(residual: np.ndarray, now: CurrentResidual, broken: bool,
 
 def _evidence(name: str, trial: tuple[fitting.FitResult, np.ndarray], scores: Mapping[str, Any],
               context: fitting.FitContext, now: CurrentResidual, current: fitting.FitResult | None,
-              own: np.ndarray | None) -> dict[str, Any]:
+              own: np.ndarray | None) -> CandidateEvidence:
     """A trial's evidence: the effect's residual signature, then what its fit removes and does."""
     result, residual = trial
     joints = list(context.holdout_data.joint_names)
-    evidence = EFFECTS[name].evidence(now.residual, context.holdout_signals)
-    evidence["per_joint_explained"] = per_joint_dict(joints, scores["per_joint"], 3)
-    evidence["per_joint_explained_beyond_noise"] = per_joint_dict(joints, scores["per_joint_beyond"], 3)
-    evidence["rmse_after"] = round(float(np.sqrt(np.mean(residual**2))), 6)
-    evidence["x_floor_after"] = round(float(np.sqrt(np.mean(scores["x_after"] ** 2))), 4)
-    evidence["per_joint_x_floor_after"] = per_joint_dict(joints, scores["x_after"], 3)
-    evidence["harmed_joints"] = [j for j, h in zip(joints, scores["harmed"], strict=True) if h]
-    if own is not None:
-        evidence["per_joint_own_term_x_floor"] = per_joint_dict(joints, own, 3)
-    evidence["fitted"] = result.values[name]
-    # Its own coefficients (the linear ones added to the nominal model, and the nonlinear ones): what a
-    # design that separates two confounded candidates predicts each of them adds (sim2real.excitation).
-    evidence["coefficients"] = {"linear": [float(v) for v in result.theta.get(name, [])],
-                                "nonlinear": [float(v) for v in result.nonlinear.get(name, [])]}
-    evidence["parameters"] = int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, [])))
-    evidence["implausible_bodies"] = implausible_bodies(result, current)
-    evidence["bounds"] = bound_changes(result, current)
-    return evidence
+    signature = EFFECTS[name].evidence(now.residual, context.holdout_signals)
+    bounds = bound_changes(result, current)
+    return CandidateEvidence(
+        signature=signature["signature"], statistic=signature["statistic"], per_joint=signature["per_joint"],
+        lag_s=signature.get("lag_s"),
+        per_joint_explained=per_joint_dict(joints, scores["per_joint"], 3),
+        per_joint_explained_beyond_noise=per_joint_dict(joints, scores["per_joint_beyond"], 3),
+        rmse_after=round(float(np.sqrt(np.mean(residual**2))), 6),
+        x_floor_after=round(float(np.sqrt(np.mean(scores["x_after"] ** 2))), 4),
+        per_joint_x_floor_after=per_joint_dict(joints, scores["x_after"], 3),
+        harmed_joints=tuple(j for j, h in zip(joints, scores["harmed"], strict=True) if h),
+        per_joint_own_term_x_floor=per_joint_dict(joints, own, 3) if own is not None else None,
+        fitted=result.values[name],
+        # Its own coefficients (the linear ones added to the nominal model, and the nonlinear ones): what a
+        # design that separates two confounded candidates predicts each of them adds (sim2real.excitation).
+        linear_coefficients=tuple(float(v) for v in result.theta.get(name, [])),
+        nonlinear_coefficients=tuple(float(v) for v in result.nonlinear.get(name, [])),
+        parameters=int(len(result.theta.get(name, [])) + len(result.nonlinear.get(name, []))),
+        implausible_bodies=tuple(implausible_bodies(result, current)),
+        bounds_pushed={k: tuple(v) for k, v in bounds["pushes"].items()},
+        bounds_released={k: tuple(v) for k, v in bounds["releases"].items()})
 
 
 def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: fitting.FitContext,
@@ -237,11 +233,11 @@ def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: 
     decisive = decision.decisive
     evidence = _evidence(name, trial, scores, context, now, current, own)
     if broken is not None:
-        evidence["fit_failed"] = broken
+        evidence = replace(evidence, fit_failed=broken)
     elif (decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, PERMISSIVE).decisive
           != decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, CONSERVATIVE).decisive):
-        evidence["near_threshold"] = [n.as_document() for n in
-                                      near_thresholds(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN)]
+        evidence = replace(evidence, near_threshold=tuple(
+            n.as_document() for n in near_thresholds(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN)))
     return {
         "effect": name,
         "link": EFFECTS[name].side if side == Side.COMBINED else side,  # a drive effect's follows the torque sensor
@@ -257,19 +253,17 @@ def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: 
 
 
 def _per_joint_status(joints: Sequence[str], now: CurrentResidual,
-                      candidates: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+                      candidates: Sequence[Mapping[str, Any]]) -> dict[str, JointStanding]:
     """Each joint's residual x its floor and the candidate that removes most of its excess there."""
     out = {}
     for j, x in zip(joints, now.x_floor, strict=True):
-        closest = max(candidates, key=lambda c: c["evidence"]["per_joint_explained_beyond_noise"][j], default=None)
-        if closest is not None and closest["evidence"]["per_joint_explained_beyond_noise"][j] <= 0:
+        closest = max(candidates, key=lambda c: c["evidence"].per_joint_explained_beyond_noise[j], default=None)
+        if closest is not None and closest["evidence"].per_joint_explained_beyond_noise[j] <= 0:
             closest = None  # nothing removes any of it
-        out[j] = {
-            "x_floor": round(float(x), 3),
-            "closest": closest["effect"] if closest else None,
-            "closest_explained_beyond_noise": closest["evidence"]["per_joint_explained_beyond_noise"][j] if closest else 0.0,
-            "closest_x_floor_after": closest["evidence"]["per_joint_x_floor_after"][j] if closest else round(float(x), 3),
-        }
+        out[j] = JointStanding(
+            x_floor=round(float(x), 3), closest=closest["effect"] if closest else None,
+            closest_explained_beyond_noise=closest["evidence"].per_joint_explained_beyond_noise[j] if closest else 0.0,
+            closest_x_floor_after=closest["evidence"].per_joint_x_floor_after[j] if closest else round(float(x), 3))
     return out
 
 
@@ -303,7 +297,7 @@ def _relabellings(candidates: Sequence[dict[str, Any]], failed: Mapping[str, Any
         trades_of[c["effect"]] = trades_with_model(trials[c["effect"]][0], current, c["effect"], context.nominal,
                                                    context.holdout_data, context.holdout_signals, now.unit)
         if demote_relabelling(c, trades_of[c["effect"]]):
-            out[c["effect"]] = c["evidence"]["relabels"]
+            out[c["effect"]] = list(c["evidence"].relabels)
     return out, trades_of
 
 
@@ -313,7 +307,7 @@ def demote_relabelling(candidate: dict[str, Any], trades: Sequence[Mapping[str, 
     keeping them in its evidence (``relabels``); whether it did."""
     relabels = relabelling(trades)
     if relabels:
-        candidate["evidence"]["relabels"] = relabels
+        candidate["evidence"] = replace(candidate["evidence"], relabels=tuple(relabels))
         candidate.update({"decisive": False, "decided_on": None, "joints": []})
     return bool(relabels)
 
@@ -359,7 +353,8 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
     group = [ranked[0], *tied_with_best] if tied_with_best else []  # the best and those it is not told apart from
     if current is not None:
         for c in (group or ranked[:1]) if ranked and ranked[0]["decisive"] else []:
-            c["evidence"]["trades_with"] = trades_of[c["effect"]]  # every decisive candidate's, found above
+            # every decisive candidate's, found above
+            c["evidence"] = replace(c["evidence"], trades_with=tuple(trades_of[c["effect"]]))
     ranked, recommended = recommend(ranked, tied_with_best)
     best = ranked[0] if ranked else None
     status = _status(best, recommended, above)

@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,7 @@ import numpy as np
 from sim2real.identification import fitting
 from sim2real.identification.diagnosis.lags import same_lag
 from sim2real.identification.diagnosis.margins import tie_near
+from sim2real.identification.diagnosis.result import CandidateEvidence
 from sim2real.identification.effects.base import Signals
 from sim2real.identification.records import Note, NoteKind
 
@@ -206,24 +208,23 @@ def ties(candidates: list[dict[str, Any]], residuals: Mapping[str, np.ndarray], 
         same, difference, spread = tied(_block_sse(residuals[c["effect"]], blocks), best_blocks)
         near = tie_near(difference, spread, TIE_SPREAD)  # within the arithmetic's margin of the bound: tied
         if same or near:
-            c["evidence"]["tie_with_best"] = {"difference": round(difference, 3), "spread": round(spread, 3),
-                                              "blocks": blocks, **({"near_threshold": True} if near else {})}
+            c["evidence"] = replace(c["evidence"], tie_with_best={
+                "difference": round(difference, 3), "spread": round(spread, 3), "blocks": blocks,
+                **({"near_threshold": True} if near else {})})
             out.append(c)
     return out
 
 
-def troubles(candidate: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """Why a candidate would leave the model less trustworthy, each a record (``kind`` and its figures): inertias bent
-    beyond plausible (``implausible``), pushed to their bounds (``bounds``), or a trade with an effect already in the
-    model (``trade``)."""
-    evidence = candidate["evidence"]
+def troubles(evidence: CandidateEvidence) -> list[dict[str, Any]]:
+    """Why a candidate (its ``evidence``) would leave the model less trustworthy, each a record (``kind`` and its
+    figures): inertias bent beyond plausible (``implausible``), pushed to their bounds (``bounds``), or a trade with an
+    effect already in the model (``trade``)."""
     reasons: list[dict[str, Any]] = []
-    if evidence.get("implausible_bodies"):
-        reasons.append({"kind": "implausible", "bodies": list(evidence["implausible_bodies"])})
-    pushed = (evidence.get("bounds") or {}).get("pushes")
-    if pushed:  # pairs, in the order of the bodies (a document's mappings are sorted by name)
-        reasons.append({"kind": "bounds", "bodies": [[name, list(b)] for name, b in pushed.items()]})
-    for trade in evidence.get("trades_with", []):
+    if evidence.implausible_bodies:
+        reasons.append({"kind": "implausible", "bodies": list(evidence.implausible_bodies)})
+    if evidence.bounds_pushed:  # pairs, in the order of the bodies (a document's mappings are sorted by name)
+        reasons.append({"kind": "bounds", "bodies": [[name, list(b)] for name, b in evidence.bounds_pushed.items()]})
+    for trade in evidence.trades_with or ():
         reasons.append({"kind": "trade", **trade})
     return reasons
 
@@ -240,8 +241,8 @@ def recommend(candidates: list[dict[str, Any]], ties: list[dict[str, Any]],
     if not ties:
         return candidates, candidates[0]
     group = [candidates[0], *ties]
-    chosen = next((c for c in group if not troubles(c)), None)
-    if chosen is None and all(troubles(c) == troubles(group[0]) for c in group):
+    chosen = next((c for c in group if not troubles(c["evidence"])), None)
+    if chosen is None and all(troubles(c["evidence"]) == troubles(group[0]["evidence"]) for c in group):
         chosen = group[0]  # a condition every tied candidate shares tells none of them apart: the best, cautioned
     if chosen is None:
         return candidates, None
@@ -257,7 +258,7 @@ def caveat_notes(best: Mapping[str, Any], group: Sequence[Mapping[str, Any]]) ->
     if others:
         notes.append(Note(NoteKind.TIED, effect=best["effect"],
                           figures={"others": others, "first": group[0]["effect"], "spread": TIE_SPREAD}))
-    reasons = troubles(best)
+    reasons = troubles(best["evidence"])
     if reasons:
         notes.append(Note(NoteKind.CAUTION, effect=best["effect"], figures={"troubles": reasons}))
     return notes

@@ -23,7 +23,8 @@ This module fits the learners and reads them; the features they read are built i
 from __future__ import annotations
 
 import importlib
-from collections.abc import Sequence
+from dataclasses import replace
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -32,6 +33,7 @@ from sim2real.identification.diagnosis.ceiling_features import (
     DYNAMICS_LEARNER, DYNAMICS_TREES, POSE_LEARNERS, LearnerFeatures, _chosen_features, dynamics_features, feature,
     motion_features, period_harmonics, pose_features, position_harmonics, signed_products, since_reversal,
 )
+from sim2real.identification.diagnosis.result import CeilingReading, EffectAdvice, ModelFreeCeiling
 from sim2real.identification.effects.position_ripple import best_periods
 
 # The learner's holdout RMSE at or above this fraction of the rung's: what is left is not a function of the
@@ -270,7 +272,7 @@ def _motion_beyond_drift(j: int, drift: str, residuals: tuple[Any, np.ndarray, A
 
 def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_data: Any,
                    holdout_residual: np.ndarray, noise_floor_factor: float, floors: Sequence[float],
-                   features: LearnerFeatures | None = None) -> tuple[dict[str, Any], np.ndarray]:
+                   features: LearnerFeatures | None = None) -> tuple[CeilingReading, np.ndarray]:
     """Joint ``j``'s row of :func:`model_free_ceiling` and its holdout residual after the better learner (the
     rung's own where the joint is at its floor); ``floors``: each joint's as the ladder judges by it; ``features``:
     what the learners beside the trees on the motion read."""
@@ -280,54 +282,48 @@ def _joint_ceiling(j: int, *, fit_data: Any, fit_residual: np.ndarray, holdout_d
     rung = float(np.sqrt(np.mean(holdout_residual[:, j] ** 2)))
     if _at_floor(rung, floor, noise_floor_factor):
         # nothing above the floor for a learner to explain: the ceiling is the rung itself
-        return ({"rung_rmse": round(rung, 6), "ceiling_rmse": round(rung, 6), "rung_x_floor": round(rung / floor, 3),
-                 "ceiling_x_floor": round(rung / floor, 3), "ratio": 1.0, "explained_beyond_noise": 0.0,
-                 "kind": "at_floor", "fitted": False}, np.array(holdout_residual[:, j], dtype=float))
+        return (CeilingReading(rung_rmse=round(rung, 6), ceiling_rmse=round(rung, 6), rung_x_floor=round(rung / floor, 3),
+                               ceiling_x_floor=round(rung / floor, 3), ratio=1.0, explained_beyond_noise=0.0,
+                               kind="at_floor", fitted=False), np.array(holdout_residual[:, j], dtype=float))
     with threadpool_limits(limits=1, user_api="openmp"):
         chosen, after, learner, period = _learners(j, fit_data, fit_residual[:, j], holdout_data,
                                                    holdout_residual[:, j], features)
         periodic = chosen not in ("trees on the motion", DYNAMICS_TREES, DYNAMICS_LEARNER, *POSE_LEARNERS)
         ceiling = float(np.sqrt(np.mean(after**2)))
-        row: dict[str, Any] = {
-            "rung_rmse": round(rung, 6), "ceiling_rmse": round(ceiling, 6),
-            "rung_x_floor": round(rung / floor, 3),
-            "ceiling_x_floor": round(ceiling / floor, 3),
-            "ratio": round(ceiling / rung, 4) if rung > 0 else 1.0,
-            "explained_beyond_noise": round(_excess_share(holdout_residual[:, j], after, floor), 4),
-        }
-        row["fitted"] = True
-        row["learner"] = chosen
+        row = CeilingReading(
+            rung_rmse=round(rung, 6), ceiling_rmse=round(ceiling, 6), rung_x_floor=round(rung / floor, 3),
+            ceiling_x_floor=round(ceiling / floor, 3), ratio=round(ceiling / rung, 4) if rung > 0 else 1.0,
+            explained_beyond_noise=round(_excess_share(holdout_residual[:, j], after, floor), 4),
+            kind="not_motion", fitted=True, learner=chosen)
         if ceiling < CLOSE_TO_RUNG * rung:
-            row["kind"] = "motion"
             ripple = {"period": period} if chosen == "a ripple of the searched period" else {}
             x_holdout, names = _chosen_features(chosen, j, holdout_data, features)
-            row["gains_most_with"] = ([feature("periodic_position", holdout_data.joint_names[j], **ripple)] if periodic
-                                      else _gains_most(learner, x_holdout, holdout_residual[:, j], names))
-            if chosen in POSE_LEARNERS and any(f["feature"] in SIDEWAYS for f in row["gains_most_with"]):
-                row["effect"] = MOUNT_EFFECT  # a gravity turned sideways: the library's mount carries it
-            row["gains_most_in"] = _gain_regime(holdout_residual[:, j], after, holdout_data.qd[:, j],
-                                                holdout_data.qdd[:, j])
+            gains = ([feature("periodic_position", holdout_data.joint_names[j], **ripple)] if periodic
+                     else _gains_most(learner, x_holdout, holdout_residual[:, j], names))
+            row = replace(
+                row, kind="motion", gains_most_with=tuple(gains),
+                # a gravity turned sideways: the library's mount carries it
+                effect=MOUNT_EFFECT if chosen in POSE_LEARNERS and any(f["feature"] in SIDEWAYS for f in gains) else None,
+                gains_most_in=_gain_regime(holdout_residual[:, j], after, holdout_data.qd[:, j], holdout_data.qdd[:, j]))
             # Where each run's motion follows its time (one excitation, run after run), a function of the motion can
             # imitate a warm-up or an offset per run. Where one of those removes as much, it is named; the learners
             # fitted again without it say whether the motion explains anything beside it.
             shares = _drift_shares(j, fit_data, fit_residual, holdout_data, holdout_residual, floor)
             drift = _named({**shares, "history": 0.0})
-            if drift is not None and shares[drift] >= row["explained_beyond_noise"]:
-                row["beyond_motion"] = {k: round(v, 4) for k, v in shares.items()}
-                row["follows"] = drift
-                row["imitated"] = not _motion_beyond_drift(
-                    j, drift, (fit_data, fit_residual, holdout_data, holdout_residual), floor, noise_floor_factor, features)
+            if drift is not None and shares[drift] >= row.explained_beyond_noise:
+                row = replace(row, beyond_motion={k: round(v, 4) for k, v in shares.items()}, follows=drift,
+                              imitated=not _motion_beyond_drift(
+                                  j, drift, (fit_data, fit_residual, holdout_data, holdout_residual), floor,
+                                  noise_floor_factor, features))
         else:
-            row["kind"] = "not_motion"
             shares = _beyond_motion(j, fit_data, fit_residual, holdout_data, holdout_residual, floor)
-            row["beyond_motion"] = shares
-            row["follows"] = _named(shares)
+            row = replace(row, beyond_motion=shares, follows=_named(shares))
     return row, after
 
 
 def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: Any, holdout_residual: np.ndarray,
                        noise_floor_factor: float = 1.5, workers: int = 1, model_effects: Sequence[str] = (),
-                       nominal_dynamics: Any = None) -> dict[str, Any]:
+                       nominal_dynamics: Any = None) -> ModelFreeCeiling:
     """The ceiling of ``diagnosis.model_free`` in gap.json (see the module docstring).
 
     ``fit_data``/``holdout_data``: :class:`sim2real.identification.fitting.TorqueData`; the residuals are the last rung's
@@ -366,33 +362,27 @@ def model_free_ceiling(fit_data: Any, fit_residual: np.ndarray, holdout_data: An
     after = np.column_stack([column for _, column in rows])
     overall = float(np.sqrt(np.mean(after**2)))
     offsets = offset_joints(per_joint)
-    declare = ({"effect": DRIFT_EFFECT, "joints": offsets, "line": f"- {DRIFT_EFFECT}"}
-               if offsets and DRIFT_EFFECT not in model_effects else None)
-    mounted = [j for j, r in per_joint.items() if r.get("effect") == MOUNT_EFFECT]
-    points_to = ({"effect": MOUNT_EFFECT, "joints": mounted, "line": f"- {MOUNT_EFFECT}"}
-                 if mounted and MOUNT_EFFECT not in model_effects else None)
-    return {
-        "learner": LEARNER,
-        "torque_rmse": {"overall": round(overall, 6),
-                        "per_joint": {j: per_joint[j]["ceiling_rmse"] for j in joints}},
-        "close_to_rung": CLOSE_TO_RUNG,
-        "per_joint": per_joint,
-        **({"declare": declare} if declare else {}),
-        **({"points_to": points_to} if points_to else {}),
-    }
+    mounted = [j for j, r in per_joint.items() if r.effect == MOUNT_EFFECT]
+    return ModelFreeCeiling(
+        learner=LEARNER, torque_rmse_overall=round(overall, 6),
+        torque_rmse_per_joint={j: per_joint[j].ceiling_rmse for j in joints}, close_to_rung=CLOSE_TO_RUNG,
+        per_joint=per_joint,
+        declare=(EffectAdvice(DRIFT_EFFECT, tuple(offsets), f"- {DRIFT_EFFECT}")
+                 if offsets and DRIFT_EFFECT not in model_effects else None),
+        points_to=(EffectAdvice(MOUNT_EFFECT, tuple(mounted), f"- {MOUNT_EFFECT}")
+                   if mounted and MOUNT_EFFECT not in model_effects else None))
 
 
-def offset_joints(per_joint: dict[str, Any]) -> list[str]:
+def offset_joints(per_joint: Mapping[str, CeilingReading]) -> list[str]:
     """The joints where what is left sits at an offset of each run's own or drifts: no function of the motion, or
     one a drift removes as much of (:func:`imitated_joints`). Not a joint whose leftover follows a gravity turned
     sideways (``effect``): a held-out run judges the mount that carries it, no drift estimated on every run stands in
     for it."""
-    return [j for j, r in per_joint.items() if r["kind"] != "at_floor" and r.get("follows") in OFFSET_KINDS
-            and not r.get("effect")]
+    return [j for j, r in per_joint.items() if r.kind != "at_floor" and r.follows in OFFSET_KINDS and not r.effect]
 
 
-def imitated_joints(per_joint: dict[str, Any]) -> list[str]:
+def imitated_joints(per_joint: Mapping[str, CeilingReading]) -> list[str]:
     """The joints where a learner on the motion explains much of what is left, yet an offset or drift of each run's
     own removes at least as much, and without it the learner explains nothing more: the motion merely follows the
     run's time."""
-    return [j for j, r in per_joint.items() if r["kind"] == "motion" and r.get("imitated")]
+    return [j for j, r in per_joint.items() if r.kind == "motion" and r.imitated]

@@ -100,7 +100,7 @@ def other_shapes(best: Mapping[str, Any], candidates: Sequence[Mapping[str, Any]
     floor units, by candidate."""
     return [c["effect"] for c in candidates if same_lag(best["effect"], c["effect"]) and c["effect"] in residuals
             and c["explained"] >= float(limits["min_gain"]) and (
-                abs(c["evidence"]["x_floor_after"] - best["evidence"]["x_floor_after"])
+                abs(c["evidence"].x_floor_after - best["evidence"].x_floor_after)
                 <= float(limits["parsimony_noise_fraction"])
                 or float(np.sqrt(np.mean((residuals[best["effect"]] - residuals[c["effect"]]) ** 2))) <= same_prediction)]
 

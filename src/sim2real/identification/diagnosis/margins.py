@@ -136,9 +136,9 @@ def near_threshold_notes(candidates: Sequence[Mapping[str, Any]], group: Sequenc
     """The note of a diagnosis some of whose decisions took the conservative side: the candidates the margins kept
     from being named (their ``near_threshold`` evidence), those tied with the best only within the margin, and the
     joints counted within their floor (``joints``: :func:`joints_near_floor`)."""
-    held_back = {str(c["effect"]): list(c["evidence"]["near_threshold"]) for c in candidates
-                 if c["evidence"].get("near_threshold")}
-    ties = [str(c["effect"]) for c in group if (c["evidence"].get("tie_with_best") or {}).get("near_threshold")]
+    held_back = {str(c["effect"]): list(c["evidence"].near_threshold) for c in candidates
+                 if c["evidence"].near_threshold}
+    ties = [str(c["effect"]) for c in group if (c["evidence"].tie_with_best or {}).get("near_threshold")]
     if not (held_back or ties or joints):
         return []
     return [Note(NoteKind.NEAR_THRESHOLD, figures={"candidates": held_back, "ties": ties,

@@ -1,25 +1,258 @@
 """What a diagnosis returns: a :class:`Diagnosis`, typed data the report words (:mod:`sim2real.report.verdicts`).
 
 Its document (:meth:`Diagnosis.as_document`, ladder.json's ``diagnosis``) holds the same data in JSON, read back by
-:meth:`Diagnosis.from_document`; gap.json's ``diagnosis`` is that document with the words added.
+:meth:`Diagnosis.from_document`; gap.json's ``diagnosis`` is that document with the words added. Each row of it is a
+frozen dataclass that spells its own keys, here alone: a candidate's evidence (:class:`CandidateEvidence`), a joint's
+standing (:class:`JointStanding`), the model-free ceiling (:class:`ModelFreeCeiling`) and its reading of a joint
+(:class:`CeilingReading`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 from sim2real.identification.records import Note, Side, Status
+
+# A sub-document whose layout another module owns (an effect's fitted values, a caveat's or a trial's figures), kept
+# as the JSON data it is.
+Figures = Mapping[str, object]
+
+
+def _optional(document: Mapping[str, Any], key: str, kind: Any) -> Any:
+    return kind(document[key]) if key in document else None
+
+
+@dataclass(frozen=True)
+class CandidateEvidence:
+    """A trial's evidence: the effect's residual signature on the current holdout residual (``signature``, its
+    ``statistic``, per joint, and for a lag the lag that best aligns the torques, ``lag_s``: None for another effect
+    or without a measured torque; :meth:`sim2real.identification.effects.base.Effect.evidence`), what its fit removes
+    (per joint, of the residual and of its excess above the floor), what is left (``rmse_after``, N*m; x the floor,
+    arm-wide and per joint), the joints it pushes further above their floor, its own term per joint (x the floor;
+    None for an effect without linear coefficients), its fitted values, coefficients and number of parameters, the
+    bodies it leaves beyond plausible and the inertia bounds it pushes or releases; then what the diagnosis found of
+    it (None where not: a failed solve, decisions near a threshold, a relabelling, its trades with the model, its
+    tie with the best)."""
+
+    signature: str
+    statistic: str
+    per_joint: Mapping[str, float]
+    per_joint_explained: Mapping[str, float]
+    per_joint_explained_beyond_noise: Mapping[str, float]
+    rmse_after: float
+    x_floor_after: float
+    per_joint_x_floor_after: Mapping[str, float]
+    harmed_joints: tuple[str, ...]
+    fitted: Figures
+    linear_coefficients: tuple[float, ...]
+    nonlinear_coefficients: tuple[float, ...]
+    parameters: int
+    implausible_bodies: tuple[Figures, ...]
+    bounds_pushed: Mapping[str, tuple[str, ...]]
+    bounds_released: Mapping[str, tuple[str, ...]]
+    lag_s: Mapping[str, float] | None = None
+    per_joint_own_term_x_floor: Mapping[str, float] | None = None
+    fit_failed: Figures | None = None
+    near_threshold: tuple[Figures, ...] | None = None
+    relabels: tuple[Figures, ...] | None = None
+    trades_with: tuple[Figures, ...] | None = None
+    tie_with_best: Figures | None = None
+
+    def as_document(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "signature": self.signature, "statistic": self.statistic, "per_joint": dict(self.per_joint),
+            "per_joint_explained": dict(self.per_joint_explained),
+            "per_joint_explained_beyond_noise": dict(self.per_joint_explained_beyond_noise),
+            "rmse_after": self.rmse_after, "x_floor_after": self.x_floor_after,
+            "per_joint_x_floor_after": dict(self.per_joint_x_floor_after),
+            "harmed_joints": list(self.harmed_joints), "fitted": dict(self.fitted),
+            "coefficients": {"linear": list(self.linear_coefficients), "nonlinear": list(self.nonlinear_coefficients)},
+            "parameters": self.parameters, "implausible_bodies": [dict(b) for b in self.implausible_bodies],
+            "bounds": {"pushes": {k: list(v) for k, v in self.bounds_pushed.items()},
+                       "releases": {k: list(v) for k, v in self.bounds_released.items()}},
+        }
+        optional = {"lag_s": self.lag_s, "per_joint_own_term_x_floor": self.per_joint_own_term_x_floor,
+                    "fit_failed": self.fit_failed, "tie_with_best": self.tie_with_best}
+        out.update({key: dict(value) for key, value in optional.items() if value is not None})
+        listed = {"near_threshold": self.near_threshold, "relabels": self.relabels, "trades_with": self.trades_with}
+        out.update({key: [dict(v) for v in value] for key, value in listed.items() if value is not None})
+        return out
+
+    @classmethod
+    def from_document(cls, document: Mapping[str, Any]) -> CandidateEvidence:
+        bounds = document["bounds"]
+        return cls(
+            signature=document["signature"], statistic=document["statistic"], per_joint=document["per_joint"],
+            per_joint_explained=document["per_joint_explained"],
+            per_joint_explained_beyond_noise=document["per_joint_explained_beyond_noise"],
+            rmse_after=document["rmse_after"], x_floor_after=document["x_floor_after"],
+            per_joint_x_floor_after=document["per_joint_x_floor_after"],
+            harmed_joints=tuple(document["harmed_joints"]), fitted=document["fitted"],
+            linear_coefficients=tuple(document["coefficients"]["linear"]),
+            nonlinear_coefficients=tuple(document["coefficients"]["nonlinear"]),
+            parameters=document["parameters"], implausible_bodies=tuple(document["implausible_bodies"]),
+            bounds_pushed={k: tuple(v) for k, v in bounds["pushes"].items()},
+            bounds_released={k: tuple(v) for k, v in bounds["releases"].items()}, lag_s=document.get("lag_s"),
+            per_joint_own_term_x_floor=document.get("per_joint_own_term_x_floor"),
+            fit_failed=document.get("fit_failed"), near_threshold=_optional(document, "near_threshold", tuple),
+            relabels=_optional(document, "relabels", tuple), trades_with=_optional(document, "trades_with", tuple),
+            tie_with_best=document.get("tie_with_best"))
+
+    @property
+    def bounds_pushed_net(self) -> int:
+        """How many inertia bounds the fit pushes to, less those it releases."""
+        return sum(len(v) for v in self.bounds_pushed.values()) - sum(len(v) for v in self.bounds_released.values())
+
+
+@dataclass(frozen=True)
+class JointStanding:
+    """A joint's residual x its floor, the candidate that removes most of its excess there (None: none removes any)
+    and what that one removes and leaves; ``judged``: false where the fit runs barely move the joint (its drives held
+    at the nominal model's)."""
+
+    x_floor: float
+    closest: str | None
+    closest_explained_beyond_noise: float
+    closest_x_floor_after: float
+    judged: bool = True
+
+    def as_document(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"x_floor": self.x_floor, "closest": self.closest,
+                               "closest_explained_beyond_noise": self.closest_explained_beyond_noise,
+                               "closest_x_floor_after": self.closest_x_floor_after}
+        if not self.judged:
+            out["judged"] = False
+        return out
+
+    @classmethod
+    def from_document(cls, document: Mapping[str, Any]) -> JointStanding:
+        return cls(x_floor=document["x_floor"], closest=document["closest"],
+                   closest_explained_beyond_noise=document["closest_explained_beyond_noise"],
+                   closest_x_floor_after=document["closest_x_floor_after"], judged=document.get("judged", True))
+
+
+@dataclass(frozen=True)
+class CeilingReading:
+    """What the model-free ceiling reads on one joint (:func:`sim2real.identification.diagnosis.model_free_ceiling`):
+    the rung's holdout RMS and the learner's (N*m, and x the floor), their ratio and the share of the excess the
+    learner removes; ``kind``: ``at_floor`` (no learner fitted), ``motion`` or ``not_motion``. A fitted joint names
+    its ``learner``; on the motion, the features it gains most with, the regime it gains most in (None: none) and the
+    library's effect that carries it (``effect``, or None); where a drift of each run's own removes as much
+    (``beyond_motion``: each kind's share), what it ``follows`` (None: none) and, on the motion, whether the learner
+    only ``imitated`` it."""
+
+    rung_rmse: float
+    ceiling_rmse: float
+    rung_x_floor: float
+    ceiling_x_floor: float
+    ratio: float
+    explained_beyond_noise: float
+    kind: str
+    fitted: bool
+    learner: str | None = None
+    gains_most_with: tuple[Figures | str, ...] | None = None
+    gains_most_in: str | None = None
+    effect: str | None = None
+    beyond_motion: Mapping[str, float] | None = None
+    follows: str | None = None
+    imitated: bool | None = None
+
+    def as_document(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "rung_rmse": self.rung_rmse, "ceiling_rmse": self.ceiling_rmse, "rung_x_floor": self.rung_x_floor,
+            "ceiling_x_floor": self.ceiling_x_floor, "ratio": self.ratio,
+            "explained_beyond_noise": self.explained_beyond_noise, "kind": self.kind, "fitted": self.fitted}
+        if self.learner is not None:
+            out["learner"] = self.learner
+        if self.gains_most_with is not None:  # a joint on the motion: its features and regime (None: none)
+            out["gains_most_with"] = [f if isinstance(f, str) else dict(f) for f in self.gains_most_with]
+            out["gains_most_in"] = self.gains_most_in
+        if self.effect is not None:
+            out["effect"] = self.effect
+        if self.beyond_motion is not None:  # a drift weighed: what it follows (None: none)
+            out["beyond_motion"] = dict(self.beyond_motion)
+            out["follows"] = self.follows
+        if self.imitated is not None:
+            out["imitated"] = self.imitated
+        return out
+
+    @classmethod
+    def from_document(cls, document: Mapping[str, Any]) -> CeilingReading:
+        return cls(rung_rmse=document["rung_rmse"], ceiling_rmse=document["ceiling_rmse"],
+                   rung_x_floor=document["rung_x_floor"], ceiling_x_floor=document["ceiling_x_floor"],
+                   ratio=document["ratio"], explained_beyond_noise=document["explained_beyond_noise"],
+                   kind=document["kind"], fitted=document["fitted"], learner=document.get("learner"),
+                   gains_most_with=_optional(document, "gains_most_with", tuple),
+                   gains_most_in=document.get("gains_most_in"), effect=document.get("effect"),
+                   beyond_motion=document.get("beyond_motion"), follows=document.get("follows"),
+                   imitated=document.get("imitated"))
+
+
+@dataclass(frozen=True)
+class EffectAdvice:
+    """An effect the ceiling advises adding (its ``line`` under ``effects:`` in model.yaml) for ``joints``."""
+
+    effect: str
+    joints: tuple[str, ...]
+    line: str
+
+    def as_document(self) -> dict[str, Any]:
+        return {"effect": self.effect, "joints": list(self.joints), "line": self.line}
+
+    @classmethod
+    def from_document(cls, document: Mapping[str, Any]) -> EffectAdvice:
+        return cls(effect=document["effect"], joints=tuple(document["joints"]), line=document["line"])
+
+
+@dataclass(frozen=True)
+class ModelFreeCeiling:
+    """The model-free ceiling of a side judged against the motion: its learners (``learner``, their description),
+    the holdout RMS after them (overall and per joint, N*m), the share of the rung a learner must come under to count
+    (``close_to_rung``), each joint's reading, and the drift to declare (``declare``) and the mount the pose points to
+    (``points_to``), each None when none."""
+
+    learner: str
+    torque_rmse_overall: float
+    torque_rmse_per_joint: Mapping[str, float]
+    close_to_rung: float
+    per_joint: Mapping[str, CeilingReading]
+    declare: EffectAdvice | None = None
+    points_to: EffectAdvice | None = None
+
+    def ordered(self, joints: Sequence[str] = ()) -> dict[str, CeilingReading]:
+        """Each joint's reading in ``joints``' order (default, or none of them read: the document's)."""
+        order = [j for j in joints if j in self.per_joint] or list(self.per_joint)
+        return {j: self.per_joint[j] for j in order}
+
+    def as_document(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "learner": self.learner,
+            "torque_rmse": {"overall": self.torque_rmse_overall, "per_joint": dict(self.torque_rmse_per_joint)},
+            "close_to_rung": self.close_to_rung,
+            "per_joint": {j: row.as_document() for j, row in self.per_joint.items()}}
+        if self.declare is not None:
+            out["declare"] = self.declare.as_document()
+        if self.points_to is not None:
+            out["points_to"] = self.points_to.as_document()
+        return out
+
+    @classmethod
+    def from_document(cls, document: Mapping[str, Any]) -> ModelFreeCeiling:
+        return cls(learner=document["learner"], torque_rmse_overall=document["torque_rmse"]["overall"],
+                   torque_rmse_per_joint=document["torque_rmse"]["per_joint"],
+                   close_to_rung=document["close_to_rung"],
+                   per_joint={j: CeilingReading.from_document(row) for j, row in document["per_joint"].items()},
+                   declare=_optional(document, "declare", EffectAdvice.from_document),
+                   points_to=_optional(document, "points_to", EffectAdvice.from_document))
 
 
 @dataclass(frozen=True)
 class Candidate:
     """One effect tried on top of the current model, and what its trial showed.
 
-    ``evidence``: its residual signature (:meth:`sim2real.identification.effects.base.Effect.evidence`) and the
-    trial's figures (``x_floor_after``, ``per_joint_x_floor_after``, ``fitted``, ``implausible_bodies``, ``bounds``,
-    ``trades_with``, ``tie_with_best``, ``fit_failed`` ...)."""
+    ``evidence``: its residual signature and the trial's figures (:class:`CandidateEvidence`)."""
 
     effect: str
     side: Side
@@ -28,7 +261,7 @@ class Candidate:
     explained: float
     explained_beyond_noise: float
     decisive: bool
-    evidence: Mapping[str, Any]
+    evidence: CandidateEvidence
     add: str  # the line to add under ``effects:``
     replaces: tuple[str, ...] = ()  # lines of the model it holds, to be removed
 
@@ -36,7 +269,7 @@ class Candidate:
         out = {"effect": self.effect, "link": str(self.side), "joints": list(self.joints),
                "decided_on": self.decided_on, "explained": self.explained,
                "explained_beyond_noise": self.explained_beyond_noise, "decisive": self.decisive,
-               "evidence": dict(self.evidence), "add": self.add}
+               "evidence": self.evidence.as_document(), "add": self.add}
         if self.replaces:
             out["replaces"] = list(self.replaces)
         return out
@@ -46,17 +279,16 @@ class Candidate:
         return cls(effect=document["effect"], side=Side(document["link"]), joints=tuple(document["joints"]),
                    decided_on=document.get("decided_on"), explained=document["explained"],
                    explained_beyond_noise=document["explained_beyond_noise"], decisive=document["decisive"],
-                   evidence=document["evidence"], add=document["add"], replaces=tuple(document.get("replaces") or ()))
+                   evidence=CandidateEvidence.from_document(document["evidence"]), add=document["add"], replaces=tuple(document.get("replaces") or ()))
 
 
 @dataclass(frozen=True)
 class Diagnosis:
     """Which effect the model lacks on one side, or what kind of thing is left when none is.
 
-    ``candidates``: ranked, the recommended one first; ``per_joint``: each joint's residual (x its floor) and the
-    candidate that comes closest there; ``skipped``: the candidates not tried, each a :class:`Note` of why;
-    ``notes``: what the verdict says beside its headline, in order; ``model_free``: the model-free ceiling's
-    document (:func:`sim2real.identification.diagnosis.model_free_ceiling`), on a side judged against the motion;
+    ``candidates``: ranked, the recommended one first; ``per_joint``: each joint's standing (:class:`JointStanding`); ``skipped``: the candidates not tried, each a :class:`Note` of why;
+    ``notes``: what the verdict says beside its headline, in order; ``model_free``: the model-free ceiling
+    (:class:`ModelFreeCeiling`), on a side judged against the motion;
     ``noise_rmse``, ``noise_floor_factor``, ``min_explained``: the figures the headline quotes; ``joints``: their
     order (:meth:`ordered`)."""
 
@@ -70,12 +302,12 @@ class Diagnosis:
     noise_rmse: float
     noise_floor_factor: float
     min_explained: float
-    per_joint: Mapping[str, Mapping[str, Any]]
+    per_joint: Mapping[str, JointStanding]
     above_floor: tuple[str, ...]
     skipped: tuple[Note, ...] = ()
     failed: tuple[str, ...] = ()
     notes: tuple[Note, ...] = ()
-    model_free: Mapping[str, Any] | None = field(default=None)
+    model_free: ModelFreeCeiling | None = field(default=None)
     joints: tuple[str, ...] = ()  # the joints in the robot's order (a document's mappings are sorted by name)
 
     @property
@@ -105,12 +337,12 @@ class Diagnosis:
             "residual_rmse": self.residual_rmse, "noise_floor_ratio": self.noise_floor_ratio,
             "noise_rmse": self.noise_rmse, "noise_floor_factor": self.noise_floor_factor,
             "min_explained": self.min_explained,
-            "per_joint": {j: dict(row) for j, row in self.per_joint.items()}, "above_floor": list(self.above_floor),
+            "per_joint": {j: row.as_document() for j, row in self.per_joint.items()}, "above_floor": list(self.above_floor),
             "skipped": [n.as_document() for n in self.skipped], "failed": list(self.failed),
             "notes": [n.as_document() for n in self.notes], "joints": list(self.joints),
         }
         if self.model_free is not None:
-            out["model_free"] = dict(self.model_free)
+            out["model_free"] = self.model_free.as_document()
         return out
 
     @classmethod
@@ -121,10 +353,11 @@ class Diagnosis:
             confounded=tuple((a, b) for a, b in document["confounded"]), tied=tuple(document["tied"]),
             residual_rmse=document["residual_rmse"], noise_floor_ratio=document["noise_floor_ratio"],
             noise_rmse=document["noise_rmse"], noise_floor_factor=document["noise_floor_factor"],
-            min_explained=document["min_explained"], per_joint=document["per_joint"],
+            min_explained=document["min_explained"],
+            per_joint={j: JointStanding.from_document(row) for j, row in document["per_joint"].items()},
             above_floor=tuple(document["above_floor"]),
             skipped=tuple(Note.from_document(n) for n in document["skipped"]), failed=tuple(document["failed"]),
-            notes=tuple(Note.from_document(n) for n in document["notes"]), model_free=document.get("model_free"),
+            notes=tuple(Note.from_document(n) for n in document["notes"]), model_free=_optional(document, "model_free", ModelFreeCeiling.from_document),
             joints=tuple(document.get("joints") or ()),
         )
 

@@ -113,9 +113,9 @@ def apply_to_spec(spec: Any, params: dict[str, Any], include_urdf_effects: bool 
 
 def spec_edit_from_params(params_path: str | Path, include_urdf_effects: bool = False) -> Callable[[Any], None]:
     """``spec_edit`` for ``sim2real.assets.mjcf.build_mjcf``: apply results/{robot}/sysid/params.yaml."""
-    from sim2real.files import read_yaml
+    from sim2real.identification.formats import read_params
 
-    params = read_yaml(params_path) or {}
+    params = read_params(params_path)
 
     def edit(spec: Any) -> None:
         apply_to_spec(spec, params, include_urdf_effects)

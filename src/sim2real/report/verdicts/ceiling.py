@@ -4,13 +4,14 @@ follows, and what to do about a run's own offsets (:func:`ceiling_text`, gap.jso
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 from sim2real.identification.diagnosis.ceiling import (
     CLOSE_TO_RUNG, DRIFT_EFFECT, POSE_LEARNERS, imitated_joints, offset_joints,
 )
+from sim2real.identification.diagnosis.result import CeilingReading, EffectAdvice, ModelFreeCeiling
 from sim2real.identification.effects.sensor_drift import SHAPE as DRIFT_SHAPE
 from sim2real.stats import floor_multiple
 
@@ -56,19 +57,25 @@ def feature_text(feature: Mapping[str, Any] | str) -> str:
     return FEATURE_TEXT[feature["feature"]].format(joint=feature["joint"])
 
 
-def _learned(j: str, r: Mapping[str, Any]) -> str:
-    with_ = [feature_text(f) for f in r["gains_most_with"]]
+def _learned(j: str, r: CeilingReading) -> str:
+    with_ = [feature_text(f) for f in r.gains_most_with or ()]
     follows = f", mostly as a function of {' and '.join(with_)}" if with_ else ""
-    if r.get("gains_most_in"):
-        follows += f", most in {GAIN_REGIME_TEXT[r['gains_most_in']]}"
-    return f"{j} {floor_multiple(r['rung_x_floor'])} -> {floor_multiple(r['ceiling_x_floor'])} its floor{follows}"
+    if r.gains_most_in:
+        follows += f", most in {GAIN_REGIME_TEXT[r.gains_most_in]}"
+    return f"{j} {floor_multiple(r.rung_x_floor)} -> {floor_multiple(r.ceiling_x_floor)} its floor{follows}"
 
 
-def _motion_sentence(per_joint: Mapping[str, Any], joints: Sequence[str]) -> str:
-    def beside(r: Mapping[str, Any]) -> str:
-        if r.get("follows") not in ("time", "run"):
+def _drift_share(r: CeilingReading) -> float:
+    """The share of a joint's excess the drift it follows removes."""
+    assert r.beyond_motion is not None and r.follows is not None
+    return r.beyond_motion[r.follows]
+
+
+def _motion_sentence(per_joint: Mapping[str, CeilingReading], joints: Sequence[str]) -> str:
+    def beside(r: CeilingReading) -> str:
+        if r.follows not in ("time", "run"):
             return ""
-        return (f", beside a drift of each run's own that removes {r['beyond_motion'][r['follows']]:.0%} of its excess "
+        return (f", beside a drift of each run's own that removes {_drift_share(r):.0%} of its excess "
                 "(the learner, fitted again without it, still explains much)")
 
     return ("A flexible learner on the motion explains much of what is left, so the library lacks an effect that is "
@@ -77,15 +84,15 @@ def _motion_sentence(per_joint: Mapping[str, Any], joints: Sequence[str]) -> str
             "position_ripple's, one period per joint) before trusting the rest.")
 
 
-def _pose_sentence(per_joint: Mapping[str, Any], joints: Sequence[str], points_to: Mapping[str, Any] | None,
+def _pose_sentence(per_joint: Mapping[str, CeilingReading], joints: Sequence[str], points_to: EffectAdvice | None,
                    robot: str) -> str:
     """Joints where a function of the pose alone explains what is left (a pose learner carried it to the holdout's
     poses): said so, with the pose dependence named, and the library's effect that carries it where it has one."""
     text = ("A function of the pose alone explains much of what is left, carried from the fit runs' poses to the "
             f"holdout's: {'; '.join(_learned(j, per_joint[j]) for j in joints)}.")
     if points_to:
-        text += (f" On {', '.join(points_to['joints'])} it follows the arm's gravity torque under a gravity turned "
-                 f"sideways, the mark of a base mounted off level: add the line '{points_to['line']}' under "
+        text += (f" On {', '.join(points_to.joints)} it follows the arm's gravity torque under a gravity turned "
+                 f"sideways, the mark of a base mounted off level: add the line '{points_to.line}' under "
                  f"'effects:' in configs/{robot}/model.yaml.")
     else:
         text += (" No effect of the library has its shape (a cable's or a hose's pull, a spring, a mass the model "
@@ -93,55 +100,52 @@ def _pose_sentence(per_joint: Mapping[str, Any], joints: Sequence[str], points_t
     return text
 
 
-def _imitated_sentence(per_joint: Mapping[str, Any], joints: Sequence[str]) -> str:
+def _imitated_sentence(per_joint: Mapping[str, CeilingReading], joints: Sequence[str]) -> str:
     parts = [f"{_learned(j, per_joint[j])}, yet a drift of each run's own removes "
-             f"{per_joint[j]['beyond_motion'][per_joint[j]['follows']]:.0%} of its excess (the learner "
-             f"{per_joint[j]['explained_beyond_noise']:.0%}): it {KIND_TEXT[per_joint[j]['follows']]}" for j in joints]
+             f"{_drift_share(per_joint[j]):.0%} of its excess (the learner "
+             f"{per_joint[j].explained_beyond_noise:.0%}): it {KIND_TEXT[per_joint[j].follows or '']}" for j in joints]
     return ("A learner on the motion explains part of what is left where each run's motion follows its time, and "
             f"there it only imitates a drift: {'; '.join(parts)}.")
 
 
-def _still_sentence(per_joint: Mapping[str, Any], joints: Sequence[str]) -> str:
+def _still_sentence(per_joint: Mapping[str, CeilingReading], joints: Sequence[str]) -> str:
     parts = []
     for j in joints:
         r = per_joint[j]
-        what = KIND_TEXT[r["follows"]] if r["follows"] else ("follows none of time within a run, the run or the "
-                                                             "history since a reversal (a sensor's own dynamics, "
-                                                             "noise the floor misses)")
-        parts.append(f"{j} ({floor_multiple(r['rung_x_floor'])} its floor; the learner "
-                     f"{floor_multiple(r['ceiling_x_floor'])}): it {what}")
+        what = KIND_TEXT[r.follows] if r.follows else ("follows none of time within a run, the run or the "
+                                                       "history since a reversal (a sensor's own dynamics, "
+                                                       "noise the floor misses)")
+        parts.append(f"{j} ({floor_multiple(r.rung_x_floor)} its floor; the learner "
+                     f"{floor_multiple(r.ceiling_x_floor)}): it {what}")
     return (f"No function of the motion explains the rest: a flexible learner on the motion comes within "
             f"{1 - CLOSE_TO_RUNG:.0%} of the last rung on {', '.join(joints)}. " + "; ".join(parts) + ".")
 
 
-def ceiling_text(ceiling: Mapping[str, Any], robot: str, joints: Sequence[str] = ()) -> str:
+def ceiling_text(ceiling: ModelFreeCeiling, robot: str, joints: Sequence[str] = ()) -> str:
     """What the model-free ceiling says (:func:`sim2real.identification.diagnosis.model_free_ceiling`): joints where
     the library lacks a function of the motion, joints where the motion only imitates a drift, and joints where
     nothing of the motion explains the rest, with what it follows and what to do about offsets. ``joints``: their
     order (default: the document's)."""
-    per_joint = {j: ceiling["per_joint"][j] for j in ([j for j in joints if j in ceiling["per_joint"]]
-                                                       or ceiling["per_joint"])}
+    per_joint = ceiling.ordered(joints)
     imitated = imitated_joints(per_joint)
-    posed = [j for j, r in per_joint.items() if r["kind"] == "motion" and j not in imitated
-             and r.get("learner") in POSE_LEARNERS]
-    motion = [j for j, r in per_joint.items() if r["kind"] == "motion" and j not in imitated and j not in posed]
-    still = [j for j, r in per_joint.items() if r["kind"] == "not_motion"]
-    sentences = ([_pose_sentence(per_joint, posed, ceiling.get("points_to"), robot)] if posed else []) + (
+    posed = [j for j, r in per_joint.items() if r.kind == "motion" and j not in imitated
+             and r.learner in POSE_LEARNERS]
+    motion = [j for j, r in per_joint.items() if r.kind == "motion" and j not in imitated and j not in posed]
+    still = [j for j, r in per_joint.items() if r.kind == "not_motion"]
+    sentences = ([_pose_sentence(per_joint, posed, ceiling.points_to, robot)] if posed else []) + (
         [_motion_sentence(per_joint, motion)] if motion else []) + (
         [_imitated_sentence(per_joint, imitated)] if imitated else []) + (
         [_still_sentence(per_joint, still)] if still else [])
     offsets = offset_joints(per_joint)
     if offsets:
         sentences.append(OFFSET_ADVICE.format(joints=", ".join(offsets)) + (
-            "." if not ceiling.get("declare") else DECLARE_ADVICE.format(effect=DRIFT_EFFECT, robot=robot)))
+            "." if ceiling.declare is None else DECLARE_ADVICE.format(effect=DRIFT_EFFECT, robot=robot)))
     return " ".join(sentences)
 
 
-def ceiling_section(ceiling: Mapping[str, Any], robot: str, joints: Sequence[str] = ()) -> dict[str, Any]:
+def ceiling_section(ceiling: ModelFreeCeiling, robot: str, joints: Sequence[str] = ()) -> dict[str, Any]:
     """gap.json's ``model_free``: the ceiling's document with its words (``text``, the features in words)."""
-    out = copy.deepcopy(dict(ceiling))
-    for row in out["per_joint"].values():
-        if "gains_most_with" in row:
-            row["gains_most_with"] = [feature_text(f) for f in row["gains_most_with"]]
-    out["text"] = ceiling_text(ceiling, robot, joints)
-    return out
+    worded = replace(ceiling, per_joint={
+        j: row if row.gains_most_with is None else replace(row, gains_most_with=tuple(
+            feature_text(f) for f in row.gains_most_with)) for j, row in ceiling.per_joint.items()})
+    return {**worded.as_document(), "text": ceiling_text(ceiling, robot, joints)}

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 from sim2real.identification.diagnosis import Diagnosis
@@ -27,10 +28,8 @@ def diagnosis_section(document: Mapping[str, Any], robot: str) -> dict[str, Any]
     d = Diagnosis.from_document(document)
     out = {key: copy.deepcopy(value) for key, value in document.items() if key not in DATA_ONLY}
     out["verdict"] = verdict(d, robot)
-    for candidate in out["candidates"]:
-        evidence = candidate["evidence"]
-        if "implausible_bodies" in evidence:
-            evidence["implausible_bodies"] = [implausible_text(b) for b in evidence["implausible_bodies"]]
+    out["candidates"] = [replace(c, evidence=replace(c.evidence, implausible_bodies=tuple(
+        implausible_text(b) for b in c.evidence.implausible_bodies))).as_document() for c in d.candidates]
     out["skipped"] = [{"effect": n.effect, "reason": skip_reason(n)} for n in d.skipped]
     if d.model_free is not None:
         out["model_free"] = ceiling_section(d.model_free, robot, d.joints)

@@ -8,9 +8,11 @@ with its reasons, follows further down gap.md."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 from sim2real.identification.diagnosis.caveats import troubles
+from sim2real.identification.diagnosis.result import Candidate, CeilingReading, ModelFreeCeiling
 from sim2real.identification.records import Status
 from sim2real.report.verdicts.names import SIDE_TEXT, separating_runs
 from sim2real.stats import floor_multiple
@@ -20,39 +22,44 @@ FOLLOWS_TEXT = {"time": "not the motion: drifts with time", "run": "not the moti
                 "history": "not the motion: follows the history since a reversal", None: "not the motion, nor time"}
 
 
-def left_text(row: Mapping[str, Any]) -> str:
-    """What kind of thing is left on a joint (the model-free ceiling's ``kind`` and ``follows``), in a few words."""
-    if row["kind"] == "motion" and row.get("imitated"):  # the motion only imitates what the run's time explains
-        return FOLLOWS_TEXT[row["follows"]].replace("not the motion: ", "") + ", which the motion imitates"
-    if row["kind"] == "motion":
-        with_ = row.get("gains_most_with") or []
+def left_text(row: CeilingReading) -> str:
+    """What kind of thing is left on a joint (the model-free ceiling's ``kind`` and ``follows``), in a few words; the
+    features a learner on the motion gains most with, as gap.json words them."""
+    if row.kind == "motion" and row.imitated:  # the motion only imitates what the run's time explains
+        return FOLLOWS_TEXT[row.follows].replace("not the motion: ", "") + ", which the motion imitates"
+    if row.kind == "motion":
+        with_ = [str(f) for f in row.gains_most_with or ()]
         return LEFT_TEXT["motion"] + (f" ({', '.join(with_)})" if with_ else "")
-    return LEFT_TEXT.get(row["kind"]) or FOLLOWS_TEXT[row.get("follows")]
+    return LEFT_TEXT.get(row.kind) or FOLLOWS_TEXT[row.follows]
 
 
 def _kinds_left(ceiling: Mapping[str, Any] | None, above: Sequence[str]) -> str:
     """The kinds of thing left above the floors (each with how many joints), in the order met."""
-    per_joint = (ceiling or {}).get("per_joint") or {}
+    per_joint = ModelFreeCeiling.from_document(ceiling).per_joint if ceiling else {}
     kinds: dict[str, int] = {}
     for joint in above:
-        if joint in per_joint and per_joint[joint]["kind"] != "at_floor":
-            kind = left_text({**per_joint[joint], "gains_most_with": []})
+        if joint in per_joint and per_joint[joint].kind != "at_floor":
+            kind = left_text(replace(per_joint[joint], gains_most_with=()))
             kinds[kind] = kinds.get(kind, 0) + 1
     return "; ".join(f"{kind} ({count} joint{'s' if count > 1 else ''})" for kind, count in kinds.items())
 
 
+def _best(diagnosis: Mapping[str, Any]) -> Candidate | None:
+    """The candidate a diagnosis of gap.json ranks first (None: none tried)."""
+    candidates = diagnosis.get("candidates") or []
+    return Candidate.from_document(candidates[0]) if candidates else None
+
+
 def _first_status(diagnosis: Mapping[str, Any], side: str) -> str:
-    status, best = diagnosis.get("status"), (diagnosis.get("candidates") or [None])[0]
-    if status == Status.ADD_EFFECT and best and best.get("decided_on") == "joints":
+    status, best = diagnosis.get("status"), _best(diagnosis)
+    if status == Status.ADD_EFFECT and best and best.decided_on == "joints":
         # decided on its own joints (the table's "closest candidate there"), not on the arm-wide share
-        return (f"On {side}, the model lacks {best['effect']} on {len(best['joints'])} joint"
-                f"{'s' if len(best['joints']) > 1 else ''}, where it removes most of what lies above their floors.")
+        return (f"On {side}, the model lacks {best.effect} on {len(best.joints)} joint"
+                f"{'s' if len(best.joints) > 1 else ''}, where it removes most of what lies above their floors.")
     if status == Status.ADD_EFFECT and best:
-        after = best.get("evidence", {}).get("x_floor_after")
-        reach = (f": it removes {best['explained_beyond_noise']:.0%} of what lies above the noise floor"
-                 + (f", to {floor_multiple(after)} the floor arm-wide" if after is not None else "")
-                 if best.get("explained_beyond_noise") is not None else "")
-        return f"On {side}, the model lacks {best['effect']}{reach}."
+        reach = (f": it removes {best.explained_beyond_noise:.0%} of what lies above the noise floor"
+                 f", to {floor_multiple(best.evidence.x_floor_after)} the floor arm-wide")
+        return f"On {side}, the model lacks {best.effect}{reach}."
     if status == Status.NOT_TOLD_APART:
         return (f"On {side}, {' and '.join(diagnosis.get('tied') or [])} each remove part of what is left, but no "
                 "line is recommended: these runs do not tell a trustworthy effect.")
@@ -62,11 +69,11 @@ def _first_status(diagnosis: Mapping[str, Any], side: str) -> str:
 
 
 def _first_action(diagnosis: Mapping[str, Any], robot: str) -> str | None:
-    status, best = diagnosis.get("status"), (diagnosis.get("candidates") or [None])[0]
+    status, best = diagnosis.get("status"), _best(diagnosis)
     if status == Status.ADD_EFFECT and best:
-        removal = "".join(f" and remove '- {r}'" for r in best.get("replaces") or [])
-        caution = "; read its caution in the diagnosis below first" if troubles(best) else ""
-        return f"Add the line '{best['add']}' under 'effects:' in configs/{robot}/model.yaml{removal}{caution}."
+        removal = "".join(f" and remove '- {r}'" for r in best.replaces)
+        caution = "; read its caution in the diagnosis below first" if troubles(best.evidence) else ""
+        return f"Add the line '{best.add}' under 'effects:' in configs/{robot}/model.yaml{removal}{caution}."
     tied = list(diagnosis.get("tied") or [])
     if status == Status.NOT_TOLD_APART and len(tied) > 1:
         return (f"The run that would tell them apart: {separating_runs(tied[0], tied[1:], robot)} designs it; record "

@@ -19,14 +19,14 @@ LOOK_AT_WINDOWS = " Look at the worst windows in the gap report."
 def _added(d: Diagnosis, robot: str) -> str:
     best = d.best
     assert best is not None
-    after = best.evidence["per_joint_x_floor_after"]
+    after = best.evidence.per_joint_x_floor_after
     if best.decided_on == "arm":
         reach = (f"it explains {best.explained:.0%} of the holdout residual ({best.explained_beyond_noise:.0%} "
                  f"of what lies above the noise floor, each joint in units of its own floor), bringing it from "
-                 f"{floor_multiple(d.noise_floor_ratio or 0.0)} to {floor_multiple(best.evidence['x_floor_after'])} the "
-                 f"floor ({d.residual_rmse:.3g} to {best.evidence['rmse_after']:.3g} N*m)")
+                 f"{floor_multiple(d.noise_floor_ratio or 0.0)} to {floor_multiple(best.evidence.x_floor_after)} the "
+                 f"floor ({d.residual_rmse:.3g} to {best.evidence.rmse_after:.3g} N*m)")
     else:
-        moves = ", ".join(f"{j} {floor_multiple(d.per_joint[j]['x_floor'])} -> {floor_multiple(after[j])}"
+        moves = ", ".join(f"{j} {floor_multiple(d.per_joint[j].x_floor)} -> {floor_multiple(after[j])}"
                           for j in best.joints)
         reach = (f"on {', '.join(best.joints)} it removes most of what lies above the noise floor ({moves} the joint's "
                  f"own floor), though only {best.explained:.0%} of the arm-wide residual")
@@ -43,7 +43,7 @@ def _added(d: Diagnosis, robot: str) -> str:
 def _not_told_apart(d: Diagnosis, robot: str) -> str:
     group = [c for name in d.tied if (c := d.candidate(name)) is not None]
     names = [c.effect for c in group]
-    reasons = "; ".join(f"{c.effect}: {', '.join(map(trouble_text, troubles({'evidence': c.evidence})))}" for c in group)
+    reasons = "; ".join(f"{c.effect}: {', '.join(map(trouble_text, troubles(c.evidence)))}" for c in group)
     runs = (f" The run that would tell them apart: {separating_runs(names[0], names[1:], robot)} designs it; "
             "record it and add it to the fit runs." if len(names) > 1 else
             f" Record a run designed for the model (`snakemake results/{robot}/excitation/identification.csv`) "
@@ -54,7 +54,7 @@ def _not_told_apart(d: Diagnosis, robot: str) -> str:
 
 
 def _at_noise_floor(d: Diagnosis, robot: str) -> str:
-    x_now = {j: row["x_floor"] for j, row in d.ordered(d.per_joint).items()}
+    x_now = {j: row.x_floor for j, row in d.ordered(d.per_joint).items()}
     worst = max(x_now, key=x_now.get) if x_now else "-"  # type: ignore[arg-type]
     return (f"Nothing to add on {SIDE_TEXT[d.side]}: every joint's holdout residual is within {d.noise_floor_factor}x its "
             f"own noise floor (worst {worst} {floor_multiple(max(x_now.values()) if x_now else 0)}; "
@@ -65,9 +65,9 @@ def _at_noise_floor(d: Diagnosis, robot: str) -> str:
 def _unexplained(d: Diagnosis, robot: str) -> str:
     def joint(j: str) -> str:
         row = d.per_joint[j]
-        return (f"{j} {floor_multiple(row['x_floor'])} its floor"
-                + (f" (closest: {row['closest']}, removing {row['closest_explained_beyond_noise']:.0%} of its excess)"
-                   if row["closest"] else ""))
+        return (f"{j} {floor_multiple(row.x_floor)} its floor"
+                + (f" (closest: {row.closest}, removing {row.closest_explained_beyond_noise:.0%} of its excess)"
+                   if row.closest else ""))
 
     best = d.best
     return (f"No effect in the library explains the residual on {SIDE_TEXT[d.side]}: "
