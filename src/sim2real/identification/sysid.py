@@ -29,6 +29,8 @@ from sim2real.forked import Forked
 from sim2real.identification import sides
 from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, Diagnosis, diagnose, model_free_ceiling
 from sim2real.identification.diagnosis.across import across_sides
+from sim2real.identification.diagnosis.promise import kept_promise, promised_effect
+from sim2real.identification.diagnosis.trials import trial_effects
 from sim2real.identification.documents import params_document, round_floats
 from sim2real.identification.effects import get_effect
 from sim2real.identification.formats import (
@@ -100,7 +102,8 @@ def fit_ladder(effect_names: Sequence[str], context: FitContext, *, side: Side =
     prior = (result.consistency or {}).get("inertia_prior")
     # Every candidate is fitted with the prior weight the current rung chose: a candidate that merely let the
     # inertias move more would otherwise be credited with their fall, on joints where it does nothing. Its
-    # rung chooses again on held-out blocks, which can only help the holdout it was promised.
+    # rung chooses again on held-out blocks, which the holdout can find worse: the recommended candidate promises
+    # what that rung delivers (_promised_by_its_rung).
     trials = context.with_settings({**context.settings, "inertia_regularization": prior["weight"]} if prior
                                    else context.settings)
     limits = {**DEFAULT_DIAGNOSIS, **(limits or {})}
@@ -108,7 +111,35 @@ def fit_ladder(effect_names: Sequence[str], context: FitContext, *, side: Side =
     diagnosis = cache.get_or_compute("diagnosis", key, functools.partial(
         _diagnose_side, effect_names, trials, residual, fit_residual, side=side, current=result, limits=limits,
         candidates=candidates))
-    return SideLadder(round_floats(document), result, diagnosis, residual, fit_residual)
+    return SideLadder(round_floats(document), result, _promised_by_its_rung(diagnosis, effect_names, context, cache,
+                                                                             inputs, result), residual, fit_residual)
+
+
+def _promised_by_its_rung(diagnosis: Diagnosis, effect_names: Sequence[str], context: FitContext, cache: FitCache,
+                          inputs: str, result: FitResult) -> Diagnosis:
+    """``diagnosis`` whose recommended candidate promises what its rung delivers (:mod:`sim2real.identification.
+    diagnosis.promise`): where the current rung chose the inertial prior's weight on held-out blocks, the rung of
+    the added line chooses it again, as :func:`_rungs` fits it (the next round reads it back from ``cache``)."""
+    effect = promised_effect(diagnosis)
+    chosen = (result.consistency or {}).get("inertia_prior") or {}
+    if effect is None or "grid" not in chosen:
+        return diagnosis  # no weight chosen again: the trial is the rung's fit
+    rung, residual, _, _ = _next_rung(trial_effects(effect_names, effect), context, cache, inputs, result)
+    prior = (rung.consistency or {}).get("inertia_prior") or {}
+    return kept_promise(diagnosis, residual, context.holdout_data.noise_floor, prior.get("weight"))
+
+
+def _next_rung(effects: Sequence[str], context: FitContext, cache: FitCache, inputs: str, result: FitResult | None,
+               ) -> tuple[FitResult, np.ndarray, str, dict[str, Any] | None]:
+    """The rung of ``effects`` fitted on the one before it (``result``; None: the nominal model), read back from
+    ``cache`` when fitted before (:func:`_rung`). The prior's weight is searched from the previous rung's choice
+    (fitting.PRIOR_START_SETTING)."""
+    previous = result.nonlinear if result is not None else None
+    chosen = ((result.consistency or {}).get("inertia_prior") or {}) if result is not None else {}
+    rung_context = (context.with_settings({**context.settings, PRIOR_START_SETTING: chosen["weight"]})
+                    if "grid" in chosen else context)
+    return cache.get_or_compute("rung", cache.key(inputs, list(effects), previous, dict(rung_context.settings)),
+                                functools.partial(_rung, list(effects), rung_context, previous))
 
 
 def _rungs(effect_names: Sequence[str], context: FitContext, cache: FitCache,
@@ -119,14 +150,7 @@ def _rungs(effect_names: Sequence[str], context: FitContext, cache: FitCache,
     residual: np.ndarray | None = None
     for k in range(len(effect_names) + 1):
         effects = list(effect_names[:k])
-        previous = result.nonlinear if result is not None else None
-        # The prior's weight is searched from the previous rung's choice (fitting.PRIOR_START_SETTING).
-        chosen = ((result.consistency or {}).get("inertia_prior") or {}) if result is not None else {}
-        rung_context = (context.with_settings({**context.settings, PRIOR_START_SETTING: chosen["weight"]})
-                        if "grid" in chosen else context)
-        result, residual, carried, free = cache.get_or_compute(
-            "rung", cache.key(inputs, effects, previous, dict(rung_context.settings)),
-            functools.partial(_rung, effects, rung_context, previous))
+        result, residual, carried, free = _next_rung(effects, context, cache, inputs, result)
         rungs.append(_rung_document(effects, result, residual, carried, free, context.holdout_data))
     assert result is not None and residual is not None
     return rungs, result, residual

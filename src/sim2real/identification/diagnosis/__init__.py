@@ -4,6 +4,8 @@
   its rung would be;
 * :mod:`~sim2real.identification.diagnosis.candidates`: those trials ranked by the holdout residual each removes (each
   joint in units of its own floor), ties and confounded pairs called so (:func:`diagnose`);
+* :mod:`~sim2real.identification.diagnosis.promise`: the recommended candidate's figures after, its rung's own (the
+  rung chooses the inertial prior's weight again, its trial held the current rung's);
 * :mod:`~sim2real.identification.diagnosis.result`: what it returns, a typed :class:`Diagnosis` whose notes are records;
 * :mod:`~sim2real.identification.diagnosis.current`: the current residual as every decision reads it;
 * :mod:`~sim2real.identification.diagnosis.lags`, :mod:`~sim2real.identification.diagnosis.screens`: when a lag or a

@@ -64,7 +64,7 @@ from sim2real.identification.diagnosis.caveats import (
 from sim2real.identification.diagnosis.current import CurrentResidual
 from sim2real.identification.diagnosis.lags import other_shapes, same_lag, shapes_note
 from sim2real.identification.diagnosis.margins import (
-    AT_THRESHOLD, CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor, near_threshold_notes,
+    CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor, near_threshold_notes,
     near_thresholds,
 )
 from sim2real.identification.diagnosis.result import Candidate, CandidateEvidence, Diagnosis, JointStanding
@@ -224,9 +224,9 @@ def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: 
     seen = [True] * len(joints) if own is None else [bool(o >= OWN_TERM_MIN) for o in own]
     # A joint above its floor whose excess the candidate mostly removes names it on that joint, however small that
     # joint's share of the arm; never at the price of the arm as a whole, nor of another joint (diagnosis.margins).
-    # Decided on the thresholds themselves; where reading them with the arithmetic's margin either way would decide
-    # otherwise, the evidence says so (near_threshold) and the verdict words it.
-    decision = decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, AT_THRESHOLD)
+    # Each threshold read with the arithmetic's margin against the decision: a figure within it names nothing, the
+    # evidence says so (near_threshold) and the verdict words it.
+    decision = decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, CONSERVATIVE)
     arm_wide, on_joints = decision.arm_wide, list(decision.on_joints)
     acting = [j for j, v, ok in zip(joints, scores["per_joint_beyond"], seen, strict=True)
               if v >= limits["joint_min_explained"] and ok]
@@ -234,8 +234,7 @@ def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: 
     evidence = _evidence(name, trial, scores, context, now, current, own)
     if broken is not None:
         evidence = replace(evidence, fit_failed=broken)
-    elif (decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, PERMISSIVE).decisive
-          != decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, CONSERVATIVE).decisive):
+    elif decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, PERMISSIVE).decisive != decisive:
         evidence = replace(evidence, near_threshold=tuple(
             n.as_document() for n in near_thresholds(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN)))
     return {

@@ -32,8 +32,6 @@ X_FLOOR_MARGIN = 0.02
 TIE_MARGIN = 0.05
 
 CONSERVATIVE, PERMISSIVE = 1.0, -1.0
-# The thresholds themselves: a candidate's decision (the margins read both ways flag one that sits within them).
-AT_THRESHOLD = 0.0
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,9 @@ class CandidateEvidence:
     None for an effect without linear coefficients), its fitted values, coefficients and number of parameters, the
     bodies it leaves beyond plausible and the inertia bounds it pushes or releases; then what the diagnosis found of
     it (None where not: a failed solve, decisions near a threshold, a relabelling, its trades with the model, its
-    tie with the best)."""
+    tie with the best); for the recommended candidate whose rung chose the prior's weight again
+    (:mod:`~sim2real.identification.diagnosis.promise`), the trial's figures after (``trial_after``) and the weight
+    its rung chose (``rung_inertia_prior``)."""
 
     signature: str
     statistic: str
@@ -59,6 +61,8 @@ class CandidateEvidence:
     relabels: tuple[Figures, ...] | None = None
     trades_with: tuple[Figures, ...] | None = None
     tie_with_best: Figures | None = None
+    trial_after: Figures | None = None
+    rung_inertia_prior: float | None = None
 
     def as_document(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -74,8 +78,10 @@ class CandidateEvidence:
                        "releases": {k: list(v) for k, v in self.bounds_released.items()}},
         }
         optional = {"lag_s": self.lag_s, "per_joint_own_term_x_floor": self.per_joint_own_term_x_floor,
-                    "fit_failed": self.fit_failed, "tie_with_best": self.tie_with_best}
+                    "fit_failed": self.fit_failed, "tie_with_best": self.tie_with_best, "trial_after": self.trial_after}
         out.update({key: dict(value) for key, value in optional.items() if value is not None})
+        if self.rung_inertia_prior is not None:
+            out["rung_inertia_prior"] = self.rung_inertia_prior
         listed = {"near_threshold": self.near_threshold, "relabels": self.relabels, "trades_with": self.trades_with}
         out.update({key: [dict(v) for v in value] for key, value in listed.items() if value is not None})
         return out
@@ -98,7 +104,8 @@ class CandidateEvidence:
             per_joint_own_term_x_floor=document.get("per_joint_own_term_x_floor"),
             fit_failed=document.get("fit_failed"), near_threshold=_optional(document, "near_threshold", tuple),
             relabels=_optional(document, "relabels", tuple), trades_with=_optional(document, "trades_with", tuple),
-            tie_with_best=document.get("tie_with_best"))
+            tie_with_best=document.get("tie_with_best"), trial_after=document.get("trial_after"),
+            rung_inertia_prior=document.get("rung_inertia_prior"))
 
     @property
     def bounds_pushed_net(self) -> int:
