@@ -85,7 +85,7 @@ def robot_meshes(robot):
 
 
 def get_mesh_uri(kind):
-    return lambda wildcards: robot_meshes(wildcards.robot)[kind][wildcards.name]
+    return lambda w: robot_meshes(w.robot)[kind][w.name]
 
 
 def get_mesh_source(kind):
@@ -124,7 +124,9 @@ def get_coacd_timings(wildcards):
 
 
 def get_coacd_source(wildcards):
-    meshes = robot_meshes(wildcards.robot)
+    meshes = robot_meshes(
+        wildcards.robot
+    )  # the checkpoint get_coacd_parts asked for already
     return _paths.coacd_source(wildcards.robot, wildcards.name, meshes)
 
 
