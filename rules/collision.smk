@@ -13,7 +13,7 @@ localrules:
 
 rule coacd:
     input:
-        coacd_source,
+        get_coacd_source,
     output:
         parts=directory("results/{robot}/collision/{name}"),
         timing="results/{robot}/benchmarks/coacd/{name}.json",
@@ -29,18 +29,15 @@ rule coacd:
         mem_mb=2048,
         runtime=15,
     params:
-        settings=coacd_settings,
+        settings=get_coacd_settings,
     script:
         "../scripts/coacd.py"
 
 
 rule collision_report:
     input:
-        parts=lambda w: list(coacd_dirs(w.robot).values()),
-        timing=lambda w: [
-            f"results/{w.robot}/benchmarks/coacd/{name}.json"
-            for name in coacd_dirs(w.robot)
-        ],
+        parts=get_coacd_parts,
+        timing=get_coacd_timings,
     output:
         json="results/{robot}/collision/report.json",
         table=report(
@@ -58,7 +55,7 @@ rule collision_report:
         mem_mb=256,
         runtime=2,
     params:
-        names=lambda w: list(coacd_dirs(w.robot)),
-        tolerance=lambda w: collision_section(w.robot).get("tolerance") or {},
+        names=get_coacd_names,
+        tolerance=get_collision_tolerance,
     script:
         "../scripts/collision_report.py"

@@ -35,7 +35,7 @@ rule dr_resolve:
 rule dr_summary:
     input:
         dr="results/{robot}/dr.json",
-        identified=identified_params_if_any,
+        identified=get_identified_params_if_any,
     output:
         coverage="results/{robot}/dr/coverage.json",
         table=report(

@@ -24,9 +24,9 @@ rule excitation_start:
         mem_mb=2048,
         runtime=30,
     params:
-        design=design_params,
+        design=get_design,
         config=lambda w: excitation_config(w.robot),
-        robot=robot_params,
+        robot=get_robot_params,
         robot_config=lambda w: robot_config(w.robot),
     script:
         "../scripts/excitation_start.py"
@@ -36,8 +36,8 @@ rule excitation:
     input:
         urdf="results/{robot}/{robot}.urdf",
         mjcf="results/{robot}/mjcf/{robot}.xml",
-        ladder=separation_ladder,
-        start=design_start,
+        ladder=get_separation_ladder,
+        start=get_design_start,
     output:
         csv="results/{robot}/excitation/{design}.csv",
         trajectory="results/{robot}/excitation/{design}.trajectory.yaml",
@@ -59,11 +59,11 @@ rule excitation:
         mem_mb=2048,
         runtime=30,
     params:
-        design=design_params,
+        design=get_design,
         config=lambda w: excitation_config(w.robot),
-        robot=robot_params,
+        robot=get_robot_params,
         robot_config=lambda w: robot_config(w.robot),
-        model_effects=design_model_effects,
+        model_effects=get_design_model_effects,
         model_config=lambda w: model_ladder(w.robot),
     script:
         "../scripts/excitation.py"

@@ -9,8 +9,8 @@ localrules:
 
 rule fleet:
     input:
-        ladders=fleet_ladders,
-        params=fleet_params,
+        ladders=get_fleet_ladders,
+        params=get_fleet_params,
         schema="schemas/fleet.schema.json",
     output:
         json="results/fleet.json",
@@ -29,6 +29,6 @@ rule fleet:
         mem_mb=512,
         runtime=2,
     params:
-        campaigns=fleet_records,
+        campaigns=get_fleet_records,
     script:
         "../scripts/fleet.py"

@@ -23,7 +23,7 @@ rule bag_to_run:
         mem_mb=1024,
         runtime=10,
     params:
-        topics=bag_topics,
+        topics=get_bag_topics,
     script:
         "../scripts/bag_to_run.py"
 
@@ -31,8 +31,8 @@ rule bag_to_run:
 rule prepare_runs:
     input:
         urdf="results/{robot}/{robot}.urdf",
-        measurements=campaign_measurements,
-        runs=measurement_files,
+        measurements=get_measurement_list,
+        runs=get_measurement_files,
     output:
         prepared="results/{robot}/{campaign}prepared_runs.npz",
     log:
@@ -53,7 +53,7 @@ rule gap_report:
         urdf="results/{robot}/{robot}.urdf",
         mjcf="results/{robot}/mjcf/{robot}.xml",
         prepared="results/{robot}/{campaign}prepared_runs.npz",
-        ladder=sysid_ladder,
+        ladder=get_sysid_ladder,
     output:
         json="results/{robot}/{campaign}gap.json",
         md="results/{robot}/{campaign}gap.md",
@@ -99,12 +99,12 @@ rule gap_report:
         "results/{robot}/benchmarks/{campaign}gap_report.tsv"
     # the figures are drawn in worker processes while the replays run (sim2real.report.figures.GapFigures)
     priority: CHAIN_PRIORITY
-    threads: round_threads(2, gap_kept)
+    threads: round_threads(2, get_gap_kept)
     resources:
         mem_mb=1024,
         runtime=5,
     params:
         # the replays and figures of the last report, read back when what they show did not change
-        kept=gap_kept,
+        kept=get_gap_kept,
     script:
         "../scripts/gap_report.py"

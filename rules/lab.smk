@@ -9,7 +9,7 @@ localrules:
 rule lab_run:
     input:
         mjcf="results/{robot}/mjcf/{robot}.xml",
-        excitation=lab_run_excitation,
+        excitation=get_lab_run_excitation,
     output:
         run="results/{robot}/lab/{scenario}/{run}.parquet",
         meta="results/{robot}/lab/{scenario}/{run}.yaml",
@@ -24,7 +24,7 @@ rule lab_run:
         runtime=5,
     params:
         # the scenario's own settings: an edit of lab.yaml reruns the runs of the scenarios it changes
-        scenario=lab_scenario_params,
+        scenario=get_lab_scenario,
         config=lambda w: lab_config(w.robot),
     script:
         "../scripts/lab_run.py"
@@ -44,7 +44,7 @@ rule lab_truth:
         mem_mb=256,
         runtime=2,
     params:
-        scenario=lab_scenario_params,
+        scenario=get_lab_scenario,
         config=lambda w: lab_config(w.robot),
     script:
         "../scripts/lab_truth.py"

@@ -10,7 +10,7 @@ localrules:
 
 rule visual_mesh:
     input:
-        mesh_source("visual"),
+        get_mesh_source("visual"),
     output:
         directory("results/{robot}/meshes/visual/{name}"),
     log:
@@ -25,15 +25,15 @@ rule visual_mesh:
         mem_mb=256,
         runtime=2,
     params:
-        uri=mesh_uri("visual"),
-        links=mesh_links("visual"),
+        uri=get_mesh_uri("visual"),
+        links=get_mesh_links("visual"),
     script:
         "../scripts/convert_visual_mesh.py"
 
 
 rule collision_mesh:
     input:
-        mesh_source("collision"),
+        get_mesh_source("collision"),
     output:
         "results/{robot}/meshes/collision/{name}.stl",
     log:
@@ -48,7 +48,7 @@ rule collision_mesh:
         mem_mb=256,
         runtime=1,
     params:
-        uri=mesh_uri("collision"),
-        links=mesh_links("collision"),
+        uri=get_mesh_uri("collision"),
+        links=get_mesh_links("collision"),
     script:
         "../scripts/convert_collision_mesh.py"

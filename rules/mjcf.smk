@@ -6,9 +6,9 @@
 rule mjcf:
     input:
         urdf="results/{robot}/{variant}{robot}.urdf",
-        visual=lambda w: visual_mesh_dirs(w.robot),
-        collision=lambda w: sorted(collision_part_dirs(w.robot).values()),
-        params=identified_params,
+        visual=get_visual_mesh_dirs,
+        collision=get_collision_parts,
+        params=get_identified_params,
     output:
         xml="results/{robot}/{variant}mjcf/{robot}.xml",
         scene="results/{robot}/{variant}mjcf/scene.xml",
@@ -22,8 +22,8 @@ rule mjcf:
         mem_mb=1024,
         runtime=3,
     params:
-        collision_dirs=lambda w: collision_part_dirs(w.robot),
-        robot=robot_params,
+        collision_dirs=get_collision_part_dirs,
+        robot=get_robot_params,
         robot_config=lambda w: robot_config(w.robot),
     script:
         "../scripts/build_mjcf.py"

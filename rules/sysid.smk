@@ -23,15 +23,15 @@ rule sysid:
         "results/{robot}/benchmarks/{campaign}sysid.tsv"
     # the diagnosis fits its candidates side by side (sim2real.identification.diagnosis.trial_fits)
     priority: CHAIN_PRIORITY
-    threads: round_threads(2, sysid_fits)
+    threads: round_threads(2, get_sysid_fits)
     resources:
         # forked workers share the parent's pages, but the benchmark sums every process's resident set
         mem_mb=1536,
         runtime=5,
     params:
         # the rungs and diagnoses of the last round, read back when their inputs did not change
-        fits=sysid_fits,
-        robot=robot_params,
+        fits=get_sysid_fits,
+        robot=get_robot_params,
         robot_config=lambda w: robot_config(w.robot),
     script:
         "../scripts/sysid.py"

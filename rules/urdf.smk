@@ -8,9 +8,9 @@
 
 checkpoint urdf:
     input:
-        xacro=lambda w: robot_xacro(w.robot),
-        includes=xacro_includes,
-        calibration=calibration_file,
+        xacro=get_xacro,
+        includes=get_xacro_includes,
+        calibration=get_calibration,
     output:
         "results/{robot}/{variant}{robot}.urdf",
     log:
@@ -22,6 +22,6 @@ checkpoint urdf:
         mem_mb=512,
         runtime=2,
     params:
-        args=urdf_xacro_args,
+        args=get_xacro_args,
     script:
         "../scripts/build_urdf.py"

@@ -6,8 +6,8 @@
 rule usd:
     input:
         urdf="results/{robot}/{variant}{robot}.urdf",
-        visual=lambda w: visual_mesh_dirs(w.robot),
-        collision=lambda w: sorted(collision_part_dirs(w.robot).values()),
+        visual=get_visual_mesh_dirs,
+        collision=get_collision_parts,
     output:
         usda="results/{robot}/{variant}usd/{robot}.usda",
         geometry="results/{robot}/{variant}usd/{robot}_geometry.usda",
@@ -20,8 +20,8 @@ rule usd:
         mem_mb=512,
         runtime=3,
     params:
-        collision_dirs=lambda w: collision_part_dirs(w.robot),
-        robot=robot_params,
+        collision_dirs=get_collision_part_dirs,
+        robot=get_robot_params,
         robot_config=lambda w: robot_config(w.robot),
     script:
         "../scripts/build_usd.py"

@@ -243,7 +243,8 @@ def test_gap_md_names_the_design_when_the_inertias_are_poorly_pinned() -> None:
     from sim2real.report.markdown import ILL_CONDITIONED, _identified_markdown
 
     def rung(condition: float) -> dict:
-        body = {"moved": False, "mass_change_kg": 0.0, "com_shift_mm": 0.0, "divergence": 0.0, "implausible": []}
+        body = {"moved": False, "mass_change_kg": 0.0, "com_shift_mm": 0.0, "divergence": 0.0, "implausible": [],
+                "binding": []}
         return {"params": {"link_inertia": {"base_parameters": 43, "condition_number": condition,
                                             "bodies": {"panda_link1": body}}}}
 

@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from sim2real.identification import fitting
-from sim2real.identification import sysid
+from sim2real.identification import side_ladder, sysid
 from sim2real.cache import ROUND_MARK, FitCache, digest
 from sysid_synthetic import PANDA_JOINTS, PANDA_URDF, make_run
 from test_sysid import _write_real_log
@@ -100,7 +100,7 @@ def test_a_round_after_one_added_line_refits_only_the_new_rung_and_writes_the_sa
         fitted.append(list(effects))
         return original(effects, *args, **kwargs)
 
-    monkeypatch.setattr(sysid, "fit_on_the_previous", counted)
+    monkeypatch.setattr(side_ladder, "fit_on_the_previous", counted)
 
     def round_(effects, out, cache):
         model = tmp_path / "model.yaml"

@@ -104,21 +104,28 @@ def test_unknown_joint_in_a_run_is_reported_against_the_model(lab, tmp_path):
 
 
 def test_precomputed_ladder_is_merged_and_validated(lab, tmp_path):
+    """The sysid rule's ladder.json, data without words, merged into gap.json with its verdict."""
+    from sim2real.identification.diagnosis import Diagnosis
+    from sim2real.identification.records import Side, Status
+    from sim2real.report.verdicts import verdict
+
+    diagnosis = Diagnosis(side=Side.BODY, status=Status.AT_NOISE_FLOOR, candidates=(), confounded=(), tied=(),
+                          residual_rmse=0.1, noise_floor_ratio=1.1, noise_rmse=0.09, noise_floor_factor=1.5,
+                          min_explained=0.3, per_joint={"panda_joint7": {"x_floor": 1.1}}, above_floor=())
     ladder = {
         "ladder": [{"effects": [], "params": {}, "metrics": {"torque_rmse": {"overall": 0.3, "per_joint": {"a": 0.3}}}}],
-        "diagnosis": {"candidates": [{"effect": "coulomb_friction", "joints": ["panda_joint7"], "explained": 0.8,
-                                      "evidence": {}, "add": "coulomb_friction"}], "verdict": "add coulomb_friction"},
+        "diagnosis": json.loads(json.dumps(diagnosis.as_document())),
     }
     gap, _ = compute_gap(GapInputs("panda", lab["urdf"], lab["mjcf"], lab["scenario"]("clean")), precomputed=ladder)
     rung = gap["ladder"][0]
     assert rung["effects"] == [] and rung["metrics"]["torque_rmse"] == ladder["ladder"][0]["metrics"]["torque_rmse"]
-    assert gap["diagnosis"]["verdict"] == "add coulomb_friction"
+    assert gap["diagnosis"]["verdict"] == verdict(diagnosis, "panda")
     # Each rung is replayed in MuJoCo with its fitted effects: the nominal model on clean lab data tracks closely.
     assert rung["metrics"]["position_rmse"]["overall"] < 1e-3
     assert set(rung["metrics"]["position_rmse"]["per_joint"]) == set(PANDA_JOINTS)
     broken = json.loads(json.dumps(gap))
-    broken["diagnosis"]["candidates"][0]["explained"] = 2.0
-    with pytest.raises(InputError, match="explained"):
+    broken["diagnosis"]["link"] = "wrist"
+    with pytest.raises(InputError, match="link"):
         validate(broken, "gap.schema.json")
 
 

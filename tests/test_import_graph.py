@@ -118,6 +118,8 @@ MAY_IMPORT = {
     "dr": {"shared", "assets", "measurements", "identification"},
     # the report words the diagnosis, naming the runs the excitation designs (sim2real.excitation.names)
     "report": {"shared", "assets", "measurements", "identification", "excitation"},
+    # what rules/common.smk reads: every stage's config files and built files, above them all (no stage imports it)
+    "workflow": {"shared", "assets", "measurements", "lab", "identification", "excitation"},
 }
 
 

@@ -44,3 +44,24 @@ def test_the_snakefile_is_short_and_the_helpers_live_in_common() -> None:
             assert not re.search(r"^\w+\.(append|extend)\(", text, flags=re.MULTILINE), rules.name
             assert "raise ValueError" not in text and "def " not in text, f"{rules.name}: helpers belong in common.smk"
         assert "ValueError" not in text, f"{rules.name}: bad input is an InputError (file, key, fix)"
+
+
+def test_the_rules_take_their_inputs_and_params_from_get_functions() -> None:
+    """As snakemake-workflows' common.smk: what a rule's input or params section calls by name is an input function
+    of common.smk named ``get_*``; where files are lives in the tested package sim2real.workflow."""
+    common = (ROOT / "rules" / "common.smk").read_text()
+    assert "import sim2real.workflow" in common or "from sim2real.workflow" in common
+    assert len(common.splitlines()) <= 200, "common.smk keeps validation, wildcards, targets and scheduling"
+    defined = set(re.findall(r"^(get_\w+) = of_wildcards\(", common, flags=re.MULTILINE))
+    defined |= set(re.findall(r"^def (get_\w+)\(", common, flags=re.MULTILINE))
+    called = set()
+    for rules in sorted((ROOT / "rules").glob("*.smk")):
+        section = None
+        for line in rules.read_text().splitlines():
+            if re.match(r"^    \w+:", line):
+                section = line.strip().rstrip(":")
+            elif section in ("input", "params") and (name := re.match(r"^        (?:\w+=)?([A-Za-z_]\w*)(?:\(.*\))?,$",
+                                                                        line)):
+                called.add(name.group(1))
+    assert called, "the parser sees the rules' input functions"
+    assert called <= defined, f"not an input function of common.smk named get_*: {sorted(called - defined)}"

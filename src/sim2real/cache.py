@@ -164,7 +164,7 @@ class FitCache:
         that undoing a round (a line removed again) costs what a round that changes nothing costs.
 
         A round's start is kept in :data:`ROUND_MARK` (an entry read or written is touched, so its mtime says when
-        it was last used); without a mark (a cache of an earlier version) only this round's entries are kept.
+        it was last used); without a readable mark (a new cache directory) only this round's entries are kept.
         """
         if self.directory is None or not self.directory.is_dir():
             return

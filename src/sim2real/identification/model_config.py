@@ -1,5 +1,5 @@
 """``configs/{robot}/model.yaml``, the model ladder, parsed and validated once (:func:`load_model_config`): the rules
-(``rules/common.smk``), the identification and the excitation design all read it through here.
+(:mod:`sim2real.workflow.configs`), the identification and the excitation design all read it through here.
 
 The file (``schemas/model.schema.yaml``): ``effects``, the ladder's lines in order, each an effect's name or, for a
 drive effect kept on one side of the comparison, ``{name: side}`` (``- asymmetric_friction: actuator``); ``fit``, the

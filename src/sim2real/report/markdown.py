@@ -78,10 +78,8 @@ def _identified_markdown(rung: Mapping[str, Any], robot: str) -> list[str]:
     lines += ["| body | moved | mass change [kg] | COM shift [mm] | divergence from CAD | plausible | held at |",
               "|---|---|---|---|---|---|---|"]
     for name, b in bodies.items():
-        # Documents written before the plausibility checks (or the bands) have no "implausible" ("binding") key: n/a.
-        reasons = b.get("implausible")
-        plausible = "n/a" if reasons is None else "; ".join(reasons) if reasons else "yes"
-        held = "n/a" if b.get("binding") is None else ", ".join(BOUND_TEXT[k] for k in b["binding"]) or "–"
+        plausible = "; ".join(b["implausible"]) or "yes"
+        held = ", ".join(BOUND_TEXT[k] for k in b["binding"]) or "–"
         lines.append(f"| {name} | {'yes' if b['moved'] else 'no'} | {b['mass_change_kg']:+.3g} | "
                      f"{b['com_shift_mm']:.3g} | {_fmt(b['divergence'])} | {plausible} | {held} |")
     held_at = {name: b["binding"] for name, b in bodies.items() if b.get("binding")}

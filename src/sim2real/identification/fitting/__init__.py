@@ -33,6 +33,7 @@ package; it imports neither. Its modules, each importing only those above it:
 * :mod:`~sim2real.identification.fitting.refine`: the nonlinear refinement (variable projection);
 * :mod:`~sim2real.identification.fitting.bootstrap`: the block bootstrap and its intervals;
 * :mod:`~sim2real.identification.fitting.scoring`: noise-floor units, the prediction and the holdout metrics;
+* :mod:`~sim2real.identification.fitting.consistent`: the physically consistent fit of a rung's linear coefficients;
 * :mod:`~sim2real.identification.fitting.rung`: one rung's fit (:func:`fit`, :func:`fit_on_the_previous`);
 * :mod:`sim2real.cache` (beside the package, which the gap report uses without importing the fit): fits kept
   between rounds of the loop, by the digest of their inputs.
@@ -55,8 +56,9 @@ from sim2real.identification.fitting.nominal import (  # noqa: F401  (re-exporte
 )
 from sim2real.identification.fitting.problem import FitResult, subset_signals  # noqa: F401
 from sim2real.identification.fitting.refine import Nonlinear, Refinements, refinement_rows  # noqa: F401
+from sim2real.identification.fitting.consistent import INERTIA_PRIOR_FALLBACK, PRIOR_START_SETTING  # noqa: F401
 from sim2real.identification.fitting.rung import (  # noqa: F401  (re-exported: the package's names)
-    DEFAULT_SETTINGS, INERTIA_PRIOR_FALLBACK, PRIOR_START_SETTING, STILL_JOINTS_SETTING, better_way, fit,
+    DEFAULT_SETTINGS, STILL_JOINTS_SETTING, better_way, fit,
     fit_on_the_previous, way_inputs, fit_way, previous_nonlinear, previous_ways,
 )
 from sim2real.identification.fitting.context import FitContext  # noqa: F401

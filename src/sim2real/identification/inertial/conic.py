@@ -3,7 +3,7 @@
 The program of :mod:`sim2real.identification.inertial.program` has one fixed shape: a least-squares data term,
 lower bounds, and per body a PSD margin, an ellipsoid, the bands of :mod:`~.bands` (mass, hull: linear rows;
 divergence: a linear row on the log-det's ``t``) and the entropic divergence's log-det. Its conic form is
-written here in a few array operations per solve, so a fit never canonicalises (cvxpy took 0.3-0.7 s per program
+written here in a few array operations per solve, so a fit never canonicalises (cvxpy takes 0.3-0.7 s per program
 structure and about a second to import, and every new rung and candidate is a new structure):
 
     minimise  1/2 x'Px + q'x   subject to  Ax + s = b,  s in K

@@ -21,10 +21,7 @@ DATA_ONLY = ("notes", "noise_rmse", "noise_floor_factor", "min_explained", "join
 
 
 def diagnosis_section(document: Mapping[str, Any], robot: str) -> dict[str, Any]:
-    """gap.json's ``diagnosis`` (or ``actuator.diagnosis``): ladder.json's with its words (one that has them already,
-    worded or written by a release before the words moved here, as it is)."""
-    if "verdict" in document:
-        return copy.deepcopy(dict(document))
+    """gap.json's ``diagnosis`` (or ``actuator.diagnosis``): ladder.json's, data without words, with its words."""
     d = Diagnosis.from_document(document)
     out = {key: copy.deepcopy(value) for key, value in document.items() if key not in DATA_ONLY}
     out["verdict"] = verdict(d, robot)

@@ -9,7 +9,7 @@ from typing import Any
 from sim2real.identification.records import NoteKind
 
 def violations_text(violations: Sequence[Mapping[str, Any]]) -> str:
-    """What is non-physical in a solution (:func:`sim2real.identification.fitting.rung._violations`)."""
+    """What is non-physical in a solution (:func:`sim2real.identification.fitting.consistent._violations`)."""
     return "; ".join(f"link_inertia: non-physical inertia of {', '.join(v['bodies'])}" if "bodies" in v
                      else f"{v['effect']}: {v['below_bound']} value(s) below their physical bound" for v in violations)
 
