@@ -1,0 +1,73 @@
+"""The Examples sections of the public entry points run as doctests, on a two-run measurement list this module
+writes: the Panda's URDF (example-robot-data) and a fit and a holdout run of its seven joints, three seconds each,
+whose torque is the URDF's inverse dynamics plus viscous friction and noise."""
+
+from __future__ import annotations
+
+import doctest
+import importlib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from sim2real.assets.dynamics import RigidBodyModel
+
+PANDA_URDF = (
+    Path(__file__).resolve().parents[1]
+    / ".venv/lib/python3.11/site-packages/cmeel.prefix/share/example-robot-data/robots/panda_description/urdf/panda.urdf"
+)
+PANDA_JOINTS = [f"panda_joint{i}" for i in range(1, 8)]
+# The modules holding the entry points: read_runs, prepare_run, fit_model, run_sysid, diagnose, compute_gap,
+# design_trajectory, resolve_config (dr.json).
+MODULES = [
+    "sim2real.measurements.runs.measurement_list",
+    "sim2real.measurements.prepare",
+    "sim2real.identification.sysid",
+    "sim2real.identification.diagnosis.candidates",
+    "sim2real.report.gap",
+    "sim2real.excitation.design.run",
+    "sim2real.dr.resolve",
+]
+
+
+def write_run(directory: Path, name: str, seed: int, duration_s: float = 3.0, rate_hz: float = 250.0) -> None:
+    """``<name>.csv`` and ``<name>.yaml``: a smooth motion of every joint inside its limits, the measured torque."""
+    model = RigidBodyModel(PANDA_URDF, PANDA_JOINTS)
+    rng = np.random.default_rng(seed)
+    time = np.arange(0.0, duration_s, 1.0 / rate_hz)
+    center, half = 0.5 * (model.lower + model.upper), 0.5 * (model.upper - model.lower)
+    omega = 2.0 * np.pi * rng.uniform(0.3, 0.8, size=len(PANDA_JOINTS))
+    phase = rng.uniform(0.0, 2.0 * np.pi, size=len(PANDA_JOINTS))
+    amplitude = 0.3 * half
+    q = center + amplitude * np.sin(omega * time[:, None] + phase)
+    qd = amplitude * omega * np.cos(omega * time[:, None] + phase)
+    qdd = -amplitude * omega**2 * np.sin(omega * time[:, None] + phase)
+    tau = model.inverse_dynamics(q, qd, qdd) + 0.5 * qd + rng.normal(0.0, 0.02, size=q.shape)
+    table = {"time": time, **{f"q.{j}": q[:, i] for i, j in enumerate(PANDA_JOINTS)},
+             **{f"tau.{j}": tau[:, i] for i, j in enumerate(PANDA_JOINTS)}}
+    pd.DataFrame(table).to_csv(directory / f"{name}.csv", index=False)
+    (directory / f"{name}.yaml").write_text(yaml.safe_dump(
+        {"robot": "panda", "source": "synthetic", "control_mode": "torque"}))
+
+
+@pytest.fixture(scope="module")
+def example_dir(tmp_path_factory) -> Path:
+    directory = tmp_path_factory.mktemp("api_examples")
+    for seed, role in enumerate(("fit", "holdout")):
+        write_run(directory, role, seed)
+    listing = {"runs": [{"name": role, "path": f"{role}.csv", "role": role} for role in ("fit", "holdout")]}
+    (directory / "measurements.yaml").write_text(yaml.safe_dump(listing))
+    return directory
+
+
+@pytest.mark.parametrize("module_name", MODULES)
+def test_the_examples_of_the_entry_points_run(module_name, example_dir):
+    module = importlib.import_module(module_name)
+    namespace = {"example_dir": example_dir, "urdf": PANDA_URDF}
+    result = doctest.testmod(module, extraglobs=namespace, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE,
+                             report=True, raise_on_error=False)
+    assert result.attempted > 0, f"{module_name} has no example"
+    assert result.failed == 0, f"{result.failed} of {result.attempted} example lines of {module_name} failed"
