@@ -227,7 +227,6 @@ def resolve_config(
     config : mapping
         dr.yaml's content (schema ``schemas/dr.schema.json``); selectors are glob patterns on MJCF element names.
     model : mujoco.MjModel
-        The compiled MJCF the names and nominal values are read from.
     config_path, mjcf_label, robot : optional
         How dr.yaml and the MJCF are named in messages and in the document, and the robot's name.
 
@@ -239,15 +238,13 @@ def resolve_config(
     Raises
     ------
     InputError
-        Naming the key path and the fix for every bad input (a pattern matching nothing, a range beyond floating
-        point, a delay longer than the actuator history holds).
+        Naming the key path and the fix: a pattern matching nothing, a range beyond floating point, a delay too long.
 
     Examples
     --------
     >>> model = mujoco.MjModel.from_xml_string(
     ...     '<mujoco><worldbody><body name="link1"><joint/><geom size="0.05" mass="1"/></body></worldbody></mujoco>')
-    >>> mass = {"mode": "reset", "distribution": "uniform", "operation": "scale", "range": [0.9, 1.1],
-    ...         "body_names": ["link*"]}
+    >>> mass = dict(mode="reset", distribution="uniform", operation="scale", range=[0.9, 1.1], body_names=["link*"])
     >>> resolved = resolve_config({"physics_randomization": {"body_mass": mass}}, model, robot="arm")
     >>> [(c["channel"], c["targets"]) for c in resolved["physics"]]
     [('mass', [{'name': 'link1', 'nominal': [1.0], 'range': [[0.9, 1.1]]}])]
@@ -255,7 +252,6 @@ def resolve_config(
     validate_config(config, config_path)
     physics_cfg: Mapping[str, Any] = config.get("physics_randomization") or {}
     noise_cfg: Mapping[str, Any] = config.get("observation_noise") or {}
-
     physics = []
     for parameter in PARAMETERS:
         term_cfg = physics_cfg.get(parameter.term)
