@@ -1,6 +1,7 @@
 """The Examples sections of the public entry points run as doctests, on a two-run measurement list this module
-writes: the Panda's URDF (example-robot-data) and a fit and a holdout run of its seven joints, three seconds each,
-whose torque is the URDF's inverse dynamics plus viscous friction and noise."""
+writes: the Panda's URDF (example-robot-data, ``urdf`` in the examples) and, in ``example_dir``, a fit and a holdout
+run of its seven joints, three seconds each, whose torque is the URDF's inverse dynamics plus viscous friction and
+noise. A failing example fails its module's test (the doctest report names the line)."""
 
 from __future__ import annotations
 
@@ -13,24 +14,22 @@ import pandas as pd
 import pytest
 import yaml
 
+from sysid_synthetic import PANDA_JOINTS, PANDA_URDF
+
 from sim2real.assets.dynamics import RigidBodyModel
 
-PANDA_URDF = (
-    Path(__file__).resolve().parents[1]
-    / ".venv/lib/python3.11/site-packages/cmeel.prefix/share/example-robot-data/robots/panda_description/urdf/panda.urdf"
-)
-PANDA_JOINTS = [f"panda_joint{i}" for i in range(1, 8)]
-# The modules holding the entry points: read_runs, prepare_run, fit_model, run_sysid, diagnose, compute_gap,
-# design_trajectory, resolve_config (dr.json).
-MODULES = [
-    "sim2real.measurements.runs.measurement_list",
-    "sim2real.measurements.prepare",
-    "sim2real.identification.sysid",
-    "sim2real.identification.diagnosis.candidates",
-    "sim2real.report.gap",
-    "sim2real.excitation.design.run",
-    "sim2real.dr.resolve",
-]
+# The public entry points (docs/python.md's API reference), by module; resolve_config resolves dr.yaml into dr.json.
+ENTRY_POINTS = {
+    "sim2real.measurements.runs.measurement_list": ["read_runs"],
+    "sim2real.measurements.prepare": ["prepare_run"],
+    "sim2real.identification.sysid": ["fit_model", "run_sysid"],
+    "sim2real.identification.diagnosis.candidates": ["diagnose"],
+    "sim2real.report.gap": ["compute_gap"],
+    "sim2real.excitation.design.run": ["design_trajectory"],
+    "sim2real.dr.resolve": ["resolve_config"],
+}
+MODULES = list(ENTRY_POINTS)
+SECTIONS = ("Parameters\n    ----------", "Returns\n    -------", "Examples\n    --------")
 
 
 def write_run(directory: Path, name: str, seed: int, duration_s: float = 3.0, rate_hz: float = 250.0) -> None:
@@ -71,3 +70,15 @@ def test_the_examples_of_the_entry_points_run(module_name, example_dir):
                              report=True, raise_on_error=False)
     assert result.attempted > 0, f"{module_name} has no example"
     assert result.failed == 0, f"{result.failed} of {result.attempted} example lines of {module_name} failed"
+
+
+@pytest.mark.parametrize("module_name", MODULES)
+def test_each_entry_point_has_its_sections_and_an_example_that_runs(module_name):
+    module = importlib.import_module(module_name)
+    for name in ENTRY_POINTS[module_name]:
+        doc = getattr(module, name).__doc__ or ""
+        missing = [section.split("\n")[0] for section in SECTIONS if section not in doc]
+        assert not missing, f"{module_name}.{name} lacks the numpydoc section(s) {missing}"
+        examples = doctest.DocTestParser().get_examples(doc)
+        run = [e for e in examples if not e.options.get(doctest.SKIP)]
+        assert run and any(e.want for e in run), f"{module_name}.{name}: no example runs and checks an output"
