@@ -221,12 +221,37 @@ def resolve_config(
     Returns the JSON-ready document written to ``results/{robot}/dr.json``: per physics channel the
     concrete element names with nominal values and absolute ranges, per noise term the elements,
     the curriculum levels, and the history-buffer size the action delay needs.
-    Raises :class:`InputError` naming the key path and the fix for every bad input.
+
+    Parameters
+    ----------
+    config : mapping
+        dr.yaml's content (schema ``schemas/dr.schema.json``); selectors are glob patterns on MJCF element names.
+    model : mujoco.MjModel
+    config_path, mjcf_label, robot : optional
+        How dr.yaml and the MJCF are named in messages and in the document, and the robot's name.
+
+    Returns
+    -------
+    dict
+        The dr.json document.
+
+    Raises
+    ------
+    InputError
+        Naming the key path and the fix: a pattern matching nothing, a range beyond floating point, a delay too long.
+
+    Examples
+    --------
+    >>> model = mujoco.MjModel.from_xml_string(
+    ...     '<mujoco><worldbody><body name="link1"><joint/><geom size="0.05" mass="1"/></body></worldbody></mujoco>')
+    >>> mass = dict(mode="reset", distribution="uniform", operation="scale", range=[0.9, 1.1], body_names=["link*"])
+    >>> resolved = resolve_config({"physics_randomization": {"body_mass": mass}}, model, robot="arm")
+    >>> [(c["channel"], c["targets"]) for c in resolved["physics"]]
+    [('mass', [{'name': 'link1', 'nominal': [1.0], 'range': [[0.9, 1.1]]}])]
     """
     validate_config(config, config_path)
     physics_cfg: Mapping[str, Any] = config.get("physics_randomization") or {}
     noise_cfg: Mapping[str, Any] = config.get("observation_noise") or {}
-
     physics = []
     for parameter in PARAMETERS:
         term_cfg = physics_cfg.get(parameter.term)

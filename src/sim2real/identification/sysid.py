@@ -104,6 +104,44 @@ def fit_model(model: ModelConfig, nominal: NominalModel, runs: Mapping[str, Sequ
     rounds (:func:`fit_ladder`); ``release_runs``: empty the lists of ``runs`` once both sides have what they need
     of them (the caller holds no other reference: a 10-minute log's runs at 1 kHz are hundreds of MB the body side
     does not need).
+
+    Parameters
+    ----------
+    model : ModelConfig
+        model.yaml's content (:func:`~sim2real.identification.model_config.parse_model_config`): effects, fit settings.
+    nominal : NominalModel
+        The URDF's model on the runs' joints (:func:`~sim2real.identification.fitting.load_nominal`).
+    runs : mapping of str to sequence of PreparedRun
+        The prepared runs by role, ``fit`` and ``holdout``.
+    robot : str
+        The robot's name in the document.
+    workers, cache, release_runs : optional
+        See above.
+
+    Returns
+    -------
+    ModelFit
+        ``document`` (ladder.json's content), ``results`` (each side's last rung), ``residuals`` (residuals.npz's).
+
+    Raises
+    ------
+    InputError
+        An effect model.yaml keeps on a side the runs' torque sensor cannot fit it on.
+
+    Examples
+    --------
+    A one-effect ladder on two three-second runs, a coarse grid and few replicates (seconds):
+
+    >>> from sim2real.identification.fitting import load_nominal
+    >>> from sim2real.identification.model_config import parse_model_config
+    >>> from sim2real.measurements import prepare_for_model
+    >>> runs = prepare_for_model(example_dir / "measurements.yaml", urdf, root=example_dir)
+    >>> model = parse_model_config({"effects": ["viscous_friction"], "fit": {
+    ...     "fit_rate_hz": 50.0, "bootstrap_replicates": 5, "refine_max_samples": 300}}, "model.yaml")
+    >>> fitted = fit_model(model, load_nominal(urdf, runs[0].joint_names),
+    ...                    {"fit": list(runs.fit), "holdout": list(runs.holdout)}, robot="panda")
+    >>> [rung["effects"] for rung in fitted.document["ladder"]], fitted.document["diagnosis"]["status"]
+    ([[], ['viscous_friction']], 'at_noise_floor')
     """
     settings = model.as_settings()
     effect_names = list(model.effects)
@@ -232,6 +270,45 @@ def run_sysid(robot: str, files: SysidFiles, threads: int = 1, cache_dir: str | 
     read (the DAG passes it as params); ``threads``: the diagnosis fits its candidates on that many processes (BLAS on
     one thread each); ``cache_dir``: where the rungs and diagnoses are kept for the next round (:class:`FitCache`;
     None: not kept).
+
+    Parameters
+    ----------
+    robot : str
+    files : SysidFiles
+    threads : int, default 1
+    cache_dir : str or Path, optional
+    robot_settings : mapping, optional
+
+    Returns
+    -------
+    dict
+        ladder.json's content (:attr:`ModelFit.document`), also written to ``files.ladder``.
+
+    Raises
+    ------
+    InputError
+        A file is bad (naming it, the key or column and the fix), or no run has role ``fit`` or ``holdout``.
+
+    Examples
+    --------
+    The fit of :func:`fit_model`'s example, from files to files; it takes its seconds, so it is not run here:
+
+    >>> _ = (example_dir / "model.yaml").write_text("effects: [viscous_friction]")
+    >>> files = SysidFiles(urdf, example_dir / "robot.yaml", example_dir / "model.yaml",
+    ...                    example_dir / "measurements.yaml", ladder=example_dir / "ladder.json",
+    ...                    params=example_dir / "params.yaml", calibration=example_dir / "calibration.yaml",
+    ...                    root=example_dir)
+    >>> ladder = run_sysid("panda", files, robot_settings={})  # doctest: +SKIP
+    >>> ladder["diagnosis"]["status"]  # doctest: +SKIP
+    'at_noise_floor'
+
+    A measurement list without a holdout run is refused before any fit (this runs):
+
+    >>> _ = (example_dir / "fit_only.yaml").write_text("runs: [{name: fit, path: fit.csv, role: fit}]")
+    >>> run_sysid("panda", dataclasses.replace(files, measurements=example_dir / "fit_only.yaml"), robot_settings={})
+    Traceback (most recent call last):
+    ...
+    sim2real.errors.InputError: ...fit_only.yaml: runs: no run with role 'holdout'. Fix: ...
     """
     from sim2real.identification.effects import calibration_from_params
     from sim2real.files import read_yaml, write_yaml

@@ -59,7 +59,40 @@ def prepare_run(
     sample_rate_hz: float | None = None,
     use_measured_qd: bool = False,
 ) -> PreparedRun:
-    """Dedup, resample to a uniform grid, zero-phase filter q, differentiate: see the module docstring."""
+    """Dedup, resample to a uniform grid, zero-phase filter q, differentiate: see the module docstring.
+
+    Parameters
+    ----------
+    run : Run
+        A run as read (:func:`~sim2real.measurements.runs.read_run`, :func:`~sim2real.measurements.runs.read_runs`).
+    cutoff_hz, order : float, int
+        The Butterworth filter of the positions (measurements.yaml's ``filter``).
+    sample_rate_hz : float, optional
+        The grid's rate; default: the metadata's ``sample_rate_hz``, else the log's median step.
+    use_measured_qd : bool, default False
+        Take the logged ``qd`` (filtered) instead of differentiating the filtered positions.
+
+    Returns
+    -------
+    PreparedRun
+        Positions, velocities, accelerations and the raw torques on the trimmed grid, the filter's record and the
+        torque's measured noise floor (``raw_torque_sigma``, per joint).
+
+    Raises
+    ------
+    InputError
+        The run is too short once the filter's edges are trimmed, or its grid would be far denser than its samples.
+
+    Examples
+    --------
+    >>> from sim2real.measurements.runs import read_runs
+    >>> run = read_runs(example_dir / "measurements.yaml", root=example_dir)[0]
+    >>> prepared = prepare_run(run, cutoff_hz=10.0)
+    >>> prepared.q.shape == prepared.qdd.shape == prepared.tau.shape, prepared.torque_source
+    (True, 'tau')
+    >>> round(1.0 / prepared.dt), prepared.filter.trimmed_s_each_end > 0, prepared.raw_torque_sigma.shape
+    (250, True, (7,))
+    """
     run, spikes = _replace_spikes(run)
     # 1. drop stale repeats: a row whose positions equal the previous row's; a column held while others change is
     # taken at its own update instants

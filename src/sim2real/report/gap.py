@@ -119,7 +119,40 @@ def compute_gap(
     With a ladder (``precomputed``) and its residuals (``inputs.residuals``, the sysid rule's), the report
     describes the model being calibrated, the ladder's last rung: the top-level ``metrics`` (on the holdout
     runs, as the ladder judges) and ``where`` are its, and the returned comparisons too; the nominal URDF's
-    (every run, at the log's rate) move under ``nominal``, for reference."""
+    (every run, at the log's rate) move under ``nominal``, for reference.
+
+    Parameters
+    ----------
+    inputs : GapInputs
+        The robot's name, URDF, MJCF (None: no replay), measurement list and root, ladder and residuals.
+    precomputed : mapping, optional
+        The ladder's sections; default: read from ``inputs.ladder``.
+    cache : FitCache, optional
+        Where replays of an earlier report are kept.
+    progress : callable, optional
+        Called twice with the content known so far (see above).
+
+    Returns
+    -------
+    tuple of (dict, list of TorqueComparison)
+        The gap.json content, validated against ``schemas/gap.schema.json``, and each run's comparison.
+
+    Raises
+    ------
+    InputError
+        A run, the measurement list or the URDF is bad (naming the file, the column and the fix).
+
+    Examples
+    --------
+    The nominal URDF against two runs, without a ladder and without replaying the commands:
+
+    >>> inputs = GapInputs("panda", urdf, None, example_dir / "measurements.yaml", root=example_dir)
+    >>> gap, comparisons = compute_gap(inputs)
+    >>> gap["joints"][:2], [run["name"] for run in gap["runs"]], len(comparisons)
+    (['panda_joint1', 'panda_joint2'], ['fit', 'holdout'], 2)
+    >>> sorted(gap["metrics"])
+    ['state_domain', 'torque_r2', 'torque_relative_rmse', 'torque_rmse']
+    """
     if precomputed is None:
         precomputed = inputs.read_ladder()
     prepared = runs_for_model(inputs.measurements, inputs.urdf, inputs.root)

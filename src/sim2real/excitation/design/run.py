@@ -40,6 +40,45 @@ def design_trajectory(design: Design, robot: DesignRobot, model_effects: Sequenc
     ``separation``: design the run that tells two confounded candidates apart (:mod:`.separation`) instead of
     one that conditions the identification; ``start_coefficients``: the coefficients IPOPT starts from (excited
     joints x 2 harmonics; :func:`design_start`), instead of a random series at a fraction of the limits.
+
+    Parameters
+    ----------
+    design : Design
+        One design of excitation.yaml (:func:`~sim2real.excitation.config.load_design`).
+    robot : DesignRobot
+        The nominal model of the design's joints, the built URDF and MJCF (collision parts), the home pose.
+    model_effects : sequence of str
+        model.yaml's effects the motion should identify, beside the links' inertial parameters.
+    log : callable, optional
+        Called with each progress line.
+    separation, start_coefficients : optional
+        See above.
+
+    Returns
+    -------
+    DesignResult
+        The coefficients, the trajectory checked at every sample, its nominal torque and clearance, the summary.
+
+    Raises
+    ------
+    InputError
+        The design leaves no motion within its limits, or its start pose collides (naming the key and the fix).
+
+    Examples
+    --------
+    A design and its robot; the design itself needs the built MJCF and takes a minute, so it is not run here:
+
+    >>> from sim2real.excitation.config import load_design
+    >>> from sim2real.identification.fitting import load_nominal
+    >>> _ = (example_dir / "excitation.yaml").write_text(
+    ...     "{joints: [panda_joint1, panda_joint2], designs: {short: {duration_s: 10, base_frequency_hz: 0.1}}}")
+    >>> design = load_design(example_dir / "excitation.yaml", "short")
+    >>> design.excite, design.periods, design.settings["objective"], design.settings["harmonics"]
+    (['panda_joint1', 'panda_joint2'], 1, 'd_optimal', 5)
+    >>> robot = DesignRobot(load_nominal(urdf, design.joints), "results/panda/mjcf/panda.xml", urdf, home={})
+    >>> result = design_trajectory(design, robot, ["viscous_friction"])  # doctest: +SKIP
+    >>> result.coefficients.shape, result.trajectory.q.shape[1]  # doctest: +SKIP
+    ((2, 10), 2)
     """
     started = clock.perf_counter()
     program = _program(design, robot, model_effects, separation)

@@ -1,52 +1,51 @@
 """Diagnosis: which physical effect is the model missing?
 
-On the holdout residual of the last rung, every effect of the library not yet in the model is
-tried: it is added to the model, the model is refitted on the fit runs, and its holdout residual
-is compared with the current one (the trials run in :mod:`~sim2real.identification.diagnosis.trials`; this module
-scores them, ranks them and concludes). Every residual is taken in units of each joint's own noise floor
-(:func:`sim2real.identification.fitting.joint_weights`, the weights of the fit too): a wrist residual 8x its floor
-weighs what a shoulder residual 8x its floor weighs, although its N*m are ten times smaller.
-``explained`` is the fraction of the current holdout residual energy (in those units) the candidate
-removes (1 - SSE_after / SSE_now, clipped to 0..1); because it is measured on runs the fit never
-saw, an effect that only soaks up noise explains nothing.
-``explained_beyond_noise`` is the same removal as a share of the residual energy above the noise
-floor, the part any model could remove: near the floor a real effect removes most of that excess
-but only a small share of the whole residual, so the decision is taken on it.
+On the holdout residual of the last rung, every effect of the library not yet in the model is tried: it is added to the
+model, the model is refitted on the fit runs, and its holdout residual is compared with the current one (the trials run
+in :mod:`~sim2real.identification.diagnosis.trials`; this module scores them, ranks them and concludes). Every residual
+is taken in units of each joint's own noise floor (:func:`sim2real.identification.fitting.joint_weights`, the weights
+of the fit too): a wrist residual 8x its floor weighs what a shoulder residual 8x its floor weighs, although its N*m
+are ten times smaller. ``explained`` is the fraction of the current holdout residual energy (in those units) the
+candidate removes (1 - SSE_after / SSE_now, clipped to 0..1); because it is measured on runs the fit never saw, an
+effect that only soaks up noise explains nothing. ``explained_beyond_noise`` is the same removal as a share of the
+residual energy above the noise floor, the part any model could remove: near the floor a real effect removes most of
+that excess but only a small share of the whole residual, so the decision is taken on it.
 
-Each candidate also carries its residual signature (:meth:`sim2real.identification.effects.base.Effect.evidence`
-on the current holdout residual), the joints it acts on (those where it removes a good share of
-that joint's residual), its fitted values and ``add``, the line to add to the model's model.yaml.
+Each candidate also carries its residual signature (:meth:`sim2real.identification.effects.base.Effect.evidence` on the
+current holdout residual), the joints it acts on (those where it removes a good share of that joint's residual), its
+fitted values and ``add``, the line to add to the model's model.yaml.
 
-The diagnosis runs per side of the model (:mod:`sim2real.identification.sides`): ``candidates`` are the effects
-of that side. It returns a :class:`~sim2real.identification.diagnosis.result.Diagnosis`, data the report words
-(:mod:`sim2real.report.verdicts`). Candidates whose holdout predictions agree to within a
-tenth of the noise floor are listed as ``confounded``: these data cannot tell them apart.
+The diagnosis runs per side of the model (:mod:`sim2real.identification.sides`): ``candidates`` are the effects of that
+side. It returns a :class:`~sim2real.identification.diagnosis.result.Diagnosis`, data the report words
+(:mod:`sim2real.report.verdicts`). Candidates whose holdout predictions agree to within a tenth of the noise floor are
+listed as ``confounded``: these data cannot tell them apart.
 
 A verdict the user can trust says when it is not a clean decision:
 
-* **ties** (``tied``): a decisive candidate named on the same joints as the best whose holdout residual is
-  the best one's within the spread of their paired difference over blocks of the holdout (:func:`~sim2real.identification.diagnosis.caveats.tied`) is
-  not told apart from it on these runs; the verdict says so, recommends the physically plausible, simpler one
-  (or none: status ``not_told_apart``) and names the separating run the experiment design builds;
-* **inertias**: each candidate is fitted with the link inertias it needs; the bodies it leaves beyond
-  plausible are in its evidence, the ranking prefers, among those that do as well, one that keeps them
-  plausible, and the verdict says when the named one does not;
-* **trades with the model**: a candidate whose own term the fit gives back through the effects already in
-  the model (a torque gain against the link inertias' scale) is said to trade places with them;
+* **ties** (``tied``): a decisive candidate named on the same joints as the best whose holdout residual is the best
+  one's within the spread of their paired difference over blocks of the holdout
+  (:func:`~sim2real.identification.diagnosis.caveats.tied`) is not told apart from it on these runs; the verdict says
+  so, recommends the physically plausible, simpler one (or none: status ``not_told_apart``) and names the separating
+  run the experiment design builds;
+* **inertias**: each candidate is fitted with the link inertias it needs; the bodies it leaves beyond plausible are in
+  its evidence, the ranking prefers, among those that do as well, one that keeps them plausible, and the verdict says
+  when the named one does not;
+* **trades with the model**: a candidate whose own term the fit gives back through the effects already in the model (a
+  torque gain against the link inertias' scale) is said to trade places with them;
 * **relabellings** (:func:`_relabellings`): a candidate whose own term the fit gives back through an effect already
   held, correlation near -1, is the model's term under another name: never decisive, and the verdict says so;
 * **margins** (:mod:`~sim2real.identification.diagnosis.margins`): every threshold a decision reads is read with the
   arithmetic's margin against the decision; a figure within it names nothing, and the verdict says so;
-* **failed trials** (``failed``): a candidate extends the current model, so its fit matches the fit runs at
-  least as well; one that ends far worse there (:data:`~sim2real.identification.diagnosis.trials.FAILED_TRIAL_FACTOR`)
-  is a solve that failed, not an effect that explains nothing: it is left out of the ranking and the verdict says so.
+* **failed trials** (``failed``): a candidate extends the current model, so its fit matches the fit runs at least as
+  well; one that ends far worse there (:data:`~sim2real.identification.diagnosis.trials.FAILED_TRIAL_FACTOR`) is a
+  solve that failed, not an effect that explains nothing: it is left out of the ranking and the verdict says so.
 
-A candidate is decisive arm-wide (it removes ``min_explained`` of the excess above the floors), or
-on joints: a joint above ``noise_floor_factor`` x its floor whose excess it mostly removes
-(``joint_decisive``) names it on that joint, however small that joint's share of the arm.
-When no candidate is decisive, the verdict says so instead of forcing a label: ``at_noise_floor``
-when every joint is within ``noise_floor_factor`` of its own floor, ``unexplained`` otherwise, with
-each joint still above its floor and the candidate that comes closest there (``per_joint``). The diagnosis never looks at the lab's truth.yaml: it sees only runs.
+A candidate is decisive arm-wide (it removes ``min_explained`` of the excess above the floors), or on joints: a joint
+above ``noise_floor_factor`` x its floor whose excess it mostly removes (``joint_decisive``) names it on that joint,
+however small that joint's share of the arm. When no candidate is decisive, the verdict says so instead of forcing a
+label: ``at_noise_floor`` when every joint is within ``noise_floor_factor`` of its own floor, ``unexplained``
+otherwise, with each joint still above its floor and the candidate that comes closest there (``per_joint``). The
+diagnosis never looks at the lab's truth.yaml: it sees only runs.
 """
 
 from __future__ import annotations
@@ -58,15 +57,12 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification import fitting
-from sim2real.identification.diagnosis.caveats import (
-    bound_changes, caveat_notes, effect_term, implausible_bodies, recommend, relabelling, ties, trades_with_model,
-)
+from sim2real.identification.diagnosis.caveats import (bound_changes, caveat_notes, effect_term, implausible_bodies,
+                                                       recommend, relabelling, ties, trades_with_model)
 from sim2real.identification.diagnosis.current import CurrentResidual
 from sim2real.identification.diagnosis.lags import other_shapes, same_lag, shapes_note
-from sim2real.identification.diagnosis.margins import (
-    CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor, near_threshold_notes,
-    near_thresholds,
-)
+from sim2real.identification.diagnosis.margins import (CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor,
+                                                       near_threshold_notes, near_thresholds)
 from sim2real.identification.diagnosis.result import Candidate, CandidateEvidence, Diagnosis, JointStanding
 from sim2real.identification.diagnosis.trials import _tried, failed_trial, replaced_by
 from sim2real.identification.effects import EFFECTS
@@ -141,9 +137,8 @@ def _rank(candidates: list[dict[str, Any]], tolerance: float) -> list[dict[str, 
     return [simplest] + [c for c in ranked if c is not simplest]
 
 
-def _confounded(
-    candidates: Sequence[Mapping[str, Any]], residuals: Mapping[str, np.ndarray], tolerance: float, min_gain: float
-) -> list[tuple[str, str]]:
+def _confounded(candidates: Sequence[Mapping[str, Any]], residuals: Mapping[str, np.ndarray], tolerance: float,
+                min_gain: float) -> list[tuple[str, str]]:
     """Pairs of candidates that each remove at least ``min_gain`` of the residual and predict the same
     holdout torque to within ``tolerance`` (RMS in floor units): on these data one is the other (ranked order).
     ``residuals`` are already in floor units."""
@@ -320,16 +315,41 @@ def _status(best: Mapping[str, Any] | None, recommended: Mapping[str, Any] | Non
 def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_residual: np.ndarray, *,
              side: Side = Side.BODY, current: fitting.FitResult | None = None, limits: Mapping[str, float] | None = None,
              candidates: Sequence[str] | None = None) -> Diagnosis:
-    """Rank every effect of ``candidates`` (default: the library) not in ``model_effects`` by the
-    holdout residual it removes, on ``side`` (:class:`~sim2real.identification.records.Side`).
+    """Rank every effect of ``candidates`` (default: the library) not in ``model_effects`` by the holdout residual it
+    removes, on ``side`` (:class:`~sim2real.identification.records.Side`).
 
     ``context``: the side's fit context (nominal model, data and signals by role, fit settings, workers, where
     refinements are kept); the residual is the current model's holdout residual (judged minus predicted torque);
-    ``current``: the current rung's fit, whose nonlinear parameters each trial holds or refines again and against
-    which a candidate that trades places with an effect already in the model is found (:func:`trades_with_model`);
-    ``limits``: :data:`DEFAULT_DIAGNOSIS`'s, as model.yaml's ``diagnosis`` sets them. Each candidate is fitted exactly
-    as its rung would be (:func:`sim2real.identification.fitting.fit`, physically consistent), so ``rmse_after`` is
-    the holdout error the ladder delivers when the user adds it.
+    ``current``: the current rung's fit, whose nonlinear parameters each trial holds or refines again and against which
+    a candidate that trades places with an effect already in the model is found (:func:`trades_with_model`); ``limits``:
+    :data:`DEFAULT_DIAGNOSIS`'s, as model.yaml's ``diagnosis`` sets them. Each candidate is fitted exactly as its rung
+    would be (:func:`sim2real.identification.fitting.fit`, physically consistent), so ``rmse_after`` is the holdout
+    error the ladder delivers when the user adds it.
+
+    Parameters
+    ----------
+    model_effects, context, holdout_residual
+        The current model's effects, the side's :class:`FitContext`, its holdout residual (samples x joints).
+    side, current, limits, candidates : optional
+
+    Returns
+    -------
+    Diagnosis
+        ``status``, the ranked ``candidates`` with their evidence, ``notes``: data :mod:`sim2real.report` words.
+
+    Examples
+    --------
+    >>> from sim2real.identification import fitting
+    >>> from sim2real.measurements import noise_floor_of, prepare_for_model
+    >>> runs = prepare_for_model(example_dir / "measurements.yaml", urdf, root=example_dir)
+    >>> nominal = fitting.load_nominal(urdf, runs[0].joint_names)
+    >>> samples = [[fitting.RunSamples.of(run, noise_floor_of(run)) for run in rs] for rs in (runs.fit, runs.holdout)]
+    >>> fit, holdout = [fitting.stack_runs(of_role, nominal.joint_names) for of_role in samples]
+    >>> context = fitting.FitContext.on_nominal(nominal, fit, holdout, fitting.DEFAULT_SETTINGS)  # the nominal rung
+    >>> diagnosis = diagnose([], context, holdout.tau - context.holdout_signals.tau_nominal,
+    ...                      candidates=["viscous_friction", "coulomb_friction"])
+    >>> diagnosis.status.value, diagnosis.candidates[0].effect
+    ('add_effect', 'viscous_friction')
     """
     limits = {**DEFAULT_DIAGNOSIS, **(limits or {})}
     joints = list(context.holdout_data.joint_names)

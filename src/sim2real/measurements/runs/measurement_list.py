@@ -56,6 +56,31 @@ def read_runs(measurement_list: str | Path, root: str | Path = ".") -> RunSet[Ru
     Returns the runs in the list's order with the settings of :func:`measurement_settings`. Every run must
     log the same joints; the caller builds its model from ``runs[0].joint_names`` and hands it to
     :func:`prepare_runs`.
+
+    Parameters
+    ----------
+    measurement_list : str or Path
+        ``measurements.yaml``: the runs (``name``, ``path``, ``role``: fit or holdout) and the settings.
+    root : str or Path, default "."
+        The directory the list's paths are relative to.
+
+    Returns
+    -------
+    RunSet[Run]
+        The runs, each named as in the list with its line (``entry``), and ``settings`` (filter, replay, gaps).
+
+    Raises
+    ------
+    InputError
+        The list or a run breaks its schema or format, two runs share a name, or the runs log different joints.
+
+    Examples
+    --------
+    >>> runs = read_runs(example_dir / "measurements.yaml", root=example_dir)
+    >>> [(run.name, run.entry.role) for run in runs]
+    [('fit', 'fit'), ('holdout', 'holdout')]
+    >>> runs[0].joint_names[:2], runs[0].q.shape, runs.settings["cutoff_hz"]
+    (['panda_joint1', 'panda_joint2'], (750, 7), 10.0)
     """
     path = Path(measurement_list)
     data = read_validated_yaml(path, "measurements.schema.yaml")
