@@ -106,12 +106,14 @@ def test_unknown_joint_in_a_run_is_reported_against_the_model(lab, tmp_path):
 def test_precomputed_ladder_is_merged_and_validated(lab, tmp_path):
     """The sysid rule's ladder.json, data without words, merged into gap.json with its verdict."""
     from sim2real.identification.diagnosis import Diagnosis
+    from sim2real.identification.diagnosis.result import JointStanding
     from sim2real.identification.records import Side, Status
     from sim2real.report.verdicts import verdict
 
     diagnosis = Diagnosis(side=Side.BODY, status=Status.AT_NOISE_FLOOR, candidates=(), confounded=(), tied=(),
                           residual_rmse=0.1, noise_floor_ratio=1.1, noise_rmse=0.09, noise_floor_factor=1.5,
-                          min_explained=0.3, per_joint={"panda_joint7": {"x_floor": 1.1}}, above_floor=())
+                          min_explained=0.3, per_joint={"panda_joint7": JointStanding(1.1, None, 0.0, 1.1)},
+                          above_floor=())
     ladder = {
         "ladder": [{"effects": [], "params": {}, "metrics": {"torque_rmse": {"overall": 0.3, "per_joint": {"a": 0.3}}}}],
         "diagnosis": json.loads(json.dumps(diagnosis.as_document())),

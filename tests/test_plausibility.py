@@ -158,11 +158,6 @@ def test_gap_md_names_implausible_bodies_and_the_priors_weight(info):
     plausible = {"effects": ["link_inertia"], "params": {"link_inertia": link_values(info, np.zeros(70))}}
     text = "\n".join(_identified_markdown(plausible, "panda"))
     assert "beyond plausible" not in text and "| panda_link7 | no | +0 | 0 | 0 | yes |" in text
-    # A ladder.json written before these checks: no plausibility known.
-    old = json.loads(json.dumps(plausible))
-    for body in old["params"]["link_inertia"]["bodies"].values():
-        del body["implausible"]
-    assert "| panda_link2 | no | +0 | 0 | 0 | n/a |" in "\n".join(_identified_markdown(old, "panda"))
 
 
 def test_a_short_30hz_log_with_an_unexplained_torque_ends_with_every_link_inside_its_bands(shared_lab):

@@ -21,7 +21,10 @@ DATA_ONLY = ("notes", "noise_rmse", "noise_floor_factor", "min_explained", "join
 
 
 def diagnosis_section(document: Mapping[str, Any], robot: str) -> dict[str, Any]:
-    """gap.json's ``diagnosis`` (or ``actuator.diagnosis``): ladder.json's, data without words, with its words."""
+    """gap.json's ``diagnosis`` (or ``actuator.diagnosis``): ladder.json's, data without words, with its words; one
+    worded already (its verdict written, its data-only keys gone) as it is, so that wording is idempotent."""
+    if "verdict" in document:
+        return copy.deepcopy(dict(document))
     d = Diagnosis.from_document(document)
     out = {key: copy.deepcopy(value) for key, value in document.items() if key not in DATA_ONLY}
     out["verdict"] = verdict(d, robot)
