@@ -175,6 +175,36 @@ def test_an_almost_solved_fit_is_polished_or_kept_with_its_residuals_never_silen
     assert physically_consistent(ANCHOR + kept.z), "stopped short, the solution is still inside the physical set"
 
 
+def test_a_stalled_solve_is_solved_again_with_a_shorter_step_not_handed_to_scs(program, monkeypatch):
+    """Clarabel stalls (InsufficientProgress) at its default step on some held-out blocks of real-arm-like data
+    (the UR5's, the Panda's: within 5-30 iterations); a shorter step solves them, where SCS took ~100x as long."""
+    form, design, target = program
+    reference = form.solve(design, target, 1e-4, np.ones(10), precise=False)
+    solver = clarabel.DefaultSolver
+    steps = []
+
+    class Stalled:
+        status = "InsufficientProgress"
+
+    def stalling(p, q, a, b, cones, settings):  # noqa: ANN001, ANN202  (Clarabel's own signature)
+        steps.append(settings.max_step_fraction)
+        if settings.max_step_fraction != 0.9:
+            return type("StallingSolver", (), {"solve": lambda self: Stalled()})()
+        return solver(p, q, a, b, cones, settings)
+
+    monkeypatch.setattr(clarabel, "DefaultSolver", stalling)
+    for precise in (False, True):
+        steps.clear()
+        solved = form.solve(design, target, 1e-4, np.ones(10), precise=precise)
+        assert steps[-1] == conic.SHORT_STEP_FRACTION and len(steps) == (3 if precise else 2), steps
+        assert solved.status == "optimal"
+        np.testing.assert_allclose(solved.z, reference.z, rtol=1e-3, atol=1e-6)
+    # stalled at every step too: SolverFailed, and the program goes on to SCS
+    monkeypatch.setattr(conic, "SHORT_STEP_FRACTION", 0.5)
+    with pytest.raises(conic.SolverFailed, match="InsufficientProgress"):
+        form.solve(design, target, 1e-4, np.ones(10), precise=False)
+
+
 def test_a_rung_states_the_residuals_where_clarabel_did_not_say_solved(monkeypatch):
     """The rung's consistent fit at tolerances no CPU reaches: Clarabel says AlmostSolved on every solve, and the
     rung's record says so, with the residuals measured and the solution physically consistent."""
