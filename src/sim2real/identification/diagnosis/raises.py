@@ -9,10 +9,11 @@ joint beyond the noise, so such a candidate is never recommended arm-wide. Where
 trial is still decisive and raises none; otherwise it is withheld, named on nothing, and the next candidate is
 considered. The verdict says which joints it raises, by how much, and why its line is kept to some joints or withheld.
 
-"Beyond the noise" is three conditions at once, each a figure the loop already trusts:
+"Beyond the noise" is two conditions at once, each read as the loop already reads such a figure:
 
 * the joint ends more than :data:`RAISE_TOLERANCE` x its floor above both where it was and the floor factor (a joint
-  that ends within ``noise_floor_factor`` of its floor is raised by nothing: the loop's goal is reached there),
+  that ends within ``noise_floor_factor`` of its floor, give or take the tolerance, is raised by nothing: the loop's
+  goal is reached there),
   read with the arithmetic's margin (:data:`~sim2real.identification.diagnosis.margins.X_FLOOR_MARGIN` of the
   threshold) against the recommendation (:data:`~sim2real.identification.diagnosis.margins.CONSERVATIVE`);
 * the rise is resolved by the holdout: the joint's squared residual, summed over blocks of the holdout as the tie
@@ -33,7 +34,8 @@ import numpy as np
 from sim2real.identification import fitting
 from sim2real.identification.diagnosis.caveats import TIE_BLOCKS, TIE_SPREAD, _block_sse
 from sim2real.identification.diagnosis.current import CurrentResidual
-from sim2real.identification.diagnosis.margins import CONSERVATIVE, PERMISSIVE, TIE_MARGIN, X_FLOOR_MARGIN, Near
+from sim2real.identification.diagnosis.margins import (CONSERVATIVE, PERMISSIVE, SHARE_MARGIN, TIE_MARGIN,
+                                                       X_FLOOR_MARGIN, Near)
 from sim2real.identification.diagnosis.trials import trial_fits
 from sim2real.identification.effects import EFFECTS
 from sim2real.identification.fitting import EFFECT_JOINTS_SETTING
@@ -85,10 +87,11 @@ def near_raises(scores: Mapping[str, Any], now: CurrentResidual, joints: Sequenc
 
 def helped_joints(candidate: Mapping[str, Any], joints: Sequence[str], limits: Mapping[str, float]) -> list[str]:
     """The joints a raising candidate helps: those not raised where it removes ``joint_min_explained`` of the excess
-    above the floor (in the robot's order)."""
+    above the floor, read with the share's margin against the joint (in the robot's order): a joint the line is
+    kept on is one the trial clearly helps."""
     raised = candidate["evidence"].raised or {}
     share = candidate["evidence"].per_joint_explained_beyond_noise
-    return [j for j in joints if j not in raised and share[j] >= limits["joint_min_explained"]]
+    return [j for j in joints if j not in raised and share[j] >= limits["joint_min_explained"] + SHARE_MARGIN]
 
 
 def withhold(candidate: dict[str, Any], raised: Mapping[str, tuple[float, float]], near: Sequence[Near] = ()) -> None:
