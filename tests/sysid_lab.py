@@ -98,17 +98,19 @@ class Lab:
         return FitCache(self.dir / f"{scenario}_fits")
 
     def model(self, scenario: str, effects: list[str], with_sensor: bool = True,
-              cache: FitCache | None = None, kept_on: dict[str, str] | None = None) -> dict[str, Any]:
+              cache: FitCache | None = None, kept_on: dict[str, str] | None = None,
+              on_joints: dict[str, list[str]] | None = None) -> dict[str, Any]:
         """ladder.json content of both sides, with its words (``sysid.fit_model``, :func:`sim2real.report.verdicts.worded`); ``with_sensor=False`` drops tau; ``cache``:
         rungs and diagnoses of earlier rounds read back, as the sysid rule does (None: :meth:`cache`); ``kept_on``: the drive lines
-        model.yaml keeps on one link (``- asymmetric_friction: actuator``)."""
+        model.yaml keeps on one link (``- asymmetric_friction: actuator``); ``on_joints``: the lines kept on some joints
+        (``- coulomb_friction: {joints: [...]}``)."""
         # the actuator link's settings too: a test may change them to see another way of fitting
         key = ("model", scenario, tuple(effects), with_sensor, repr(sorted(sides.DRIVE_FIT_SETTINGS.items())),
-               tuple(sorted((kept_on or {}).items())))
+               tuple(sorted((kept_on or {}).items())), repr(sorted((on_joints or {}).items())))
         if key not in self._documents:
             listing = self.measurement_list(scenario) if with_sensor else self.without_sensor(scenario)
             with threadpool_limits(limits=1, user_api="blas"):  # one BLAS thread per worker, as in run_sysid
-                document = sysid.fit_model(model_config(effects, kept_on=kept_on), self.nominal,
+                document = sysid.fit_model(model_config(effects, kept_on=kept_on, on_joints=on_joints), self.nominal,
                                            self.prepared(listing), self.robot, workers=WORKERS,
                                            cache=cache if cache is not None else self.cache(scenario)).document
                 self._documents[key] = worded(document, self.robot)
@@ -121,7 +123,8 @@ class Lab:
         what each link's verdict asks (the top candidate where the status is add_effect), until no verdict asks for
         more; every round's document. A line whose verdict says it leaves the other link worse, or that the other link
         holds it already, is written as that note advises, kept on the link that named it
-        (``- asymmetric_friction: actuator``).
+        (``- asymmetric_friction: actuator``); a line the verdict keeps on some joints is written so
+        (``- coulomb_friction: {joints: [...]}``).
         Rounds read earlier rungs back from a fit cache, as the sysid rule does; ``report(document, round,
         seconds)`` is called after each round. Without ``report``, a scenario is followed once per lab (the
         documents are the same bytes whoever asks: a copy for each)."""
@@ -133,10 +136,11 @@ class Lab:
         cache = self.cache(scenario)
         effects: list[str] = list(start)
         kept_on: dict[str, str] = {}
+        on_joints: dict[str, list[str]] = {}
         documents: list[dict[str, Any]] = []
         for k in range(rounds + 1):
             started = time.perf_counter()
-            documents.append(self.model(scenario, effects, cache=cache, kept_on=kept_on))
+            documents.append(self.model(scenario, effects, cache=cache, kept_on=kept_on, on_joints=on_joints))
             if report is not None:
                 report(documents[-1], k, time.perf_counter() - started)
             sections = [documents[-1], documents[-1].get("actuator") or {}]
@@ -151,6 +155,9 @@ class Lab:
             removed = {line for top in tops for line in top.get("replaces", [])}
             effects = [e for e in effects if e not in removed] + wanted
             kept_on = {e: link for e, link in kept_on.items() if e in effects}
+            on_joints = {e: joints for e, joints in on_joints.items() if e in effects}
+            on_joints.update({top["effect"]: list(top["kept_to"]) for top in tops
+                              if top.get("kept_to") and top["effect"] in wanted})
             named = [(s["diagnosis"]["candidates"][0]["effect"], s["diagnosis"].get("link")) for s in sections
                      if s and s["diagnosis"]["status"] == "add_effect"
                      and (s["diagnosis"].get("other_link_note") or s["diagnosis"].get("held_note"))]
@@ -185,11 +192,18 @@ class Lab:
 
 
 def model_config(effects: Sequence[str], fit: dict[str, Any] | None = None,
-                 kept_on: dict[str, str] | None = None) -> ModelConfig:
+                 kept_on: dict[str, str] | None = None, on_joints: dict[str, list[str]] | None = None) -> ModelConfig:
     """model.yaml's content as :func:`sim2real.identification.model_config.parse_model_config` reads it: the effects
-    (``kept_on``: drive lines kept on one side, ``- asymmetric_friction: actuator``) and the fit settings (the fast
-    ones by default)."""
-    lines = [{name: kept_on[name]} if kept_on and name in kept_on else name for name in effects]
+    (``kept_on``: drive lines kept on one side, ``- asymmetric_friction: actuator``; ``on_joints``: lines kept on some
+    joints, ``- coulomb_friction: {joints: [...]}``) and the fit settings (the fast ones by default)."""
+    kept_on, on_joints = kept_on or {}, on_joints or {}
+
+    def line(name: str) -> str | dict[str, Any]:
+        if name in on_joints:
+            return {name: {"joints": list(on_joints[name]), **({"side": kept_on[name]} if name in kept_on else {})}}
+        return {name: kept_on[name]} if name in kept_on else name
+
+    lines = [line(name) for name in effects]
     return parse_model_config({"effects": lines, "fit": dict(FAST_FIT if fit is None else fit)}, "model.yaml")
 
 

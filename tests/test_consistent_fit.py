@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from sim2real.identification import fitting
+from sim2real.identification.diagnosis.raises import RAISE_TOLERANCE
 from sim2real.identification.effects.link_inertia import correction_anchors
 from sim2real.identification.inertial import inside_ellipsoids, physically_consistent, pseudo_inertia
 from sysid_lab import FAST_FIT, Lab, overall, side_ladder
@@ -53,6 +54,10 @@ def assert_promises_kept(documents: list[dict]) -> None:
         )
         if not top.get("replaces"):  # the promise is the rung's own fit (diagnosis.promise): the same numbers
             assert delivered == pytest.approx(promised, abs=2e-4), (top["effect"], promised, delivered)
+        # no recommended rung raises a joint beyond the noise (diagnosis.raises: by more than its tolerance above
+        # where the joint was and the floor factor)
+        was, got = (d["ladder"][-1]["metrics"]["torque_x_floor"]["per_joint"] for d in (before, after))
+        assert all(got[j] <= max(was[j], 1.5) + RAISE_TOLERANCE for j in was), (top["effect"], was, got)
 
 
 def assert_solved(consistency: dict) -> None:

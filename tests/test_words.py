@@ -128,7 +128,7 @@ def test_a_new_rule_is_a_note_kind_with_one_renderer():
     """Every note kind a verdict carries has its renderer; none other writes verdict words."""
     verdict_kinds = {NoteKind.LAG_SHAPES, NoteKind.CONFOUNDED, NoteKind.TIED, NoteKind.CAUTION, NoteKind.FAILED_TRIALS,
                      NoteKind.DRIVE_PLACEMENT, NoteKind.SENSOR_LAG, NoteKind.SENSOR_LAG_TRIAL, NoteKind.OTHER_SIDE,
-                     NoteKind.HELD_ON_OTHER_SIDE, NoteKind.RELABELLED, NoteKind.NEAR_THRESHOLD}
+                     NoteKind.HELD_ON_OTHER_SIDE, NoteKind.RELABELLED, NoteKind.NEAR_THRESHOLD, NoteKind.RAISES}
     assert set(NOTE_TEXT) == verdict_kinds
     assert (VERDICTS / "__init__.py").is_file() and "def verdict(" in (VERDICTS / "headline.py").read_text()
     outside = [path for path in SOURCE.rglob("*.py") if not path.is_relative_to(VERDICTS)

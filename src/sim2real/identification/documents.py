@@ -124,9 +124,12 @@ def params_document(
     ``torque_source``: the body side's judged torque (``tau`` or ``tau_cmd``; ladder.json's ``torque_source``).
     """
     effects, by_side = merge_side_values(results, nominal)
+    # the lines model.yaml keeps on some joints: their effects hold values on those joints alone
+    kept = {name: joints for result in results for name, joints in result.effect_joints.items()}
     return round_floats({
         "robot": robot,
         "effects": effects,
+        **({"effect_joints": kept} if kept else {}),
         **({"by_link": by_side} if by_side else {}),
         "intervals": _intervals_of(results, by_side),
         "order": list(dict.fromkeys(name for result in results for name in result.effects)),

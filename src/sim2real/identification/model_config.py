@@ -2,7 +2,9 @@
 (:mod:`sim2real.workflow.configs`), the identification and the excitation design all read it through here.
 
 The file (``schemas/model.schema.yaml``): ``effects``, the ladder's lines in order, each an effect's name or, for a
-drive effect kept on one side of the comparison, ``{name: side}`` (``- asymmetric_friction: actuator``); ``fit``, the
+drive effect kept on one side of the comparison, ``{name: side}`` (``- asymmetric_friction: actuator``), or, for an
+effect whose parameters are per joint, ``{name: {joints: [...], side: ...}}`` (``- coulomb_friction: {joints:
+[panda_joint1, panda_joint3]}``: fitted on those joints only, absent on the others); ``fit``, the
 fit settings; ``diagnosis``, when the diagnosis names an effect. A setting left out is None here: its default
 applies (``sim2real.identification.fitting.DEFAULT_SETTINGS``, ``sim2real.identification.diagnosis.DEFAULT_DIAGNOSIS``).
 """
@@ -24,12 +26,19 @@ from sim2real.errors import InputError
 LINE_SIDES: tuple[Side, ...] = (Side.BODY, Side.DRIVE)
 
 
+# The fit setting that holds the lines kept on some joints ({effect: [joints]}; absent when no line is):
+# sim2real.identification.fitting.EFFECT_JOINTS_SETTING names the same key.
+EFFECT_JOINTS_KEY = "effect_joints"
+
+
 @dataclass(frozen=True)
 class EffectLine:
-    """A line of model.yaml's ``effects``: the effect, and the side it is kept on (None: every side it belongs to)."""
+    """A line of model.yaml's ``effects``: the effect, the side it is kept on (None: every side it belongs to) and
+    the joints it is kept on (None: every joint)."""
 
     name: str
     side: Side | None = None
+    joints: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -75,11 +84,28 @@ class ModelConfig:
         """The effects kept on one side: {effect: side}."""
         return {line.name: line.side for line in self.lines if line.side is not None}
 
+    @property
+    def joints(self) -> dict[str, tuple[str, ...]]:
+        """The effects kept on some joints: {effect: joints}."""
+        return {line.name: line.joints for line in self.lines if line.joints is not None}
+
     def as_settings(self) -> dict[str, Any]:
         """The settings mapping :func:`sim2real.identification.sysid.fit_model` reads: ``effects``, ``links`` (the
-        effects kept on one side), and the ``fit`` and ``diagnosis`` settings given."""
-        return {"effects": list(self.effects), "links": {k: str(v) for k, v in self.sides.items()}, "fit": _given(self.fit),
+        effects kept on one side), and the ``fit`` settings given (with :data:`EFFECT_JOINTS_KEY`, the lines kept on
+        some joints, when any is) and the ``diagnosis`` settings given."""
+        fit = _given(self.fit)
+        if self.joints:
+            fit[EFFECT_JOINTS_KEY] = {name: list(joints) for name, joints in self.joints.items()}
+        return {"effects": list(self.effects), "links": {k: str(v) for k, v in self.sides.items()}, "fit": fit,
                 "diagnosis": _given(self.diagnosis)}
+
+    def check_joints(self, joint_names: Sequence[str]) -> None:
+        """Refuse a line kept on a joint the runs do not hold (``joint_names``: the identified joints)."""
+        for i, line in enumerate(self.lines):
+            unknown = [j for j in line.joints or () if j not in joint_names]
+            if unknown:
+                raise InputError(self.path, f"effects/{i}", f"'{line.name}' is kept on {', '.join(unknown)}, "
+                                 "which no run of this robot holds", f"name joints among: {', '.join(joint_names)}")
 
 
 def _given(section: FitSettings | DiagnosisSettings) -> dict[str, Any]:
@@ -102,10 +128,12 @@ def parse_model_config(data: Mapping[str, Any] | None, path: str | Path) -> Mode
                        DiagnosisSettings(**(data.get("diagnosis") or {})), Path(path))
 
 
-def effect_lines(lines: Sequence[str | Mapping[str, str]], path: str | Path) -> tuple[EffectLine, ...]:
+def effect_lines(lines: Sequence[str | Mapping[str, Any]], path: str | Path) -> tuple[EffectLine, ...]:
     """The lines of model.yaml's ``effects`` (of the file ``path``, named in an error): each a known effect, listed
     once, or ``{effect: side}``, a drive effect kept on one side (behind a link-side sensor a drive's effect is
-    fitted on both sides; a user whose other side it leaves worse, as the verdict says, keeps it on one)."""
+    fitted on both sides; a user whose other side it leaves worse, as the verdict says, keeps it on one), or
+    ``{effect: {joints: [...], side: ...}}``, an effect whose parameters are per joint kept on those joints (one the
+    verdict says the effect raises is kept off)."""
     from sim2real.identification.effects import get_effect
 
     names = [next(iter(line)) if isinstance(line, Mapping) and len(line) == 1 else line for line in lines]
@@ -118,16 +146,29 @@ def effect_lines(lines: Sequence[str | Mapping[str, str]], path: str | Path) -> 
         if name in seen:
             raise InputError(path, f"effects/{i}", f"'{name}' is listed twice", "list each effect once")
         seen.add(name)
-    sides: dict[int, Side] = {}
-    for i, line in enumerate(lines):
-        if not isinstance(line, Mapping):
-            continue
-        name, side = next(iter(line.items()))
-        if side not in LINE_SIDES:
-            raise InputError(path, f"effects/{i}", f"'{name}: {side}' names no side",
-                             f"write '- {name}: actuator' or '- {name}: body'")
-        if not get_effect(name, str(path)).drive:
-            raise InputError(path, f"effects/{i}", f"'{name}' is fitted on one side only: there is no other side to "
-                             "keep it off", f"write '- {name}'")
-        sides[i] = Side(side)
-    return tuple(EffectLine(name, sides.get(i)) for i, name in enumerate(names))
+    return tuple(_effect_line(i, name, line, path) for i, (name, line) in enumerate(zip(names, lines, strict=True)))
+
+
+def _effect_line(i: int, name: str, line: str | Mapping[str, Any], path: str | Path) -> EffectLine:
+    """The line ``i`` of ``effects`` (the effect ``name``, known), its side and joints checked."""
+    from sim2real.identification.effects import get_effect
+
+    if not isinstance(line, Mapping):
+        return EffectLine(name)
+    value = line[name]
+    options = value if isinstance(value, Mapping) else {"side": value}
+    side, joints = options.get("side"), options.get("joints")
+    if side is not None and side not in LINE_SIDES:
+        raise InputError(path, f"effects/{i}", f"'{name}: {side}' names no side",
+                         f"write '- {name}: actuator' or '- {name}: body'")
+    if side is not None and not get_effect(name, str(path)).drive:
+        raise InputError(path, f"effects/{i}", f"'{name}' is fitted on one side only: there is no other side to "
+                         "keep it off", f"write '- {name}'")
+    if joints is not None and not get_effect(name, str(path)).per_joint_line:
+        raise InputError(path, f"effects/{i}", f"'{name}' cannot be kept on some joints: its parameters act on "
+                         "every joint together (or on none alone)", f"write '- {name}', without joints")
+    if joints is not None and (not joints or len(set(joints)) != len(joints)):
+        raise InputError(path, f"effects/{i}", f"'{name}: {{joints: {list(joints)}}}' lists no joint, or one twice",
+                         f"list each joint once, e.g. '- {name}: {{joints: [<joint>]}}', or write '- {name}'")
+    return EffectLine(name, Side(side) if side is not None else None,
+                      tuple(joints) if joints is not None else None)

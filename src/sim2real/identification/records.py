@@ -58,6 +58,7 @@ class NoteKind(enum.StrEnum):
     # decisions that take the conservative side (sim2real.identification.diagnosis.margins, caveats.relabelling)
     RELABELLED = "relabelled"  # candidates whose term is the model's own relabelled (figures: relabelled)
     NEAR_THRESHOLD = "near_threshold"  # figures within the arithmetic's margin (figures: candidates, joints, ties)
+    RAISES = "raises"  # candidates that raise a joint beyond the noise, kept to some joints or withheld (candidates)
     # the verdict's, across the two sides (sim2real.identification.diagnosis.across)
     DRIVE_PLACEMENT = "drive_placement"  # a drive effect found where the sensor's placement did not expect it
     SENSOR_LAG = "sensor_lag"  # the body side finds the sensor's lag in the drive side's (figures: lag_s, effects)

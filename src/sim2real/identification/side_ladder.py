@@ -19,8 +19,8 @@ from sim2real.identification.diagnosis.promise import kept_promise, promised_eff
 from sim2real.identification.diagnosis.trials import trial_effects
 from sim2real.identification.documents import round_floats
 from sim2real.identification.fitting import (
-    PRIOR_START_SETTING, STILL_JOINTS_SETTING, FitContext, FitResult, Refinements, TorqueData, fit_on_the_previous,
-    floor_units, holdout_metrics, predict,
+    EFFECT_JOINTS_SETTING, PRIOR_START_SETTING, STILL_JOINTS_SETTING, FitContext, FitResult, Refinements, TorqueData,
+    effect_joints_of, fit_on_the_previous, floor_units, holdout_metrics, predict,
 )
 from sim2real.identification.records import Note, NoteKind, Side, Status
 from sim2real.stats import rmse
@@ -102,6 +102,10 @@ def _promised_by_its_rung(diagnosis: Diagnosis, effect_names: Sequence[str], con
     chosen = (result.consistency or {}).get("inertia_prior") or {}
     if effect is None or "grid" not in chosen:
         return diagnosis  # no weight chosen again: the trial is the rung's fit
+    kept_to = diagnosis.candidates[0].kept_to  # a line kept on the joints it helps (diagnosis.raises)
+    if kept_to:
+        context = context.with_settings({**context.settings, EFFECT_JOINTS_SETTING: {
+            **(context.settings.get(EFFECT_JOINTS_SETTING) or {}), effect: list(kept_to)}})
     rung, residual, _, _ = _next_rung(trial_effects(effect_names, effect), context, cache, inputs, result)
     prior = (rung.consistency or {}).get("inertia_prior") or {}
     return kept_promise(diagnosis, residual, context.holdout_data.noise_floor, prior.get("weight"))
@@ -116,8 +120,18 @@ def _next_rung(effects: Sequence[str], context: FitContext, cache: FitCache, inp
     chosen = ((result.consistency or {}).get("inertia_prior") or {}) if result is not None else {}
     rung_context = (context.with_settings({**context.settings, PRIOR_START_SETTING: chosen["weight"]})
                     if "grid" in chosen else context)
+    rung_context = rung_context.with_settings(narrowed(rung_context.settings, effects))
     return cache.get_or_compute("rung", cache.key(inputs, list(effects), previous, dict(rung_context.settings)),
                                 functools.partial(_rung, list(effects), rung_context, previous))
+
+
+def narrowed(settings: Mapping[str, Any], effects: Sequence[str]) -> dict[str, Any]:
+    """The fit ``settings`` of a rung of ``effects``: the lines kept on some joints
+    (:data:`~sim2real.identification.fitting.EFFECT_JOINTS_SETTING`) narrowed to those it holds, absent when none is
+    (a rung without such a line is the fit of an earlier round, read back from the cache)."""
+    out = {key: value for key, value in settings.items() if key != EFFECT_JOINTS_SETTING}
+    kept = effect_joints_of(settings, effects)
+    return {**out, EFFECT_JOINTS_SETTING: kept} if kept else out
 
 
 def _rungs(effect_names: Sequence[str], context: FitContext, cache: FitCache,

@@ -126,7 +126,7 @@ def fit_model(model: ModelConfig, nominal: NominalModel, runs: Mapping[str, Sequ
     Raises
     ------
     InputError
-        An effect model.yaml keeps on a side the runs' torque sensor cannot fit it on.
+        An effect model.yaml keeps on a side the runs' torque sensor cannot fit it on, or on a joint they do not hold.
 
     Examples
     --------
@@ -143,6 +143,7 @@ def fit_model(model: ModelConfig, nominal: NominalModel, runs: Mapping[str, Sequ
     >>> [rung["effects"] for rung in fitted.document["ladder"]], fitted.document["diagnosis"]["status"]
     ([[], ['viscous_friction']], 'at_noise_floor')
     """
+    model.check_joints(nominal.joint_names)
     settings = model.as_settings()
     effect_names = list(model.effects)
     fit_settings = {**DEFAULT_SETTINGS, **settings["fit"], **_still_setting(runs["fit"])}

@@ -4,6 +4,9 @@
   its rung would be;
 * :mod:`~sim2real.identification.diagnosis.candidates`: those trials ranked by the holdout residual each removes (each
   joint in units of its own floor), ties and confounded pairs called so (:func:`diagnose`);
+* :mod:`~sim2real.identification.diagnosis.ranking`: their order, and the pairs these runs cannot tell apart;
+* :mod:`~sim2real.identification.diagnosis.raises`: no recommended rung raises a joint beyond the noise (a candidate
+  that would is kept on the joints it helps, ``- coulomb_friction: {joints: [...]}``, or withheld);
 * :mod:`~sim2real.identification.diagnosis.promise`: the recommended candidate's figures after, its rung's own (the
   rung chooses the inertial prior's weight again, its trial held the current rung's);
 * :mod:`~sim2real.identification.diagnosis.result`: what it returns, a typed :class:`Diagnosis` whose notes are records;
@@ -24,8 +27,9 @@ lab's truth.yaml: it sees only runs.
 """
 
 from sim2real.identification.diagnosis.candidates import (
-    CONFOUNDED_NOISE_FRACTION, DEFAULT_DIAGNOSIS, HARM_TOLERANCE, add_line, diagnose,
+    CONFOUNDED_NOISE_FRACTION, DEFAULT_DIAGNOSIS, HARM_TOLERANCE, diagnose,
 )
+from sim2real.identification.diagnosis.raises import add_line
 from sim2real.identification.diagnosis.caveats import NESTED_IN
 from sim2real.identification.diagnosis.ceiling import model_free_ceiling
 from sim2real.identification.diagnosis.result import Candidate, Diagnosis, candidate_named

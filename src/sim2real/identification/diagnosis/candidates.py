@@ -60,7 +60,10 @@ from sim2real.identification import fitting
 from sim2real.identification.diagnosis.caveats import (bound_changes, caveat_notes, effect_term, implausible_bodies,
                                                        recommend, relabelling, ties, trades_with_model)
 from sim2real.identification.diagnosis.current import CurrentResidual
-from sim2real.identification.diagnosis.lags import other_shapes, same_lag, shapes_note
+from sim2real.identification.diagnosis.lags import other_shapes, shapes_note
+from sim2real.identification.diagnosis.raises import (add_line, keep_off_raised, near_raises, raised_joints,
+                                                      raises_note, withhold)
+from sim2real.identification.diagnosis.ranking import _confounded, _rank  # noqa: F401  (the ranking's, used here)
 from sim2real.identification.diagnosis.margins import (CONSERVATIVE, PERMISSIVE, above_floor, decide, joints_near_floor,
                                                        near_threshold_notes, near_thresholds)
 from sim2real.identification.diagnosis.result import Candidate, CandidateEvidence, Diagnosis, JointStanding
@@ -102,55 +105,8 @@ def _own_term_x_floor(result: fitting.FitResult, name: str, nominal: Any, data: 
     return None if term is None else np.sqrt(np.mean((term / unit) ** 2, axis=0))
 
 
-def add_line(effect: str) -> str:
-    """The exact line to add under ``effects:`` in configs/{robot}/model.yaml."""
-    return f"- {effect}"
-
-
 def _sse(residual: np.ndarray) -> np.ndarray:
     return np.sum(residual**2, axis=0)
-
-
-def _rank(candidates: list[dict[str, Any]], tolerance: float) -> list[dict[str, Any]]:
-    """Decisive candidates first, each group by explained share; then the simplest candidate that does as
-    well as the best goes first.
-
-    Effects nest (a payload is a change of the last link's inertia; link_inertia holds it): the
-    bigger one always explains a little more, the smaller one is the better name for what is missing.
-    "As well" is judged in units of the noise floor: within ``tolerance`` of the best holdout residual
-    (each joint in units of its own floor), a difference no excitation of this length can tell from noise.
-    """
-    ranked = sorted(candidates, key=lambda c: (not c["decisive"], -c["explained"], c["effect"]))
-    if not ranked:
-        return ranked
-    best = ranked[0]
-    if not best["decisive"]:
-        return ranked  # nothing is named: the order is only what comes closest
-    limit = best["evidence"].x_floor_after + tolerance
-    close = [c for c in ranked if c["decisive"] == best["decisive"] and c["evidence"].x_floor_after <= limit]
-    # Among those that do as well, one that keeps every inertia plausible first, then one that pushes fewer bounds
-    # (the one that leaves the links freer names what acted like mass), then the simplest: of two shapes of one lag,
-    # the delay (a filter gives the simulation a state of its own).
-    simplest = min(close, key=lambda c: (bool(c["evidence"].implausible_bodies), c["evidence"].bounds_pushed_net,
-                                         c["evidence"].parameters,
-                                         EFFECTS[c["effect"]].lowpass, -c["explained"], c["effect"]))
-    return [simplest] + [c for c in ranked if c is not simplest]
-
-
-def _confounded(candidates: Sequence[Mapping[str, Any]], residuals: Mapping[str, np.ndarray], tolerance: float,
-                min_gain: float) -> list[tuple[str, str]]:
-    """Pairs of candidates that each remove at least ``min_gain`` of the residual and predict the same
-    holdout torque to within ``tolerance`` (RMS in floor units): on these data one is the other (ranked order).
-    ``residuals`` are already in floor units."""
-    useful = [c["effect"] for c in candidates if c["explained"] >= min_gain]
-    pairs = []
-    for i, a in enumerate(useful):
-        for b in useful[i + 1 :]:
-            if same_lag(a, b):
-                continue  # two shapes of one lag: no run separates them (the verdict's shape sentence says so)
-            if float(np.sqrt(np.mean((residuals[a] - residuals[b]) ** 2))) <= tolerance:
-                pairs.append((a, b))
-    return pairs
 
 
 def _scores(residual: np.ndarray, now: CurrentResidual, broken: bool,
@@ -232,7 +188,7 @@ def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: 
     elif decide(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN, PERMISSIVE).decisive != decisive:
         evidence = replace(evidence, near_threshold=tuple(
             n.as_document() for n in near_thresholds(scores, now.x_floor, own, joints, limits, OWN_TERM_MIN)))
-    return {
+    found = {
         "effect": name,
         "link": EFFECTS[name].side if side == Side.COMBINED else side,  # a drive effect's follows the torque sensor
         "joints": (acting if arm_wide else on_joints) if decisive else [],
@@ -243,7 +199,32 @@ def _candidate(name: str, trial: tuple[fitting.FitResult, np.ndarray], context: 
         "evidence": evidence,
         "add": add_line(name),
         **({"replaces": replaced_by(name, model_effects)} if replaced_by(name, model_effects) else {}),
-    }, scores["scaled"], broken
+    }
+    raised = raised_joints(scores, now, joints, limits) if decisive and broken is None else {}
+    if raised:  # no recommended rung raises a joint beyond the noise (diagnosis.raises)
+        withhold(found, raised, near_raises(scores, now, joints, limits, raised))
+    return found, scores["scaled"], broken
+
+
+def _scored(tried: Sequence[str], trials: dict[str, tuple[fitting.FitResult, np.ndarray]],
+            model_effects: Sequence[str], context: fitting.FitContext, now: CurrentResidual,
+            current: fitting.FitResult | None, limits: Mapping[str, float], side: Side,
+            ) -> tuple[list[dict[str, Any]], dict[str, np.ndarray], dict[str, dict[str, float]]]:
+    """Each tried candidate scored (:func:`_candidate`), one that raises a joint tried again on the joints it helps or
+    withheld (:func:`~sim2real.identification.diagnosis.raises.keep_off_raised`, which may replace its trial in
+    ``trials``); (candidates, holdout residuals in floor units of those that solved, failed trials' figures)."""
+    scored, residuals, failed = [], {}, {}
+    for name in tried:
+        candidate, scaled, broken = _candidate(name, trials[name], context, now, current, limits, side, model_effects)
+        scored.append(candidate)
+        if broken is None:
+            residuals[name] = scaled
+        else:
+            failed[name] = broken
+    keep_off_raised(scored, residuals, trials, model_effects, context, current, limits,
+                    lambda name, trial, narrowed: _candidate(name, trial, narrowed, now, current, limits, side,
+                                                             model_effects))
+    return scored, residuals, failed
 
 
 def _per_joint_status(joints: Sequence[str], now: CurrentResidual,
@@ -356,14 +337,8 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
     now = CurrentResidual.of(holdout_residual, context.holdout_data.noise_floor)
     above = above_floor(joints, now.x_floor, limits["noise_floor_factor"])  # clearly above: by more than the margin
     trials, tried, skipped = _tried(model_effects, context, now, current, limits, candidates)
-    tried_candidates, residuals_after, failed = [], {}, {}
-    for name in tried:
-        candidate, scaled, broken = _candidate(name, trials[name], context, now, current, limits, side, model_effects)
-        tried_candidates.append(candidate)
-        if broken is None:
-            residuals_after[name] = scaled
-        else:
-            failed[name] = broken
+    tried_candidates, residuals_after, failed = _scored(tried, trials, model_effects, context, now, current, limits,
+                                                        side)
     relabelled, trades_of = _relabellings(tried_candidates, failed, trials, current, context, now)
     ranked = _rank([c for c in tried_candidates if c["effect"] not in failed], float(limits["parsimony_noise_fraction"]))
     ranked += [c for c in tried_candidates if c["effect"] in failed]  # last, whatever they would have scored
@@ -383,6 +358,7 @@ def diagnose(model_effects: Sequence[str], context: fitting.FitContext, holdout_
         notes.append(Note(NoteKind.FAILED_TRIALS, figures={"failed": {k: failed[k] for k in sorted(failed)}}))
     if relabelled:
         notes.append(Note(NoteKind.RELABELLED, figures={"relabelled": relabelled}))
+    notes += [n for n in [raises_note(ranked)] if n is not None]
     notes += near_threshold_notes(ranked, group, joints_near_floor(joints, now.x_floor, limits["noise_floor_factor"]))
     return Diagnosis(
         side=side, status=status, candidates=tuple(_typed(c) for c in ranked), confounded=tuple(confounded),
@@ -397,4 +373,5 @@ def _typed(candidate: Mapping[str, Any]) -> Candidate:
     return Candidate(effect=candidate["effect"], side=Side(candidate["link"]), joints=tuple(candidate["joints"]),
                      decided_on=candidate["decided_on"], explained=candidate["explained"],
                      explained_beyond_noise=candidate["explained_beyond_noise"], decisive=candidate["decisive"],
-                     evidence=candidate["evidence"], add=candidate["add"], replaces=tuple(candidate.get("replaces") or ()))
+                     evidence=candidate["evidence"], add=candidate["add"], replaces=tuple(candidate.get("replaces") or ()),
+                     kept_to=tuple(candidate.get("kept_to") or ()))

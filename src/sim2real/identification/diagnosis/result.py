@@ -36,7 +36,10 @@ class CandidateEvidence:
     it (None where not: a failed solve, decisions near a threshold, a relabelling, its trades with the model, its
     tie with the best); for the recommended candidate whose rung chose the prior's weight again
     (:mod:`~sim2real.identification.diagnosis.promise`), the trial's figures after (``trial_after``) and the weight
-    its rung chose (``rung_inertia_prior``)."""
+    its rung chose (``rung_inertia_prior``); for a decisive candidate that raises joints beyond the noise
+    (:mod:`~sim2real.identification.diagnosis.raises`), those joints (``raised``: before, after, x the floor) and its
+    trial kept on the joints it helps where that trial did not do (``kept_to_trial``); for a candidate recommended on
+    those joints, its trial on every joint (``arm_wide_trial``)."""
 
     signature: str
     statistic: str
@@ -63,6 +66,9 @@ class CandidateEvidence:
     tie_with_best: Figures | None = None
     trial_after: Figures | None = None
     rung_inertia_prior: float | None = None
+    raised: Mapping[str, tuple[float, float]] | None = None
+    kept_to_trial: Figures | None = None
+    arm_wide_trial: Figures | None = None
 
     def as_document(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -78,10 +84,13 @@ class CandidateEvidence:
                        "releases": {k: list(v) for k, v in self.bounds_released.items()}},
         }
         optional = {"lag_s": self.lag_s, "per_joint_own_term_x_floor": self.per_joint_own_term_x_floor,
-                    "fit_failed": self.fit_failed, "tie_with_best": self.tie_with_best, "trial_after": self.trial_after}
+                    "fit_failed": self.fit_failed, "tie_with_best": self.tie_with_best, "trial_after": self.trial_after,
+                    "kept_to_trial": self.kept_to_trial, "arm_wide_trial": self.arm_wide_trial}
         out.update({key: dict(value) for key, value in optional.items() if value is not None})
         if self.rung_inertia_prior is not None:
             out["rung_inertia_prior"] = self.rung_inertia_prior
+        if self.raised is not None:
+            out["raised"] = {j: list(v) for j, v in self.raised.items()}
         listed = {"near_threshold": self.near_threshold, "relabels": self.relabels, "trades_with": self.trades_with}
         out.update({key: [dict(v) for v in value] for key, value in listed.items() if value is not None})
         return out
@@ -105,7 +114,9 @@ class CandidateEvidence:
             fit_failed=document.get("fit_failed"), near_threshold=_optional(document, "near_threshold", tuple),
             relabels=_optional(document, "relabels", tuple), trades_with=_optional(document, "trades_with", tuple),
             tie_with_best=document.get("tie_with_best"), trial_after=document.get("trial_after"),
-            rung_inertia_prior=document.get("rung_inertia_prior"))
+            rung_inertia_prior=document.get("rung_inertia_prior"),
+            raised={j: tuple(v) for j, v in document["raised"].items()} if "raised" in document else None,
+            kept_to_trial=document.get("kept_to_trial"), arm_wide_trial=document.get("arm_wide_trial"))
 
     @property
     def bounds_pushed_net(self) -> int:
@@ -271,6 +282,7 @@ class Candidate:
     evidence: CandidateEvidence
     add: str  # the line to add under ``effects:``
     replaces: tuple[str, ...] = ()  # lines of the model it holds, to be removed
+    kept_to: tuple[str, ...] = ()  # the joints its line is kept on (empty: every joint; diagnosis.raises)
 
     def as_document(self) -> dict[str, Any]:
         out = {"effect": self.effect, "link": str(self.side), "joints": list(self.joints),
@@ -279,6 +291,8 @@ class Candidate:
                "evidence": self.evidence.as_document(), "add": self.add}
         if self.replaces:
             out["replaces"] = list(self.replaces)
+        if self.kept_to:
+            out["kept_to"] = list(self.kept_to)
         return out
 
     @classmethod
@@ -286,7 +300,8 @@ class Candidate:
         return cls(effect=document["effect"], side=Side(document["link"]), joints=tuple(document["joints"]),
                    decided_on=document.get("decided_on"), explained=document["explained"],
                    explained_beyond_noise=document["explained_beyond_noise"], decisive=document["decisive"],
-                   evidence=CandidateEvidence.from_document(document["evidence"]), add=document["add"], replaces=tuple(document.get("replaces") or ()))
+                   evidence=CandidateEvidence.from_document(document["evidence"]), add=document["add"],
+                   replaces=tuple(document.get("replaces") or ()), kept_to=tuple(document.get("kept_to") or ()))
 
 
 @dataclass(frozen=True)

@@ -201,6 +201,15 @@ class Effect:
     # In the model of every side, whatever its place (the judged torque of each side is the sensor's reading).
     every_side: ClassVar[bool] = False
 
+    @property
+    def per_joint_line(self) -> bool:
+        """Whether a model.yaml line may keep it on some joints (``- coulomb_friction: {joints: [...]}``): each of its
+        linear parameters is a joint's own and acts on that joint alone, so its columns on the other joints' rows can
+        be left out (a friction, a rotor inertia, a sensor's gain on a joint); a link's inertia, a payload, a mount or
+        a lag acts on every joint at once."""
+        return bool(self.parameters) and all(p.per_joint for p in self.parameters) and self.joint_local \
+            and not self.time_shift and not self.per_run
+
     # --- inverse dynamics -------------------------------------------------------------------
     def prediction_shift(self, delay: float, forward: bool) -> float:
         """A time shift's move of the prediction (s; the prediction at t is the model at t + the move): the command

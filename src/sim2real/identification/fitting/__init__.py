@@ -58,7 +58,7 @@ from sim2real.identification.fitting.problem import FitResult, subset_signals  #
 from sim2real.identification.fitting.refine import Nonlinear, Refinements, refinement_rows  # noqa: F401
 from sim2real.identification.fitting.consistent import INERTIA_PRIOR_FALLBACK, PRIOR_START_SETTING  # noqa: F401
 from sim2real.identification.fitting.rung import (  # noqa: F401  (re-exported: the package's names)
-    DEFAULT_SETTINGS, STILL_JOINTS_SETTING, better_way, fit,
+    DEFAULT_SETTINGS, EFFECT_JOINTS_SETTING, STILL_JOINTS_SETTING, better_way, effect_joints_of, fit,
     fit_on_the_previous, way_inputs, fit_way, previous_nonlinear, previous_ways,
 )
 from sim2real.identification.fitting.context import FitContext  # noqa: F401

@@ -129,7 +129,7 @@ def _solve_physical(problem: _Problem, data: TorqueData, nonlinear: Mapping[str,
             coefficients = solution.coefficients[cols]
             if effect.name == "link_inertia":
                 coefficients = effect.set_correction(problem.states[effect.name], coefficients)
-            if kept is not None:  # the columns left out (a still joint's) at zero: the nominal value
+            if kept is not None:  # the columns left out (a still joint's, a line's off its joints) at zero: the nominal value
                 placed = np.zeros(kept.size)
                 placed[kept] = coefficients
                 coefficients = placed
@@ -172,7 +172,8 @@ def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -
     None, all), each effect's lower bounds and the link inertias' block
     (:class:`sim2real.identification.inertial.InertialBlock`, None without link_inertia): what
     :func:`sim2real.identification.inertial.solve_consistent` builds its program of. A still joint's drive columns
-    (:meth:`_Problem.without_still`) are left out: the program would leave a column it cannot see anywhere."""
+    and a line's on the joints it is not kept on (:meth:`_Problem.without_still`) are left out: the program would leave a
+    column it cannot see anywhere."""
     from sim2real.identification.effects.link_inertia import correction_anchors
     from sim2real.identification.inertial import InertialBlock, pseudo_inertia
     from sim2real.identification.inertial.bands import InertiaBands, body_bounds
@@ -200,7 +201,7 @@ def _consistent_blocks(problem: _Problem, nonlinear: Mapping[str, np.ndarray]) -
         else:
             cols = problem.block(effect, nonlinear)
             bounds_of = np.asarray(effect.theta_lower(signals, cols.shape[2]), dtype=float)
-            if problem.still_rows.size and effect.drive:
+            if problem.held_rows(effect).size:
                 kept = np.any(cols != 0.0, axis=(0, 1))
                 cols, bounds_of = cols[:, :, kept], bounds_of[kept]
             lower.append(bounds_of)

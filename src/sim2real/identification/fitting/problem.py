@@ -40,6 +40,7 @@ class FitResult:
     consistency: dict[str, Any] = field(default_factory=dict)
     unconstrained: FitResult | None = None  # the same rung without the physical constraints
     after_sensor: bool = False  # the body side behind a link-side sensor: drive effects are the part after it
+    effect_joints: dict[str, list[str]] = field(default_factory=dict)  # the lines kept on some joints: {effect: joints}
 
 
 class _Problem:
@@ -47,7 +48,7 @@ class _Problem:
 
     def __init__(self, effects: list[Effect], signals: Signals, states: dict[str, dict[str, Any]],
                  weights: np.ndarray | None = None, reuse_design: bool = False,
-                 still_joints: Sequence[str] = ()) -> None:
+                 still_joints: Sequence[str] = (), effect_joints: Mapping[str, Sequence[str]] | None = None) -> None:
         self.effects = effects
         self.signals = signals
         self.states = states
@@ -55,6 +56,9 @@ class _Problem:
         # (friction, rotor inertia) are held at the nominal model's, their columns zero on those joints' rows.
         self.still_joints = tuple(j for j in signals.joint_names if j in set(still_joints))
         self.still_rows = np.array([signals.joint_names.index(j) for j in self.still_joints], dtype=int)
+        # The lines model.yaml keeps on some joints (- coulomb_friction: {joints: [...]}): the effect is absent on
+        # the others, its columns zero on their rows.
+        self.effect_joints = {name: tuple(joints) for name, joints in (effect_joints or {}).items()}
         # Per-joint weights of the data term (joint_weights): the fit solves in units of each joint's floor.
         self.weights = np.ones(signals.n) if weights is None else np.asarray(weights, dtype=float)
         # An effect estimated on every run itself (a sensor's drift, Effect.per_run): each run's polynomials in its
@@ -105,14 +109,24 @@ class _Problem:
         """``values`` (samples first) as the model's lags move the prediction (:func:`effects.timing.retime`)."""
         return retime(values, self.signals.time, self.signals.segments, self.delay(nonlinear), self.lag(nonlinear))
 
+    def held_rows(self, effect: Effect) -> np.ndarray:
+        """The joints' rows where ``effect``'s columns are zero: a drive effect's on the still joints, and a line kept
+        on some joints on the others."""
+        rows = set(self.still_rows.tolist()) if effect.drive else set()
+        if effect.name in self.effect_joints:
+            kept = set(self.effect_joints[effect.name])
+            rows |= {k for k, joint in enumerate(self.signals.joint_names) if joint not in kept}
+        return np.array(sorted(rows), dtype=int)
+
     def without_still(self, effect: Effect, cols: np.ndarray) -> np.ndarray:
-        """A drive effect's columns (N, n, k) with the still joints' rows zero: their own parameters, which act on
+        """An effect's columns (N, n, k) with its :meth:`held_rows` zero: its own parameters there, which act on
         their joint alone, are then not fitted (the solve leaves a column it cannot see at zero, the nominal value);
         every other effect's columns as they are."""
-        if not self.still_rows.size or not effect.drive:
+        rows = self.held_rows(effect)
+        if not rows.size:
             return cols
         cols = cols.copy()
-        cols[:, self.still_rows, :] = 0.0
+        cols[:, rows, :] = 0.0
         return cols
 
     def block(self, effect: Effect, nonlinear: dict[str, np.ndarray]) -> np.ndarray:

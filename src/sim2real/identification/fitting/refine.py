@@ -84,7 +84,8 @@ def _refine_nonlinear(
     if windows is not None:
         sub_signals.segments = windows
     sub = _Problem(problem.effects, sub_signals, problem.states, problem.weights, reuse_design=True,
-                   still_joints=problem.still_joints)
+                   still_joints=problem.still_joints,
+                   effect_joints=problem.effect_joints)
     sub_tau = tau[rows]
     cache = _refinement_cache(problem, fixed)
     _start_delays(problem, sub, sub_tau, cache, begin, x0)
@@ -148,7 +149,8 @@ def _start_periods(problem: _Problem, sub: _Problem, sub_tau: np.ndarray, begin:
         if effect.searched and effect.name not in begin:
             others = [e for e in problem.effects if e is not effect]
             start_values = sub.split_nonlinear(x0)
-            without = _Problem(others, sub_signals, problem.states, problem.weights, still_joints=problem.still_joints)
+            without = _Problem(others, sub_signals, problem.states, problem.weights, still_joints=problem.still_joints,
+                               effect_joints=problem.effect_joints)
             _, rest, _ = _linear_fit(without, sub_tau, {e.name: start_values[e.name] for e in others}, iterations=1)
             x0[offset:offset + size] = np.clip(effect.search_start(sub_signals, rest), lower[offset:offset + size],
                                                upper[offset:offset + size])

@@ -23,6 +23,7 @@ from sim2real.identification.fitting.consistent import (  # noqa: F401  (the run
 )
 from sim2real.identification.fitting.context import FitContext
 from sim2real.identification.fitting.refine import Nonlinear, Refinements, _refine_nonlinear
+from sim2real.identification.model_config import EFFECT_JOINTS_KEY
 from sim2real.identification.records import Note, NoteKind
 from sim2real.forked import map_forked
 from sim2real.identification.inertial import import_solver
@@ -49,6 +50,9 @@ DEFAULT_SETTINGS: dict[str, Any] = {
 # The joints that barely move in the fit runs (sim2real.measurements.motion.still_joints), absent when every joint
 # moves: their drives' own parameters are held at the nominal model's (_Problem.without_still).
 STILL_JOINTS_SETTING = "still_joints"
+# The lines model.yaml keeps on some joints ({effect: [joints]}), absent when none is: each such effect is fitted on
+# its joints only and absent on the others (_Problem.held_rows), its values only on its joints (restricted_values).
+EFFECT_JOINTS_SETTING = EFFECT_JOINTS_KEY
 
 
 def fit(
@@ -82,11 +86,28 @@ def fit(
                               figures={"torque_source": data.torque_source}).as_document())
     states = {e.name: e.prepare(signals) for e in effects}
     weights = joint_weights(data.noise_floor, str(settings.get("joint_weighting", "noise_floor")))
-    problem = _Problem(effects, signals, states, weights, still_joints=settings.get(STILL_JOINTS_SETTING) or ())
+    problem = _Problem(effects, signals, states, weights, still_joints=settings.get(STILL_JOINTS_SETTING) or (),
+                       effect_joints=effect_joints_of(settings, effect_names))
     refine = functools.partial(_refine_nonlinear, problem, data.tau, settings, nonlinear.held, nonlinear.start)
     refined = refine() if nonlinear.refinements is None else nonlinear.refinements.get_or_compute(
         effect_names, settings, nonlinear.held, nonlinear.start, refine)
     return _rung_fit(effect_names, problem, data, settings, refined, notes, uncertainty, consistency)
+
+
+def effect_joints_of(settings: Mapping[str, Any], effect_names: Sequence[str]) -> dict[str, list[str]]:
+    """The lines of ``effect_names`` the fit ``settings`` keep on some joints (:data:`EFFECT_JOINTS_SETTING`)."""
+    kept = settings.get(EFFECT_JOINTS_SETTING) or {}
+    return {name: list(kept[name]) for name in effect_names if name in kept}
+
+
+def restricted_values(values: Any, joints: Sequence[str], joint_names: Sequence[str]) -> Any:
+    """An effect's values (or intervals) with every per-joint mapping (keyed by ``joint_names``) narrowed to
+    ``joints``: a line kept on those joints holds the effect there alone."""
+    if isinstance(values, Mapping):
+        if values and set(values) <= set(joint_names):
+            return {j: v for j, v in values.items() if j in joints}
+        return {k: restricted_values(v, joints, joint_names) for k, v in values.items()}
+    return values
 
 
 def _rung_fit(effect_names: Sequence[str], problem: _Problem, data: TorqueData, settings: Mapping[str, Any],
@@ -109,10 +130,16 @@ def _rung_fit(effect_names: Sequence[str], problem: _Problem, data: TorqueData, 
         replicates = _block_bootstrap(problem, data.tau, nonlinear, theta, sizes, settings)
         if replicates is not None:
             intervals = _prune(replicate_intervals(effects, *replicates, signals, states, float(settings["confidence"])))
+    kept = problem.effect_joints
+    if kept:
+        values = {k: restricted_values(v, kept[k], signals.joint_names) if k in kept else v for k, v in values.items()}
+        intervals = {k: restricted_values(v, kept[k], signals.joint_names) if k in kept else v
+                     for k, v in intervals.items()}
     return FitResult(
         effects=list(effect_names), theta=theta, nonlinear=nonlinear, states=states, values=values,
         intervals=intervals, fit_rmse=rmse(residual, data.joint_names), notes=notes, consistency=record,
         unconstrained=unconstrained if consistency else None, after_sensor=link_side(data) and not signals.forward,
+        effect_joints={k: list(v) for k, v in kept.items()},
     )
 
 

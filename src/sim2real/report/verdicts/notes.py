@@ -140,6 +140,7 @@ NEAR_FIGURE_TEXT = {
     "joint_explained_beyond_noise": "of the joint's excess removed",
     "own_term_x_floor": "its own term there, x the joint's floor",
     "x_floor": "the joint's residual, x its floor",
+    "raised_x_floor": "the joint's residual after it, x its floor, a rise counted beyond the noise",
 }
 
 
@@ -164,7 +165,45 @@ def _near_threshold(note: Note, robot: str) -> str:
             "much), the decision takes the conservative side: " + "; ".join(parts) + ".")
 
 
+# --- no recommended rung raises a joint (diagnosis.raises) -----------------------------------------------------------
+
+RAISE_OUTCOME_TEXT = {
+    "not_per_joint": "its parameters act on every joint together, so no line keeps it off {raised}: it is not "
+                     "recommended",
+    "helps_none": "it helps no joint it does not raise beyond the noise: it is not recommended",
+    "kept_to_raises": "kept on the joints it helps ({joints}), its trial still raises {again}: it is not recommended",
+    "kept_to_not_decisive": "kept on the joints it helps ({joints}), its trial removes too little to be named "
+                            "({after} the floors arm-wide): it is not recommended",
+    "kept_to_not_tried": "it is not tried on fewer joints (a candidate that removes more was): it is not recommended",
+}
+
+
+def _rises(raised: Mapping[str, Sequence[float]]) -> str:
+    return ", ".join(f"{j} from {floor_multiple(before)} to {floor_multiple(after)}"
+                     for j, (before, after) in raised.items())
+
+
+def _raise_text(effect: str, figures: Mapping[str, Any]) -> str:
+    rises = _rises(figures["raised"])
+    if figures["outcome"] == "kept_to":
+        return (f"fitted on every joint, {effect} raises {rises} its floor; its line keeps it on the joints it "
+                f"helps ({', '.join(figures['joints'])}), where its rung, fitted as the next round fits it, raises none")
+    trial = figures.get("kept_to_trial") or {}
+    because = RAISE_OUTCOME_TEXT[figures["outcome"]].format(
+        raised=", ".join(figures["raised"]), joints=", ".join(trial.get("joints") or ()),
+        again=_rises(trial.get("raised") or {}) + " its floor", after=floor_multiple(trial.get("x_floor_after") or 0.0))
+    return f"{effect} raises {rises} its floor; {because}"
+
+
+def _raises(note: Note, robot: str) -> str:
+    parts = [_raise_text(effect, figures) for effect, figures in sorted(note.figures["candidates"].items())]
+    return (" No recommended line raises a joint beyond the noise (more than "
+            f"{note.figures['tolerance']:g}x its floor above both where it was and the floor factor, a rise the "
+            "holdout's blocks resolve): " + "; ".join(parts) + ".")
+
+
 NOTE_TEXT: dict[NoteKind, Callable[[Note, str], str]] = {
+    NoteKind.RAISES: _raises,
     NoteKind.RELABELLED: _relabelled, NoteKind.NEAR_THRESHOLD: _near_threshold,
     NoteKind.LAG_SHAPES: _lag_shapes, NoteKind.CONFOUNDED: _confounded, NoteKind.TIED: _tied,
     NoteKind.CAUTION: _caution, NoteKind.FAILED_TRIALS: _failed_trials, NoteKind.DRIVE_PLACEMENT: _drive_placement,
