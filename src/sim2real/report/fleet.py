@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from sim2real.errors import InputError
+from sim2real.identification.ladder_rows import rungs_of
 from sim2real.report import rung_label
 
 UNIT_TEXT = {"N*m": "N·m", "N*m*s/rad": "N·m·s/rad", "kg*m^2": "kg·m²", "1": ""}
@@ -153,11 +154,11 @@ def compare_campaigns(
 def holdout_summary(ladder: Mapping[str, Any]) -> dict[str, Any]:
     """Holdout torque RMSE per rung of a sysid ladder.json, with the noise floor."""
     rungs = []
-    for rung in ladder.get("ladder") or []:
+    for rung in rungs_of(ladder.get("ladder")):
         rungs.append({
-            "effects": list(rung["effects"]),
-            "label": rung_label(rung["effects"]),
-            "torque_rmse": float(rung["metrics"]["torque_rmse"]["overall"]),
+            "effects": list(rung.effects),
+            "label": rung_label(rung.effects),
+            "torque_rmse": float(rung.metrics.torque_rmse["overall"]),
         })
     floor = ladder.get("noise_floor", {}).get("torque_rmse", {}).get("overall")
     return {"rungs": rungs, "noise_floor": None if floor is None else float(floor)}
