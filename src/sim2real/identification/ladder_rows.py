@@ -38,7 +38,8 @@ class RungMetrics:
 
     @classmethod
     def from_document(cls, document: Mapping[str, Any]) -> RungMetrics:
-        return cls(torque_rmse=document["torque_rmse"], fit_torque_rmse=document.get("fit_torque_rmse"),
+        """The metrics of a rung's document (a part missing, as in a hand-made ladder: empty, or None)."""
+        return cls(torque_rmse=document.get("torque_rmse") or {}, fit_torque_rmse=document.get("fit_torque_rmse"),
                    torque_x_floor=document.get("torque_x_floor"),
                    unconstrained_torque_rmse=document.get("unconstrained_torque_rmse"),
                    position_rmse=document.get("position_rmse"))
@@ -83,7 +84,9 @@ class Rung:
 
     @classmethod
     def from_document(cls, document: Mapping[str, Any]) -> Rung:
-        return cls(effects=tuple(document["effects"]), metrics=RungMetrics.from_document(document["metrics"]),
+        """The rung of a document (ladder.json's, gap.json's with its words; a part missing: empty, or None)."""
+        return cls(effects=tuple(document.get("effects") or ()),
+                   metrics=RungMetrics.from_document(document.get("metrics") or {}),
                    params=document.get("params"), intervals=document.get("intervals"),
                    consistency=document.get("consistency"), notes=tuple(document.get("notes") or ()))
 

@@ -27,7 +27,6 @@ from sim2real.report.gap_document import GapReport
 from sim2real.report.verdicts import BOUND_TEXT
 
 
-
 @dataclass(frozen=True)
 class _Link:
     """One link of a report as the comment compares it: the report's runs, the link's noise floor (its torque RMSE),
@@ -48,6 +47,7 @@ def _link(report: GapReport, actuator: bool) -> _Link:
     if report.actuator is None:
         return _Link(runs, {}, (), None)
     return _Link(runs, report.actuator.floor, report.actuator.ladder, report.actuator.diagnosis)
+
 
 # What no change of code can promise to hold: a held-out metric moves this much across CPUs and BLAS kernels with the
 # same code and data (tests/test_loop_pinned.py, docs/performance.md): 1 % of itself or 2.5 % of its joint's floor.
