@@ -94,3 +94,38 @@ class Rung:
 def rungs_of(documents: Sequence[Mapping[str, Any]] | None) -> list[Rung]:
     """A side's rungs (``ladder.json``'s or gap.json's ``ladder``) as rows; none for a side without a ladder."""
     return [Rung.from_document(document) for document in documents or ()]
+
+
+@dataclass(frozen=True)
+class SideRows:
+    """One side's part of ``ladder.json`` as read back: its rungs, its noise floor's torque RMSE (over the arm and per
+    joint) and its diagnosis's document (None: not diagnosed)."""
+
+    rungs: tuple[Rung, ...]
+    floor: Figures
+    diagnosis: Mapping[str, Any] | None = None
+
+    @classmethod
+    def from_document(cls, document: Mapping[str, Any]) -> SideRows:
+        floor = (document.get("noise_floor") or {}).get("torque_rmse") or {}
+        return cls(tuple(rungs_of(document.get("ladder"))), floor, document.get("diagnosis"))
+
+
+@dataclass(frozen=True)
+class LadderDocument:
+    """``ladder.json`` as its readers take it: the robot, the judged torque (``torque_source``: ``tau`` or
+    ``tau_cmd``), the body side's rows, the actuator side's (None on runs that judge one side) and what the runs can
+    tell apart (``links``). None: not in the document."""
+
+    robot: str | None
+    torque_source: str | None
+    body: SideRows
+    actuator: SideRows | None = None
+    links: Mapping[str, Any] | None = None
+
+    @classmethod
+    def from_document(cls, document: Mapping[str, Any]) -> LadderDocument:
+        actuator = document.get("actuator")
+        return cls(robot=document.get("robot"), torque_source=document.get("torque_source"),
+                   body=SideRows.from_document(document),
+                   actuator=SideRows.from_document(actuator) if actuator else None, links=document.get("links"))

@@ -41,7 +41,7 @@ from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.errors import InputError
 from sim2real.files import relative_path, validate, write_json
 from sim2real.identification.formats import read_ladder, read_model_residuals
-from sim2real.identification.ladder_rows import Rung, rungs_of
+from sim2real.identification.ladder_rows import LadderDocument, Rung
 from sim2real.measurements import PreparedRun, RunSet, measured_after_drive, noise_floor_of, runs_for_model
 from sim2real.measurements.motion import not_judged_document
 from sim2real.measurements.noise import floor_method_document
@@ -76,12 +76,13 @@ def holdout_comparisons(path: str | Path, model: RigidBodyModel) -> list[TorqueC
 def current_model(precomputed: Mapping[str, Any]) -> dict[str, Any]:
     """What the report judges: the last rung of the body link's ladder (and of the actuator link's, which the
     replay drives), as ``identified`` for :func:`replay`, and its name."""
-    ladder = rungs_of(precomputed["ladder"])
+    read = LadderDocument.from_document(precomputed)
+    ladder = read.body.rungs
     params = dict(ladder[-1].values)
-    if precomputed.get("actuator"):
-        params.update(rungs_of(precomputed["actuator"]["ladder"])[-1].values)
+    if read.actuator is not None:
+        params.update(read.actuator.rungs[-1].values)
     return {"effects": list(ladder[-1].effects), "rung": len(ladder) - 1,
-            "identified": {"effects": params, "torque_source": precomputed.get("torque_source")}}
+            "identified": {"effects": params, "torque_source": read.torque_source}}
 
 
 @dataclass(frozen=True)
@@ -159,8 +160,9 @@ def compute_gap(
     if precomputed is None:
         precomputed = inputs.read_ladder()
     prepared = runs_for_model(inputs.measurements, inputs.urdf, inputs.root)
+    torque_source = LadderDocument.from_document(precomputed).torque_source if precomputed else None
     replay = _Replay(inputs.mjcf, ReplayModels(inputs.mjcf, cache) if inputs.mjcf is not None else None,
-                     prepared.settings, (precomputed or {}).get("torque_source"))
+                     prepared.settings, torque_source)
     model = _rigid_body_model(inputs.urdf, prepared, replay)
     floor, report = _gap_head(inputs.robot, model.joint_names, prepared, precomputed)
     if progress is not None:
