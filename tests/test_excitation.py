@@ -240,13 +240,14 @@ def test_the_run_that_separates_confounded_candidates(designed: Path, tmp_path: 
 
 
 def test_gap_md_names_the_design_when_the_inertias_are_poorly_pinned() -> None:
+    from sim2real.identification.ladder_rows import Rung, RungMetrics
     from sim2real.report.markdown import ILL_CONDITIONED, _identified_markdown
 
-    def rung(condition: float) -> dict:
+    def rung(condition: float) -> Rung:
         body = {"moved": False, "mass_change_kg": 0.0, "com_shift_mm": 0.0, "divergence": 0.0, "implausible": [],
                 "binding": []}
-        return {"params": {"link_inertia": {"base_parameters": 43, "condition_number": condition,
-                                            "bodies": {"panda_link1": body}}}}
+        return Rung(("link_inertia",), RungMetrics({"overall": 0.0, "per_joint": {}}), {"link_inertia": {
+            "base_parameters": 43, "condition_number": condition, "bodies": {"panda_link1": body}}})
 
     poorly = "\n".join(_identified_markdown(rung(3 * ILL_CONDITIONED), "panda"))
     assert "`snakemake results/panda/excitation/identification.csv`" in poorly

@@ -579,9 +579,9 @@ def test_the_torque_sensor_is_one_typed_value_checked_once():
     """Where tau is measured: one default, one check for every caller (the prepared runs and the fit's stacked
     runs alike); runs that mix sensor positions are refused, naming them."""
     from sim2real.identification.fitting import RunSamples, stack_runs
-    from sim2real.measurements import DEFAULT_TORQUE_SENSOR, TORQUE_SENSORS, measured_after_drive, torque_sensor_of
+    from sim2real.measurements import DEFAULT_TORQUE_SENSOR, SensorPlacement, measured_after_drive, torque_sensor_of
 
-    assert DEFAULT_TORQUE_SENSOR == "motor" and TORQUE_SENSORS == ("motor", "link")
+    assert DEFAULT_TORQUE_SENSOR == "motor" and tuple(SensorPlacement) == ("motor", "link")
     t = np.arange(200) * 0.01
     zeros = np.zeros((200, 1))
 

@@ -31,7 +31,10 @@ def judged_bounds(cad_com, hull):
     """The bounds the flag judges a 1 kg inner body by, its CAD centre of mass at ``cad_com``."""
     anchor = point_mass(1.0, np.asarray(cad_com, dtype=float))
     return body_bounds(np.stack([anchor, anchor]), [hull, None], InertiaBands(), margins=False)[0]
+from sim2real.identification.ladder_rows import Rung, RungMetrics
 from sim2real.report.markdown import _identified_markdown
+
+NO_METRICS = RungMetrics({"overall": 0.0, "per_joint": {}})  # what gap.md's inertia section does not read
 
 
 @pytest.fixture(scope="module")
@@ -137,7 +140,7 @@ def test_a_tool_on_the_last_link_is_a_tool_a_bent_last_link_is_not(info):
 
 def test_gap_md_names_implausible_bodies_and_the_priors_weight(info):
     values = link_values(info, changed(info, "panda_link3", mass_scale=2.0))
-    rung = {"effects": ["link_inertia"], "params": {"link_inertia": values}, "consistency": {"status": "optimal"}}
+    rung = Rung(("link_inertia",), NO_METRICS, {"link_inertia": values}, consistency={"status": "optimal"})
     text = "\n".join(_identified_markdown(rung, "panda"))
     assert "| body | moved | mass change [kg] | COM shift [mm] | divergence from CAD | plausible |" in text
     assert "| panda_link3 | yes | +3.23 | 0 | 1.23 | mass changed by +100% (3.23 -> 6.46 kg) |" in text
@@ -146,16 +149,16 @@ def test_gap_md_names_implausible_bodies_and_the_priors_weight(info):
     assert "soak up an effect the model lacks" in text and "diagnosis and the per-joint residuals" in text
     assert "inertial prior" not in text, "no consistency.inertia_prior: no sentence"
 
-    rung["consistency"]["inertia_prior"] = {"weight": 0.003, "chosen_by": "the fit runs' cross-validated error",
+    rung.consistency["inertia_prior"] = {"weight": 0.003, "chosen_by": "the fit runs' cross-validated error",
                                            "grid": [1e-4, 1e-3, 3e-3, 1e-2], "scores": [0.061, 0.052, 0.05, 0.058]}
     text = "\n".join(_identified_markdown(rung, "panda"))
     assert ("The inertial prior (the entropic pull of every link towards its CAD inertials) has weight 0.003, "
             "chosen by the fit runs' cross-validated error among 0.0001 (score 0.061), 0.001 (score 0.052), "
             "0.003 (score 0.05), 0.01 (score 0.058).") in text
-    del rung["consistency"]["inertia_prior"]["scores"]
+    del rung.consistency["inertia_prior"]["scores"]
     assert "among 4 weights from 0.0001 to 0.01." in "\n".join(_identified_markdown(rung, "panda"))
 
-    plausible = {"effects": ["link_inertia"], "params": {"link_inertia": link_values(info, np.zeros(70))}}
+    plausible = Rung(("link_inertia",), NO_METRICS, {"link_inertia": link_values(info, np.zeros(70))})
     text = "\n".join(_identified_markdown(plausible, "panda"))
     assert "beyond plausible" not in text and "| panda_link7 | no | +0 | 0 | 0 | yes |" in text
 
@@ -206,7 +209,7 @@ def test_gap_md_names_the_links_held_at_their_bounds(info):
     body = values["bodies"]["panda_link3"]
     assert list(body["implausible"]) == [] and list(body["binding"]) == ["mass_upper"]
     assert list(values["binding_bodies"]) == ["panda_link3"]
-    rung = {"effects": ["link_inertia"], "params": {"link_inertia": values}, "consistency": {"status": "optimal"}}
+    rung = Rung(("link_inertia",), NO_METRICS, {"link_inertia": values}, consistency={"status": "optimal"})
     text = "\n".join(_identified_markdown(rung, "panda"))
     assert "| panda_link3 | yes | +1.61 | 0 |" in text and "| yes | mass at its band's upper edge |" in text
     assert "| panda_link1 | no | +0 | 0 | 0 | yes | – |" in text
@@ -215,4 +218,4 @@ def test_gap_md_names_the_links_held_at_their_bounds(info):
     inside = link_values(info, changed(info, "panda_link3", mass_scale=1.2))
     assert list(inside["binding_bodies"]) == []
     assert "Held at their bounds" not in "\n".join(_identified_markdown(
-        {"effects": ["link_inertia"], "params": {"link_inertia": inside}}, "panda"))
+        Rung(("link_inertia",), NO_METRICS, {"link_inertia": inside}), "panda"))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import enum
 import json
 import os
 import shutil
@@ -26,7 +27,13 @@ SCHEMA_DIR = Path(__file__).resolve().parents[2] / "schemas"
 # libyaml's emitter and parser where PyYAML has them: the same events, the same text, several times faster (a
 # designed excitation's trajectory, 0.7 MB of YAML, is written in 0.4 s instead of 2 s; each rule reads its schema,
 # and Snakemake's input functions read the configs at every start: the Panda's lab.yaml in 12 ms instead of 120).
-_YAML_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+
+
+class _YAML_DUMPER(getattr(yaml, "CSafeDumper", yaml.SafeDumper)):  # type: ignore[misc]
+    """The safe dumper, writing a string enum's member as its value (``torque_sensor: link``)."""
+
+
+_YAML_DUMPER.add_multi_representer(enum.StrEnum, lambda dumper, member: dumper.represent_str(str(member)))
 _YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 

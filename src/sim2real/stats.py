@@ -10,11 +10,13 @@ import numpy as np
 def rmse(error: np.ndarray, joint_names: Sequence[str]) -> dict[str, object]:
     """Root-mean-square of an (N, n_joints) error: over all samples and joints, and per joint."""
     error = np.asarray(error, dtype=float)
-    per_joint = np.sqrt(np.mean(error**2, axis=0))
-    return {
-        "overall": float(np.sqrt(np.mean(error**2))),
-        "per_joint": {name: float(v) for name, v in zip(joint_names, per_joint, strict=True)},
-    }
+    return joint_figures(float(np.sqrt(np.mean(error**2))), joint_names, np.sqrt(np.mean(error**2, axis=0)))
+
+
+def joint_figures(overall: float, joint_names: Sequence[str], per_joint: Sequence[float]) -> dict[str, object]:
+    """A figure over the arm (``overall``) and each joint's, in the shape every report uses."""
+    return {"overall": float(overall),
+            "per_joint": {name: float(v) for name, v in zip(joint_names, per_joint, strict=True)}}
 
 
 def floor_multiple(x: float) -> str:

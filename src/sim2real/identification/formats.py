@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.identification.records import Side
+from sim2real.identification.records import SensorPlacement, Side
 
 # The arrays of each role in residuals.npz, in the order they are written.
 RESIDUAL_ARRAYS = ("time", "q", "qd", "qdd", "tau", "residual")
@@ -78,7 +78,7 @@ class ModelResiduals:
     effects: tuple[str, ...]
     joints: tuple[str, ...]
     torque_source: str
-    torque_sensor: str
+    torque_sensor: SensorPlacement
     roles: Mapping[str, RoleResiduals]
 
 
@@ -113,4 +113,4 @@ def read_model_residuals(path: str | Path, roles: Collection[str] = ROLES) -> Mo
             noise_floor=np.asarray(own["noise_floor"], dtype=float),
             **{array: arrays[f"{role}/{array}"] for array in RESIDUAL_ARRAYS})
     return ModelResiduals(side=Side(header["link"]), effects=tuple(header["effects"]), joints=tuple(header["joints"]),
-                          torque_source=header["torque_source"], torque_sensor=header["torque_sensor"], roles=parts)
+                          torque_source=header["torque_source"], torque_sensor=SensorPlacement(header["torque_sensor"]), roles=parts)

@@ -6,7 +6,8 @@ actuator``), which the values of these enums are.
 * :class:`Side`: the split of the comparison. ``BODY``: the applied torque against the motion (the rigid body and
   what acts after the sensor); ``DRIVE``: the measured torque against the commanded one (command -> applied torque);
   ``COMBINED``: both at once, on runs without a torque sensor (the command against the motion).
-* :class:`SensorPlacement`: where a joint torque sensor measures, ``LINK_SIDE`` (after the gearbox: the Panda's tau_J)
+* :class:`SensorPlacement` (defined with the runs' metadata, :mod:`sim2real.measurements.records`): where a joint
+  torque sensor measures, ``LINK_SIDE`` (after the gearbox: the Panda's tau_J)
   or ``MOTOR_SIDE`` (a motor-current estimate, before the rotor inertia and the joint friction).
 * :class:`Status`: what a diagnosis concludes.
 * :class:`Note`: a fact a verdict, a rung or a skipped trial states, as data: its :class:`NoteKind`, the effect and
@@ -20,6 +21,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from sim2real.measurements.records import SensorPlacement
+
+__all__ = ["Note", "NoteKind", "SensorPlacement", "Side", "Status"]
+
 
 class Side(enum.StrEnum):
     """The split of a joint's torque that a ladder and its diagnosis judge (values: the documents' words)."""
@@ -27,13 +32,6 @@ class Side(enum.StrEnum):
     BODY = "body"
     DRIVE = "actuator"
     COMBINED = "combined"
-
-
-class SensorPlacement(enum.StrEnum):
-    """Where a joint torque sensor measures (values: the run metadata's ``torque_sensor``)."""
-
-    LINK_SIDE = "link"
-    MOTOR_SIDE = "motor"
 
 
 class Status(enum.StrEnum):

@@ -22,8 +22,9 @@ from sim2real.identification.fitting import (
     EFFECT_JOINTS_SETTING, PRIOR_START_SETTING, STILL_JOINTS_SETTING, FitContext, FitResult, Refinements, TorqueData,
     effect_joints_of, fit_on_the_previous, floor_units, holdout_metrics, predict,
 )
+from sim2real.identification.ladder_rows import Figures, Rung, RungMetrics
 from sim2real.identification.records import Note, NoteKind, Side, Status
-from sim2real.stats import rmse
+from sim2real.stats import joint_figures, rmse
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,7 +113,7 @@ def _promised_by_its_rung(diagnosis: Diagnosis, effect_names: Sequence[str], con
 
 
 def _next_rung(effects: Sequence[str], context: FitContext, cache: FitCache, inputs: str, result: FitResult | None,
-               ) -> tuple[FitResult, np.ndarray, str, dict[str, Any] | None]:
+               ) -> tuple[FitResult, np.ndarray, str, Figures | None]:
     """The rung of ``effects`` fitted on the one before it (``result``; None: the nominal model), read back from
     ``cache`` when fitted before (:func:`_rung`). The prior's weight is searched from the previous rung's choice
     (fitting.PRIOR_START_SETTING)."""
@@ -149,30 +150,25 @@ def _rungs(effect_names: Sequence[str], context: FitContext, cache: FitCache,
 
 
 def _rung_document(effects: Sequence[str], result: FitResult, residual: np.ndarray, carried: str,
-                   free: Mapping[str, Any] | None, holdout_data: TorqueData) -> dict[str, Any]:
-    """One rung's entry of ``ladder.json``: its effects, parameters and intervals, its holdout metrics (each joint in
-    units of its own floor as its headline), and what it says of its fit."""
+                   free: Figures | None, holdout_data: TorqueData) -> dict[str, Any]:
+    """One rung's entry of ``ladder.json`` (:class:`~sim2real.identification.ladder_rows.Rung`): its effects,
+    parameters and intervals, its holdout metrics (each joint in units of its own floor as its headline), and what it
+    says of its fit."""
     x_floor = floor_units(residual, holdout_data.noise_floor)
-    rung: dict[str, Any] = {
-        "effects": list(effects),
-        "params": result.values,
-        "intervals": result.intervals,
-        "metrics": {"torque_rmse": rmse(residual, holdout_data.joint_names), "fit_torque_rmse": result.fit_rmse,
-                    # the rung's headline: each joint in units of its own noise floor
-                    "torque_x_floor": {"overall": x_floor["overall"], "per_joint": dict(
-                        zip(holdout_data.joint_names, x_floor["per_joint"], strict=True))}},
-    }
-    if free is not None:
-        # The same rung without the physical constraints: what consistency costs (or gains) on holdout.
-        rung["metrics"]["unconstrained_torque_rmse"] = free["torque_rmse"]
-        # Wall time stays out of the document (outputs are byte-identical on rebuild).
-        rung["consistency"] = {k: v for k, v in result.consistency.items() if k != "solve_time_s"}
-    if result.notes:
-        rung["notes"] = list(result.notes)
+    notes = list(result.notes)
     if carried == "held":
         # refined again, the previous rung's nonlinear parameters predicted the holdout runs worse
-        rung.setdefault("notes", []).append(Note(NoteKind.NONLINEAR_HELD).as_document())
-    return rung
+        notes.append(Note(NoteKind.NONLINEAR_HELD).as_document())
+    metrics = RungMetrics(
+        torque_rmse=rmse(residual, holdout_data.joint_names), fit_torque_rmse=result.fit_rmse,
+        # the rung's headline: each joint in units of its own noise floor
+        torque_x_floor=joint_figures(x_floor["overall"], holdout_data.joint_names, x_floor["per_joint"]),
+        # the same rung without the physical constraints: what consistency costs (or gains) on holdout
+        unconstrained_torque_rmse=free)
+    # Wall time stays out of the document (outputs are byte-identical on rebuild).
+    consistency = ({k: v for k, v in result.consistency.items() if k != "solve_time_s"} if free is not None
+                   else None)
+    return Rung(tuple(effects), metrics, result.values, result.intervals, consistency, tuple(notes)).as_document()
 
 
 def _ladder_document(rungs: list[dict[str, Any]], context: FitContext) -> dict[str, Any]:
@@ -186,8 +182,7 @@ def _ladder_document(rungs: list[dict[str, Any]], context: FitContext) -> dict[s
         "fit_runs": context.fit_data.run_names,
         "holdout_runs": holdout.run_names,
         "ladder": rungs,
-        "noise_floor": {"torque_rmse": {"overall": float(np.sqrt(np.mean(floor**2))),
-                                        "per_joint": {j: float(v) for j, v in zip(joints, floor, strict=True)}}},
+        "noise_floor": {"torque_rmse": joint_figures(float(np.sqrt(np.mean(floor**2))), joints, floor)},
         "state_domain": state_domain_status(holdout),
         "settings": {"fit": dict(context.settings)},
     }
@@ -214,10 +209,10 @@ def _diagnose_side(effect_names: Sequence[str], context: FitContext, holdout_res
 
 
 def _rung(effects: Sequence[str], context: FitContext, previous: Mapping[str, np.ndarray] | None,
-          ) -> tuple[FitResult, np.ndarray, str, dict[str, Any] | None]:
+          ) -> tuple[FitResult, np.ndarray, str, Figures | None]:
     """One rung of :func:`fit_ladder` (:func:`fit_on_the_previous`) and, where it is constrained, the holdout
-    metrics of the same rung without the constraints: (fit, holdout residual, how its nonlinear parameters were
-    carried, unconstrained metrics or None), kept whole by the fit cache."""
+    torque RMSE of the same rung without the constraints: (fit, holdout residual, how its nonlinear parameters were
+    carried, unconstrained RMSE or None), kept whole by the fit cache."""
     result, residual, carried = fit_on_the_previous(effects, context, previous)
     free = None
     if result.unconstrained is not None and result.consistency:

@@ -47,7 +47,7 @@ from sim2real.errors import InputError
 from sim2real.identification.effects import EFFECTS, Signals, get_effect
 from sim2real.identification.fitting import NominalModel, RunSamples, TorqueData, link_side, stack_runs
 from sim2real.identification.records import SensorPlacement, Side
-from sim2real.measurements import DEFAULT_TORQUE_SENSOR, PreparedRun, TorqueSensor, command_floor_of
+from sim2real.measurements import DEFAULT_TORQUE_SENSOR, PreparedRun, command_floor_of
 
 # What the runs log decides how the sides can be judged (see the module docstring).
 SIDE_MODES = ("separate", "commands_only", "sensor_only")
@@ -67,7 +67,7 @@ def side_mode(runs: Sequence[PreparedRun]) -> str:
     return "sensor_only" if has_sensor else "commands_only"
 
 
-def effect_side(name: str, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR) -> Side:
+def effect_side(name: str, torque_sensor: SensorPlacement = DEFAULT_TORQUE_SENSOR) -> Side:
     """The side where an effect is expected. The drive's effects (rotor inertia, joint friction and damping)
     sit between the motor and the link: behind a motor-side sensor they are the body's, in front of a
     link-side sensor the drive's. This is a prior that words the report: the data decide
@@ -76,7 +76,7 @@ def effect_side(name: str, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR) 
     return Side.DRIVE if effect.drive and torque_sensor == SensorPlacement.LINK_SIDE else effect.side
 
 
-def effects_of_side(effect_names: Sequence[str], side: Side, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR,
+def effects_of_side(effect_names: Sequence[str], side: Side, torque_sensor: SensorPlacement = DEFAULT_TORQUE_SENSOR,
                     kept_on: Mapping[str, Side] | None = None) -> list[str]:
     """The effects of ``side`` among ``effect_names``, in their order; ``kept_on``: drive effects model.yaml keeps
     on one side (``- asymmetric_friction: actuator``), left off the other.
@@ -91,7 +91,7 @@ def effects_of_side(effect_names: Sequence[str], side: Side, torque_sensor: Torq
                 or get_effect(name).every_side) and kept_on.get(name, side) == side]
 
 
-def check_kept_on(name: str, side: Side, mode: str, torque_sensor: TorqueSensor, path: str | Path) -> None:
+def check_kept_on(name: str, side: Side, mode: str, torque_sensor: SensorPlacement, path: str | Path) -> None:
     """Refuse a line of model.yaml (the file ``path``) that keeps the drive effect ``name`` on ``side`` alone where
     these runs cannot: they fit one side only, or that side does not fit it (behind a motor-side sensor the drive side
     fits no drive effect)."""
@@ -105,7 +105,7 @@ def check_kept_on(name: str, side: Side, mode: str, torque_sensor: TorqueSensor,
                          "nowhere", f"write '- {name}'")
 
 
-def candidates_of_side(side: Side, torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR,
+def candidates_of_side(side: Side, torque_sensor: SensorPlacement = DEFAULT_TORQUE_SENSOR,
                        kept_on: Mapping[str, Side] | None = None) -> list[str]:
     """The library's effects the diagnosis tries on ``side`` (``COMBINED``: all of them); ``kept_on``: drive effects
     model.yaml keeps on one side, not tried on the other (:func:`effects_of_side`).
@@ -152,7 +152,7 @@ def drive_signals(data: TorqueData, commands: np.ndarray, nominal: NominalModel 
 
 
 def separability(mode: str, model_effects: Sequence[str], confounded: Sequence[Sequence[str]],
-                 sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR) -> dict[str, Any]:
+                 sensor: SensorPlacement = DEFAULT_TORQUE_SENSOR) -> dict[str, Any]:
     """What the runs can tell apart (``links`` of ladder.json), as facts: each group of effects with why, a reason's
     kind the report words (:func:`sim2real.report.verdicts.sides_section`).
 

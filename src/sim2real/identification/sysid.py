@@ -53,7 +53,7 @@ class _Sides:
     lines model.yaml keeps on one side."""
 
     mode: str
-    sensor: str
+    sensor: SensorPlacement
     kept_on: Mapping[str, Side]
 
     @property

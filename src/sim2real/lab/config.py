@@ -10,6 +10,7 @@ import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.files import merge_settings, read_validated_yaml
+from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR
 
 
 EFFECTS = (
@@ -47,7 +48,7 @@ DEFAULTS: dict[str, Any] = {
         "velocity_fraction": 0.6,
     },
     "sensors": {"torque_noise_std": 0.05, "encoder_resolution_rad": 1.0e-6, "velocity_noise_std": 0.002,
-                "torque_sensor": "motor"},
+                "torque_sensor": DEFAULT_TORQUE_SENSOR.value},
     "effects": {},
 }
 

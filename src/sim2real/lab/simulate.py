@@ -21,18 +21,17 @@ from sim2real.lab.logger import _logged, log_every
 from sim2real.lab.loop import _arms, _Controller, _desired_motion, _hidden_effects, _link_side_model, _LinkSide, _play
 from sim2real.lab.sensor_chain import logged_noise_rms, sensor_chain
 from sim2real.lab.spec_effects import _apply_spec_effects, _gains_and_biases
+from sim2real.measurements.records import SensorPlacement
+from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR
 
 
-TORQUE_SENSORS = ("motor", "link")
-
-
-def _torque_sensor(scenario: Mapping[str, Any], path: Path | None) -> str:
+def _torque_sensor(scenario: Mapping[str, Any], path: Path | None) -> SensorPlacement:
     """``sensors.torque_sensor`` of a scenario: ``motor`` (the default) or ``link``."""
-    where = str(scenario.get("sensors", {}).get("torque_sensor", "motor"))
-    if where not in TORQUE_SENSORS:
+    where = str(scenario.get("sensors", {}).get("torque_sensor", DEFAULT_TORQUE_SENSOR))
+    if where not in tuple(SensorPlacement):
         raise InputError(path, "sensors/torque_sensor", f"unknown torque sensor '{where}'",
-                         f"use one of {', '.join(TORQUE_SENSORS)}")
-    return where
+                         f"use one of {', '.join(SensorPlacement)}")
+    return SensorPlacement(where)
 
 
 def simulate_run(
@@ -56,7 +55,7 @@ def simulate_run(
     hidden = _hidden_effects(effects, joints, path, seed, arms.truth, desired[0], rate)
     # A link-side torque sensor: the rigid-body inverse dynamics of the real arm without its drive terms,
     # at each sample's true state and acceleration (two MuJoCo calls per sample, only when tau is logged).
-    link_side = _torque_sensor(scenario, path) == "link" and "tau" in scenario["columns"]
+    link_side = _torque_sensor(scenario, path) == SensorPlacement.LINK_SIDE and "tau" in scenario["columns"]
     link = None
     # A load friction's level follows the same torque: what the gear transmits to the link.
     if link_side or hidden.load is not None:

@@ -23,7 +23,7 @@ from sim2real.measurements.records import (  # noqa: F401
     FilterSettings, GapPiece, GapRecord, HeldRecord, IncompleteRows, LoggingGap, RunMeta, SpikeRecord, StepRange,
 )
 from sim2real.measurements.runs import (  # noqa: F401
-    DEFAULT_TORQUE_SENSOR, SIGNAL_KINDS, TORQUE_SENSORS, MeasurementEntry, PreparedRun, Run, RunSet, TorqueSensor,
+    DEFAULT_TORQUE_SENSOR, SIGNAL_KINDS, MeasurementEntry, PreparedRun, Run, RunSet, SensorPlacement,
     check_run, load_measurement_list, load_run, measured_after_drive, measurement_settings, read_run, read_runs,
     torque_sensor_of, write_run,
 )

@@ -16,7 +16,7 @@ import numpy as np
 from sim2real.errors import InputError
 from sim2real.files import read_validated_yaml
 from sim2real.measurements.records import RunMeta
-from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR, write_run
+from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR, SensorPlacement, write_run
 
 DEFAULT_JOINT_TOPIC = "/joint_states"
 
@@ -33,7 +33,8 @@ def ros2_topics(path: str | Path) -> dict[str, str | None]:
 
 def mcap_to_run(
     bag_path: str | Path, output: str | Path, robot: str, joint_topic: str = DEFAULT_JOINT_TOPIC,
-    command_topic: str | None = None, joints: Sequence[str] | None = None, torque_sensor: str = DEFAULT_TORQUE_SENSOR,
+    command_topic: str | None = None, joints: Sequence[str] | None = None,
+    torque_sensor: SensorPlacement = DEFAULT_TORQUE_SENSOR,
 ) -> Path:
     """Convert a ROS 2 bag (MCAP) to a measurement run (table + metadata) at ``output``.
 

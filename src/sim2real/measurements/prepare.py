@@ -45,7 +45,7 @@ from sim2real.measurements.noise import (
 )
 from sim2real.measurements.signs import check_torque_signs
 from sim2real.measurements.records import (
-    FilterSettings, GapPiece, GapRecord, LoggingGap, SpikeRecord, StepRange,
+    FilterSettings, GapPiece, GapRecord, LoggingGap, SensorPlacement, SpikeRecord, StepRange,
 )
 from sim2real.measurements.runs import (
     DEFAULT_CUTOFF_HZ, DEFAULT_FILTER_ORDER, DEFAULT_TORQUE_SENSOR, MAX_GRID_PER_SAMPLE, MIN_SAMPLES, PreparedRun, Run,
@@ -128,7 +128,7 @@ def prepare_run(
         name=run.name, joint_names=list(run.joint_names), time=grid[sl], dt=dt, q=q_f[sl], qd=qd_f[sl],
         qdd=qdd_f[sl], torque_source="tau" if run.tau is not None else "tau_cmd",
         filter=dataclasses.replace(record, noise_floor=floor.record), raw_torque_sigma=floor.sigma,
-        torque_sensor=(run.meta.torque_sensor or DEFAULT_TORQUE_SENSOR) if run.tau is not None
+        torque_sensor=SensorPlacement(run.meta.torque_sensor or DEFAULT_TORQUE_SENSOR) if run.tau is not None
         else DEFAULT_TORQUE_SENSOR,
         entry=run.entry, **torques,
     )

@@ -9,13 +9,19 @@ the prepared runs' file) and is read back from it (``from_document``), the same 
 from __future__ import annotations
 
 from collections.abc import Mapping
+import enum
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal
 
-# Where a run's measured torque ``tau`` is taken (metadata ``torque_sensor``): at the motor's output, before the
-# joint's rotor inertia and friction (a motor-current estimate, the default), or after the gearbox (link-side:
-# the Panda's tau_J, a KUKA iiwa's sensors).
-TorqueSensor = Literal["motor", "link"]
+
+class SensorPlacement(enum.StrEnum):
+    """Where a run's measured torque ``tau`` is taken, its one definition (values: the run metadata's and the lab
+    scenario's ``torque_sensor``, and ladder.json's ``links.torque_sensor``): at the motor's output, before the joint's
+    rotor inertia and friction (a motor-current estimate, the default), or after the gearbox (link-side: the Panda's
+    tau_J, a KUKA iiwa's sensors)."""
+
+    MOTOR_SIDE = "motor"
+    LINK_SIDE = "link"
 
 
 @dataclass(frozen=True)
@@ -27,7 +33,7 @@ class RunMeta:
     source: Literal["real", "synthetic"]
     control_mode: Literal["torque", "position"]
     sample_rate_hz: float | None = None
-    torque_sensor: TorqueSensor | None = None
+    torque_sensor: SensorPlacement | None = None
     # per joint, +1 or -1: what the logged ``tau.<joint>`` is multiplied by to follow the URDF's joint axis (a sensor
     # or driver that reports the reaction torque); a joint not named keeps its sign
     torque_sign: Mapping[str, int] | None = None

@@ -12,7 +12,7 @@ import numpy as np
 
 from sim2real.errors import InputError
 from sim2real.measurements.prepare import prepare_for_model
-from sim2real.measurements.records import FilterSettings
+from sim2real.measurements.records import FilterSettings, SensorPlacement
 from sim2real.measurements.runs import MeasurementEntry, PreparedRun, RunSet
 
 # Prepared runs on disk (the rule ``prepare_runs``): one zip of .npy arrays and a JSON header, written with
@@ -64,7 +64,7 @@ def read_prepared_runs(path: str | Path, arrays: Collection[str] | None = None) 
             own = {name: read[f"{i}/{name}"] for name in item["arrays"] if f"{i}/{name}" in read}
             runs.append(PreparedRun(
                 name=item["name"], joint_names=list(item["joint_names"]), dt=float(item["dt"]),
-                torque_source=item["torque_source"], torque_sensor=item["torque_sensor"],
+                torque_source=item["torque_source"], torque_sensor=SensorPlacement(item["torque_sensor"]),
                 filter=FilterSettings.from_document(item["filter"]),
                 **{name: own.get(name) for name in _PREPARED_ARRAYS if name not in _SIGMAS},
                 **{name: own.get(name, np.zeros(0)) for name in _SIGMAS},

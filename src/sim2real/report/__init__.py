@@ -3,6 +3,8 @@
 Each module does one job of the rules ``gap_report`` and ``fleet`` (``rules/gap.smk``, ``rules/fleet.smk``):
 
 * :mod:`~sim2real.report.gap`: the report's orchestration (gap.json, gap.md, the figures);
+* :mod:`~sim2real.report.gap_document`: gap.json's top level as a typed record (its keys written and read there
+  alone);
 * :mod:`~sim2real.report.metrics`: torque-domain metrics, the reality-gap score and fidelity grade;
 * :mod:`~sim2real.report.replay`: the commands replayed in MuJoCo (multiple shooting), the state domain;
 * :mod:`~sim2real.report.regimes`: the regimes an error can live in, where the model fails, the worst windows;

@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from sim2real.files import atomic_path
+from sim2real.identification.ladder_rows import Rung, RungMetrics
+from sim2real.report.gap_document import GapReport
 from sim2real.report import rung_label
 from sim2real.report.regimes import REGIME_LABELS, REGIMES
 
@@ -144,10 +146,10 @@ def figure_residual_time(comparisons: Sequence[Any], target: str | Path) -> None
     _finish(fig, f"Torque residual (measured - model) against time, {SMOOTH_S:g} s moving mean", target)
 
 
-def figure_regimes(gap: Mapping[str, Any], target: str | Path) -> None:
+def figure_regimes(gap: GapReport, target: str | Path) -> None:
     """Per joint and regime: the residual step between the regime's two sides, against the noise floor."""
-    joints = gap["joints"]
-    per_joint = gap["where"]["per_joint"]
+    joints = list(gap.joints)
+    per_joint = gap.where["per_joint"]
     x = np.arange(len(joints))
     width = 0.8 / (len(REGIMES) + 1)
     fig, ax = _pyplot().subplots(figsize=(max(6.0, 1.1 * len(joints)), 3.4))
@@ -166,21 +168,19 @@ def figure_regimes(gap: Mapping[str, Any], target: str | Path) -> None:
     _save(fig, target)
 
 
-def figure_ladder(gap: Mapping[str, Any], target: str | Path) -> None:
+def figure_ladder(gap: GapReport, target: str | Path) -> None:
     """Holdout torque RMSE rung by rung (overall and per joint) against the noise floor."""
-    ladder = gap.get("ladder") or [
-        {"effects": [], "metrics": {"torque_rmse": gap["metrics"]["torque_rmse"]}}
-    ]
-    floor = gap["noise_floor"]["torque_rmse"]
+    ladder = gap.ladder or [Rung((), RungMetrics(gap.metrics["torque_rmse"]))]
+    floor = gap.floor
     x = np.arange(len(ladder))
     fig, ax = _pyplot().subplots(figsize=(max(4.5, 1.6 * len(ladder) + 2.5), 3.4))
-    for j, joint in enumerate(gap["joints"]):
-        per_joint = [rung["metrics"]["torque_rmse"]["per_joint"][joint] for rung in ladder]
+    for j, joint in enumerate(gap.joints):
+        per_joint = [rung.metrics.torque_rmse["per_joint"][joint] for rung in ladder]
         ax.plot(x, per_joint, marker=".", lw=0.8, alpha=0.6, color=f"C{j % 10}", label=joint)
-    overall = [rung["metrics"]["torque_rmse"]["overall"] for rung in ladder]
+    overall = [rung.metrics.torque_rmse["overall"] for rung in ladder]
     ax.plot(x, overall, marker="o", lw=2.2, color="black", label="overall")
     ax.axhline(floor["overall"], color="black", ls="--", lw=1.0, label="noise floor (overall)")
-    ax.set_xticks(x, [rung_label(rung["effects"]) for rung in ladder], fontsize=8)
+    ax.set_xticks(x, [rung_label(rung.effects) for rung in ladder], fontsize=8)
     ax.set_xlim(-0.6, len(ladder) - 0.4)  # the first and last rungs' labels inside the figure
     ax.set_yscale("log")
     ax.set_ylabel("holdout torque RMSE [N m]", fontsize=8)
@@ -191,7 +191,7 @@ def figure_ladder(gap: Mapping[str, Any], target: str | Path) -> None:
     _save(fig, target)
 
 
-def _draw(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any], figures: Mapping[str, str | Path]) -> bytes:
+def _draw(name: str, gap: GapReport, comparisons: Sequence[Any], figures: Mapping[str, str | Path]) -> bytes:
     """One figure of :class:`GapFigures` by its key; its PNG's bytes."""
     if name == "torque":
         figure_torque(comparisons, figures[name])
@@ -209,7 +209,7 @@ def _draw(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any], figures
 FIGURES = ("torque", "residual_velocity", "residual_time", "regimes", "ladder")
 
 
-def _figure_inputs(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any] | None) -> Any:
+def _figure_inputs(name: str, gap: GapReport, comparisons: Sequence[Any] | None) -> Any:
     """What the figure ``name`` is drawn from (:func:`_draw`): the same inputs draw the same bytes; None while
     part of it is not known yet (:meth:`GapFigures.show`)."""
     if name in ("torque", "residual_velocity", "residual_time"):
@@ -220,17 +220,17 @@ def _figure_inputs(name: str, gap: Mapping[str, Any], comparisons: Sequence[Any]
         return (_pick_run(comparisons) if name == "torque"
                 else [(c.run.qd, c.residual, c.run.joint_names) for c in comparisons])
     if name == "regimes":
-        return (gap["joints"], gap["where"]["per_joint"]) if "where" in gap else None
-    if gap.get("ladder"):
-        shown: Any = [(rung["effects"], rung["metrics"]["torque_rmse"]) for rung in gap["ladder"]]
-    elif "metrics" in gap:
-        shown = gap["metrics"]["torque_rmse"]  # no ladder: the nominal model's error alone
+        return (list(gap.joints), gap.where["per_joint"]) if gap.where is not None else None
+    if gap.ladder:
+        shown: Any = [(list(rung.effects), rung.metrics.torque_rmse) for rung in gap.ladder]
+    elif gap.metrics is not None:
+        shown = gap.metrics["torque_rmse"]  # no ladder: the nominal model's error alone
     else:
         return None
-    return gap["joints"], shown, gap["noise_floor"]["torque_rmse"]
+    return list(gap.joints), shown, gap.floor
 
 
-def _draw_all(names: Sequence[str], gap: Mapping[str, Any], comparisons: Sequence[Any] | None,
+def _draw_all(names: Sequence[str], gap: GapReport, comparisons: Sequence[Any] | None,
               figures: Mapping[str, str | Path]) -> list[bytes]:
     return [_draw(name, gap, comparisons, figures) for name in names]
 
@@ -252,12 +252,13 @@ class GapFigures:
         self.kept: dict[str, tuple[Any] | None] = {}
         self.drawing: list[tuple[list[str], Callable[[], list[bytes]]]] = []
 
-    def show(self, gap: Mapping[str, Any], comparisons: Sequence[Any] | None = None) -> None:
+    def show(self, gap: GapReport | Mapping[str, Any], comparisons: Sequence[Any] | None = None) -> None:
         """Start every figure not started yet whose inputs ``gap`` (the report so far) and ``comparisons`` hold."""
         from importlib.metadata import version
 
         from sim2real.forked import Forked
 
+        gap = GapReport.of(gap)
         ready = []
         for name in FIGURES:
             inputs = None if name in self.keys else _figure_inputs(name, gap, comparisons)

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from sim2real.identification.diagnosis.result import JointStanding, ModelFreeCeiling
+from sim2real.identification.ladder_rows import Rung
+from sim2real.report.gap_document import GapReport, LinkSection
 from sim2real.report.verdicts import first_screen_verdict, left_text
 
 
@@ -74,27 +76,27 @@ class FirstScreen:
                 + f"</title><style>{style}</style></head>\n<body>\n" + "\n".join(parts) + "\n</body></html>\n")
 
 
-def ladder_table(ladder: Sequence[Mapping[str, Any]], floor: float, unconstrained: bool) -> Table:
+def ladder_table(ladder: Sequence[Rung], floor: float, unconstrained: bool) -> Table:
     """One link's ladder: holdout error per rung, its fall, against the floor (arm-wide: each joint x its own
     floor, and the worst joint), and the replay's position error."""
-    first = ladder[0]["metrics"]["torque_rmse"]["overall"]
+    first = ladder[0].metrics.torque_rmse["overall"]
     head = ("rung", "effects", "holdout torque RMSE [N m]", "change from nominal", "x noise floor (worst joint)",
             *(("unconstrained fit [N m]",) if unconstrained else ()), "replay position RMSE [rad]")
     rows = []
     for k, rung in enumerate(ladder):
-        value = rung["metrics"]["torque_rmse"]["overall"]
+        value = rung.metrics.torque_rmse["overall"]
         change = f"{100 * (value - first) / first:+.0f}%" if k and first else "–"
-        position = rung["metrics"].get("position_rmse", {}).get("overall")
-        x_floor = rung["metrics"].get("torque_x_floor")
+        position = (rung.metrics.position_rmse or {}).get("overall")
+        x_floor = rung.metrics.torque_x_floor
         if x_floor:
             worst = max(x_floor["per_joint"], key=x_floor["per_joint"].get)
             ratio = f"{x_floor['overall']:.2f} ({worst} {x_floor['per_joint'][worst]:.2f})"
         else:
             ratio = f"{value / floor:.2f}"
-        row = [str(k), ", ".join(rung["effects"]) or "nominal", f"{value:.3g}", change, ratio]
+        row = [str(k), ", ".join(rung.effects) or "nominal", f"{value:.3g}", change, ratio]
         if unconstrained:
-            free = rung["metrics"].get("unconstrained_torque_rmse", {}).get("overall")
-            physical = rung.get("consistency", {}).get("unconstrained_physical")
+            free = (rung.metrics.unconstrained_torque_rmse or {}).get("overall")
+            physical = (rung.consistency or {}).get("unconstrained_physical")
             row.append(fmt(free) + (" (non-physical)" if physical is False else ""))
         rows.append((*row, fmt(position)))
     return Table(head, tuple(rows))
@@ -107,25 +109,31 @@ class SideView:
 
     name: str
     diagnosis: Mapping[str, Any] | None
-    ladder: Sequence[Mapping[str, Any]]
+    ladder: Sequence[Rung]
     floor: Mapping[str, Any]
     rmse: Mapping[str, float]
     nominal: Mapping[str, float] | None
 
 
-def sides(gap: Mapping[str, Any]) -> list[SideView]:
-    """The report's links as the first screen may show them: the body link, then the actuator link where there is one."""
-    nominal = gap["ladder"][0]["metrics"]["torque_rmse"]["per_joint"] if gap.get("metrics", {}).get("model") else None
-    sides = [SideView("body link", gap.get("diagnosis"), gap.get("ladder") or [], gap["noise_floor"]["torque_rmse"],
-                      gap["metrics"]["torque_rmse"]["per_joint"], nominal)]
-    link = gap.get("actuator")
-    if link and link.get("ladder"):
-        sides.append(SideView("actuator link", link.get("diagnosis"), link["ladder"], link["noise_floor"]["torque_rmse"],
-                              link["ladder"][-1]["metrics"]["torque_rmse"]["per_joint"], None))
+def sides(gap: GapReport | Mapping[str, Any]) -> list[SideView]:
+    """The report's links as the first screen may show them: the body link, then the actuator link where there is
+    one."""
+    gap = GapReport.of(gap)
+    ladder = gap.ladder or ()
+    nominal = ladder[0].metrics.torque_rmse["per_joint"] if gap.model else None
+    sides = [SideView("body link", gap.diagnosis, ladder, gap.floor, gap.metrics["torque_rmse"]["per_joint"], nominal)]
+    if gap.actuator is not None and gap.actuator.ladder:
+        sides.append(actuator_view(gap.actuator))
     return sides
 
 
-def leading_side(gap: Mapping[str, Any]) -> SideView:
+def actuator_view(link: LinkSection) -> SideView:
+    """The actuator link (gap.json ``actuator``) as the report shows it, judged by its ladder's last rung."""
+    return SideView("actuator link", link.diagnosis, link.ladder, link.floor,
+                    link.ladder[-1].metrics.torque_rmse["per_joint"], None)
+
+
+def leading_side(gap: GapReport | Mapping[str, Any]) -> SideView:
     """The link the first screen shows: the body link, or the actuator link where only it has something left."""
     links = sides(gap)
     for side in links:
@@ -137,7 +145,7 @@ def leading_side(gap: Mapping[str, Any]) -> SideView:
 def _floors(side: SideView) -> dict[str, tuple[float | None, float]]:
     """Each joint's (x its floor, the floor): the ladder's figure, measured against the floor of the holdout runs the
     ladder judges on (its RMSE over it, so that a row reads RMSE / floor = x floor); else the report's floor."""
-    ladder_x = ((side.ladder[-1]["metrics"].get("torque_x_floor") or {}).get("per_joint") if side.ladder else None)
+    ladder_x = (side.ladder[-1].metrics.torque_x_floor or {}).get("per_joint") if side.ladder else None
     floors = side.floor["per_joint"]
     out: dict[str, tuple[float | None, float]] = {}
     for joint, value in side.rmse.items():
@@ -182,21 +190,22 @@ def model_name(model: Mapping[str, Any]) -> str:
     return f"rung {model['rung']}: the URDF + {', '.join(model['effects'])}"
 
 
-def first_screen(gap: Mapping[str, Any]) -> FirstScreen:
+def first_screen(gap: GapReport | Mapping[str, Any]) -> FirstScreen:
     """gap.md's first screen (the HTML report's too): the verdict of the leading link (:func:`leading_side`) in at most
     three sentences, its ladder, and the current model joint by joint."""
+    gap = GapReport.of(gap)
     side = leading_side(gap)
-    model = gap["metrics"].get("model")
+    model = gap.model
     verdict: tuple[str, ...] = ()
     if side.diagnosis:
         floors = _floors(side)
         x_floor = {j: x for j, (x, _) in floors.items() if x is not None}
-        verdict = tuple(first_screen_verdict(side.diagnosis, gap["robot"], x_floor, side.rmse,
+        verdict = tuple(first_screen_verdict(side.diagnosis, gap.robot, x_floor, side.rmse,
                                              {j: floor for j, (_, floor) in floors.items()}))
     ladder = ladder_table(side.ladder, side.floor["overall"], unconstrained=side.name == "body link") \
         if side.ladder else None
-    caption = (f"**Model ladder** ({side.name}): the effects of configs/{gap['robot']}/model.yaml added one by one, "
+    caption = (f"**Model ladder** ({side.name}): the effects of configs/{gap.robot}/model.yaml added one by one, "
                "each rung fitted on the `fit` runs and judged on the `holdout` runs.")
     current = f"{model_name(model)}, on the holdout runs" if model else "the URDF, on every run"
     joints_caption = f"**Per joint**, {current} ({side.name}), each joint in units of its own noise floor:"
-    return FirstScreen(f"Reality gap: {gap['robot']}", verdict, caption, ladder, joints_caption, joints_table(side))
+    return FirstScreen(f"Reality gap: {gap.robot}", verdict, caption, ladder, joints_caption, joints_table(side))

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from sim2real.errors import InputError
+from sim2real.identification.ladder_rows import LadderDocument, SideRows
 from sim2real.report import rung_label
 
 UNIT_TEXT = {"N*m": "N·m", "N*m*s/rad": "N·m·s/rad", "kg*m^2": "kg·m²", "1": ""}
@@ -150,16 +151,16 @@ def compare_campaigns(
     return changes, compared
 
 
-def holdout_summary(ladder: Mapping[str, Any]) -> dict[str, Any]:
-    """Holdout torque RMSE per rung of a sysid ladder.json, with the noise floor."""
+def holdout_summary(side: SideRows) -> dict[str, Any]:
+    """Holdout torque RMSE per rung of one side of a sysid ladder.json, with the noise floor."""
     rungs = []
-    for rung in ladder.get("ladder") or []:
+    for rung in side.rungs:
         rungs.append({
-            "effects": list(rung["effects"]),
-            "label": rung_label(rung["effects"]),
-            "torque_rmse": float(rung["metrics"]["torque_rmse"]["overall"]),
+            "effects": list(rung.effects),
+            "label": rung_label(rung.effects),
+            "torque_rmse": float(rung.metrics.torque_rmse["overall"]),
         })
-    floor = ladder.get("noise_floor", {}).get("torque_rmse", {}).get("overall")
+    floor = side.floor.get("overall")
     return {"rungs": rungs, "noise_floor": None if floor is None else float(floor)}
 
 
@@ -190,10 +191,11 @@ def fleet_document(campaigns: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         ordered = sorted(items, key=lambda i: (i["date"] is not None, i["date"] or "", i["campaign"]))
         campaigns_out = []
         for item in ordered:
+            ladder = LadderDocument.from_document(item["ladder"])
             campaigns_out.append({
                 "campaign": item["campaign"], "date": item["date"], "measurements": item["measurements"],
-                "report": item["report"], "holdout": holdout_summary(item["ladder"]),
-                "actuator_holdout": holdout_summary(item["ladder"]["actuator"]) if item["ladder"].get("actuator") else None,
+                "report": item["report"], "holdout": holdout_summary(ladder.body),
+                "actuator_holdout": holdout_summary(ladder.actuator) if ladder.actuator is not None else None,
                 "identified": identified_values(item["params"]),
             })
         comparisons = []

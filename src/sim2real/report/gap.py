@@ -29,7 +29,7 @@ merged in; each rung of either link is replayed with its fitted effects.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -41,9 +41,11 @@ from sim2real.assets.dynamics import RigidBodyModel
 from sim2real.errors import InputError
 from sim2real.files import relative_path, validate, write_json
 from sim2real.identification.formats import read_ladder, read_model_residuals
+from sim2real.identification.ladder_rows import LadderDocument, Rung
 from sim2real.measurements import PreparedRun, RunSet, measured_after_drive, noise_floor_of, runs_for_model
 from sim2real.measurements.motion import not_judged_document
 from sim2real.measurements.noise import floor_method_document
+from sim2real.report.gap_document import GapReport, nominal_section
 from sim2real.report.metrics import TorqueComparison, per_joint_dict, torque_metrics
 from sim2real.report.regimes import where_it_fails
 from sim2real.report.replay import ReplayModels, ladder_position_rmse, model_armature, state_domain
@@ -74,12 +76,13 @@ def holdout_comparisons(path: str | Path, model: RigidBodyModel) -> list[TorqueC
 def current_model(precomputed: Mapping[str, Any]) -> dict[str, Any]:
     """What the report judges: the last rung of the body link's ladder (and of the actuator link's, which the
     replay drives), as ``identified`` for :func:`replay`, and its name."""
-    body = precomputed["ladder"][-1]
-    params = dict(body.get("params") or {})
-    if precomputed.get("actuator"):
-        params.update(precomputed["actuator"]["ladder"][-1].get("params") or {})
-    return {"effects": list(body["effects"]), "rung": len(precomputed["ladder"]) - 1,
-            "identified": {"effects": params, "torque_source": precomputed.get("torque_source")}}
+    read = LadderDocument.from_document(precomputed)
+    ladder = read.body.rungs
+    params = dict(ladder[-1].values)
+    if read.actuator is not None:
+        params.update(read.actuator.rungs[-1].values)
+    return {"effects": list(ladder[-1].effects), "rung": len(ladder) - 1,
+            "identified": {"effects": params, "torque_source": read.torque_source}}
 
 
 @dataclass(frozen=True)
@@ -106,15 +109,16 @@ class GapInputs:
 
 def compute_gap(
     inputs: GapInputs, precomputed: Mapping[str, Any] | None = None, cache: FitCache | None = None,
-    progress: Callable[[dict[str, Any], list[TorqueComparison] | None], Any] | None = None,
+    progress: Callable[[GapReport, list[TorqueComparison] | None], Any] | None = None,
 ) -> tuple[dict[str, Any], list[TorqueComparison]]:
     """The gap.json content (validated) and the per-run comparisons (for figures).
 
     ``precomputed``: the ladder's sections (default: read from ``inputs.ladder``, none without it); ``cache``:
     replays of an earlier report kept there (:class:`ReplayModels`); ``progress``: called with the part of the
-    content known so far, twice: the joints, the noise floor and the precomputed sections (no comparisons yet),
-    then with the torque domain (the runs, the torque metrics, where it fails) and the comparisons, before the
-    commands are replayed (the report draws each figure as soon as what it shows is known).
+    report known so far (a :class:`~sim2real.report.gap_document.GapReport`), twice: the joints, the noise floor and
+    the precomputed sections (no comparisons yet), then with the torque domain (the runs, the torque metrics, where
+    it fails) and the comparisons, before the commands are replayed (the report draws each figure as soon as what
+    it shows is known).
 
     With a ladder (``precomputed``) and its residuals (``inputs.residuals``, the sysid rule's), the report
     describes the model being calibrated, the ladder's last rung: the top-level ``metrics`` (on the holdout
@@ -156,24 +160,26 @@ def compute_gap(
     if precomputed is None:
         precomputed = inputs.read_ladder()
     prepared = runs_for_model(inputs.measurements, inputs.urdf, inputs.root)
+    torque_source = LadderDocument.from_document(precomputed).torque_source if precomputed else None
     replay = _Replay(inputs.mjcf, ReplayModels(inputs.mjcf, cache) if inputs.mjcf is not None else None,
-                     prepared.settings, (precomputed or {}).get("torque_source"))
+                     prepared.settings, torque_source)
     model = _rigid_body_model(inputs.urdf, prepared, replay)
-    floor, gap = _gap_head(inputs.robot, model.joint_names, prepared, precomputed)
+    floor, report = _gap_head(inputs.robot, model.joint_names, prepared, precomputed)
     if progress is not None:
-        progress(gap, None)
+        progress(report, None)
 
     comparisons = _torque_comparisons(prepared, model)
-    current = current_model(precomputed) if precomputed and "ladder" in gap and inputs.residuals is not None else None
-    judged = _torque_domain(gap, comparisons, model, floor, current, inputs.residuals)
+    laddered = bool(precomputed) and report.ladder is not None
+    current = current_model(precomputed) if laddered and inputs.residuals is not None else None
+    report, judged = _torque_domain(report, comparisons, model, floor, current, inputs.residuals)
     if progress is not None:
-        progress(gap, judged)
+        progress(report, judged)
 
-    nominal = gap["nominal"]["metrics"] if current is not None else gap["metrics"]
-    _replay_models(gap, nominal, comparisons, current, replay)
-    if precomputed and "ladder" in gap and replay.mjcf is not None and nominal["state_domain"]["status"] == "computed":
-        _replay_ladders(gap, comparisons, replay)
-    gap = json.loads(json.dumps(gap))  # plain JSON types only
+    nominal = report.nominal_metrics if current is not None else report.metrics
+    _replay_models(report, nominal, comparisons, current, replay)
+    if laddered and replay.mjcf is not None and nominal["state_domain"]["status"] == "computed":
+        report = _replay_ladders(report, comparisons, replay)
+    gap = json.loads(json.dumps(report.as_document()))  # plain JSON types only
     validate(gap, "gap.schema.json", "gap.json")
     return gap, judged
 
@@ -199,7 +205,7 @@ def _rigid_body_model(urdf: str | Path, prepared: RunSet[PreparedRun], replay: _
 
 
 def _gap_head(robot: str, joints: list[str], prepared: RunSet[PreparedRun],
-              precomputed: Mapping[str, Any] | None) -> tuple[np.ndarray, dict[str, Any]]:
+              precomputed: Mapping[str, Any] | None) -> tuple[np.ndarray, GapReport]:
     """The arm-wide noise floor per joint (the runs' floors weighed by their samples), and what gap.json knows
     before any comparison: the robot, the joints, that floor and the ladder's sections, in their words."""
     floors = np.array([noise_floor_of(p) for p in prepared])
@@ -207,15 +213,9 @@ def _gap_head(robot: str, joints: list[str], prepared: RunSet[PreparedRun],
     floor = np.sqrt(np.average(floors**2, axis=0, weights=weights))
     noise_floor = {"torque_rmse": per_joint_dict(floor, joints, float(np.sqrt(np.mean(floor**2)))),
                    **floor_method_document(prepared, joints)}
-    gap: dict[str, Any] = {"robot": robot, "joints": joints, "noise_floor": noise_floor}
-    not_judged = not_judged_document(prepared.fit)
-    if not_judged is not None:  # the joints the fit runs barely move: not judged, their drives held at the URDF's
-        gap["not_judged"] = not_judged
-    sections = worded(precomputed, robot) if precomputed else {}
-    for key in ("ladder", "diagnosis", "actuator", "links"):
-        if key in sections:
-            gap[key] = json.loads(json.dumps(sections[key]))
-    return floor, gap
+    # not_judged: the joints the fit runs barely move, their drives held at the URDF's (None: every joint judged)
+    report = GapReport(robot, tuple(joints), noise_floor, not_judged=not_judged_document(prepared.fit))
+    return floor, report.with_ladder(worded(precomputed, robot) if precomputed else {})
 
 
 def _torque_comparisons(prepared: RunSet[PreparedRun], model: RigidBodyModel) -> list[TorqueComparison]:
@@ -243,20 +243,19 @@ def _run_document(c: TorqueComparison, joints: list[str]) -> dict[str, Any]:
     }
 
 
-def _torque_domain(gap: dict[str, Any], comparisons: list[TorqueComparison], model: RigidBodyModel,
+def _torque_domain(report: GapReport, comparisons: list[TorqueComparison], model: RigidBodyModel,
                    floor: np.ndarray, current: Mapping[str, Any] | None,
-                   residuals_path: str | Path | None) -> list[TorqueComparison]:
-    """The runs, the torque metrics and where the model fails, into ``gap``; the comparisons judged. Without a
+                   residuals_path: str | Path | None) -> tuple[GapReport, list[TorqueComparison]]:
+    """``report`` with the runs, the torque metrics and where the model fails; the comparisons judged. Without a
     current model (``current``), the nominal URDF's on every run; with one, its own on the holdout runs (from
     the sysid rule's residuals), and the nominal URDF's under ``nominal``."""
     joints = model.joint_names
     metrics = torque_metrics(np.concatenate([c.run.tau for c in comparisons]),
                              np.concatenate([c.residual for c in comparisons]), joints)
-    runs_out = [_run_document(c, joints) for c in comparisons]
-    nominal = {"metrics": metrics, "where": where_it_fails(comparisons, model.lower, model.upper, floor)}
+    runs_out = tuple(_run_document(c, joints) for c in comparisons)
+    where = where_it_fails(comparisons, model.lower, model.upper, floor)
     if current is None:
-        gap.update({"runs": runs_out, "metrics": metrics, "where": nominal["where"]})
-        return comparisons
+        return replace(report, runs=runs_out, metrics=metrics, where=where), comparisons
     judged = holdout_comparisons(residuals_path, model)
     last = torque_metrics(np.concatenate([c.run.tau for c in judged]),
                           np.concatenate([c.residual for c in judged]), joints)
@@ -264,18 +263,17 @@ def _torque_domain(gap: dict[str, Any], comparisons: list[TorqueComparison], mod
         "rung": current["rung"], "effects": current["effects"],
         "judged_on": "the holdout runs at the fit's rate, as the ladder judges each rung (the nominal URDF's "
         "metrics under nominal: every run at the log's rate)"}
-    gap.update({"runs": runs_out, "metrics": last, "where": where_it_fails(judged, model.lower, model.upper, floor),
-                "nominal": nominal})
-    return judged
+    return replace(report, runs=runs_out, metrics=last, where=where_it_fails(judged, model.lower, model.upper, floor),
+                   nominal=nominal_section(metrics, where)), judged
 
 
-def _replay_models(gap: dict[str, Any], nominal: dict[str, Any], comparisons: list[TorqueComparison],
+def _replay_models(report: GapReport, nominal: dict[str, Any], comparisons: list[TorqueComparison],
                    current: Mapping[str, Any] | None, replay: _Replay) -> None:
     """The state domain of ``nominal`` (the nominal MJCF on every run) and of the current model (on the holdout
     runs, where it is judged; the ladder's last rung replays the same: one replay for both)."""
     holdout = [c for c in comparisons if c.role == "holdout"]
     sections = ([(nominal, None, comparisons)] if current is None
-                else [(nominal, None, comparisons), (gap["metrics"], current["identified"], holdout)])
+                else [(nominal, None, comparisons), (report.metrics, current["identified"], holdout)])
     for section, identified, replayed in sections:
         if replay.mjcf is None:
             section["state_domain"] = {"status": "skipped", "reason": "no MJCF given to replay the commands in"}
@@ -287,23 +285,27 @@ def _replay_models(gap: dict[str, Any], nominal: dict[str, Any], comparisons: li
             section["velocity_rmse"] = section["state_domain"]["velocity_rmse"]
 
 
-def _replay_ladders(gap: dict[str, Any], comparisons: list[TorqueComparison], replay: _Replay) -> None:
-    """Each rung replayed with its fitted effects written into the MJCF: the state-domain view of the ladder,
-    into each rung's metrics (``position_rmse``); the actuator's rungs on the body's last rung."""
-    positions = ladder_position_rmse(replay.mjcf, comparisons, replay.settings["horizon_s"], gap["ladder"],
+def _replay_ladders(report: GapReport, comparisons: list[TorqueComparison], replay: _Replay) -> GapReport:
+    """``report`` with each rung replayed with its fitted effects written into the MJCF: the state-domain view of the
+    ladder, in each rung's metrics (``position_rmse``); the actuator's rungs on the body's last rung."""
+    ladder = report.ladder or ()
+    positions = ladder_position_rmse(replay.mjcf, comparisons, replay.settings["horizon_s"], ladder,
                                      replay.torque_source, replay.models)
-    for rung, position in zip(gap["ladder"], positions):
-        if position is not None:
-            rung["metrics"]["position_rmse"] = position
-    if "actuator" in gap:
+    report = replace(report, ladder=_with_positions(ladder, positions))
+    if report.actuator is not None:
         # The actuator's rungs replayed on the body link's last rung: the commands reach that body.
-        body = gap["ladder"][-1].get("params") or {}
-        rungs = [{**rung, "params": {**body, **(rung.get("params") or {})}} for rung in gap["actuator"]["ladder"]]
-        positions = ladder_position_rmse(replay.mjcf, comparisons, replay.settings["horizon_s"], rungs,
+        actuator = report.actuator.ladder
+        on_body = [replace(rung, params={**ladder[-1].values, **rung.values}) for rung in actuator]
+        positions = ladder_position_rmse(replay.mjcf, comparisons, replay.settings["horizon_s"], on_body,
                                          replay.torque_source, replay.models)
-        for rung, position in zip(gap["actuator"]["ladder"], positions):
-            if position is not None:
-                rung["metrics"]["position_rmse"] = position
+        report = replace(report, actuator=replace(report.actuator, ladder=_with_positions(actuator, positions)))
+    return report
+
+
+def _with_positions(ladder: Sequence[Rung], positions: Sequence[Mapping[str, Any] | None]) -> tuple[Rung, ...]:
+    """A side's rungs, each with its replay's position RMSE where it has one."""
+    return tuple(rung.with_position(position) if position is not None else rung
+                 for rung, position in zip(ladder, positions, strict=True))
 
 
 def build_gap_report(

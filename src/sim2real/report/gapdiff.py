@@ -6,9 +6,9 @@ each side ends with, joint by joint. A change is marked 🔴/🟢 only where the
 (:func:`resolution`): smaller, it is shown unchanged (⚪), and two fits that differ only within the noise read "no
 change beyond the noise".
 
-Reads only the stable keys of ``gap.json`` (``robot``, ``runs``, ``ladder[].effects``, ``ladder[].metrics.torque_rmse``,
-``ladder[-1].params.link_inertia.bodies``, ``noise_floor``, ``diagnosis``, and the same of the ``actuator`` link
-where the runs have one).
+Reads gap.json through :class:`~sim2real.report.gap_document.GapReport`, and of it only the stable parts (the robot,
+the holdout runs' lengths, each rung's effects and holdout torque RMSE, the last rung's link inertias, the noise
+floor, the diagnosis, and the same of the actuator link where the runs have one).
 """
 
 from __future__ import annotations
@@ -21,10 +21,33 @@ from pathlib import Path
 from typing import Any
 
 from sim2real.errors import InputError
+from sim2real.identification.ladder_rows import Rung
 from sim2real.report import rung_label
+from sim2real.report.gap_document import GapReport
 from sim2real.report.verdicts import BOUND_TEXT
 
-GapReport = Mapping[str, Any]
+
+@dataclass(frozen=True)
+class _Link:
+    """One link of a report as the comment compares it: the report's runs, the link's noise floor (its torque RMSE),
+    rungs and diagnosis."""
+
+    runs: tuple[Mapping[str, Any], ...]
+    floor: Mapping[str, Any]
+    ladder: tuple[Rung, ...]
+    diagnosis: Mapping[str, Any] | None
+
+
+def _link(report: GapReport, actuator: bool) -> _Link:
+    """The body link of ``report``, or its actuator link (``actuator``; nothing of it where it has none). A link is
+    judged on its report's runs."""
+    runs = report.runs or ()
+    if not actuator:
+        return _Link(runs, report.floor, report.ladder or (), report.diagnosis)
+    if report.actuator is None:
+        return _Link(runs, {}, (), None)
+    return _Link(runs, report.actuator.floor, report.actuator.ladder, report.actuator.diagnosis)
+
 
 # What no change of code can promise to hold: a held-out metric moves this much across CPUs and BLAS kernels with the
 # same code and data (tests/test_loop_pinned.py, docs/performance.md): 1 % of itself or 2.5 % of its joint's floor.
@@ -40,6 +63,7 @@ STATUS_TEXT = {"add_effect": "an effect to add", "not_told_apart": "effects not 
 
 
 def load_gap(path: str | Path) -> GapReport:
+    """gap.json as a :class:`GapReport`; a missing file, or one that is no gap report, is an input error."""
     path = Path(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -49,15 +73,17 @@ def load_gap(path: str | Path) -> GapReport:
         raise InputError(path, f"line {exc.lineno}", f"is not valid JSON ({exc.msg})", "rebuild it with snakemake") from exc
     if not isinstance(data, dict) or "robot" not in data:
         raise InputError(path, "top level", "has no 'robot' key, so it is not a gap report", "pass results/<robot>/gap.json")
-    return data
+    return GapReport.from_document(data)
 
 
 # --- what the noise can resolve -----------------------------------------------------------------------------------
 
-def independent_samples(report: GapReport | None) -> float | None:
+def independent_samples(report: GapReport | _Link | Mapping[str, Any] | None) -> float | None:
     """Roughly independent samples of the holdout runs: their length times twice the filter's cutoff (samples closer
     than half a period of the cutoff move together); None where the report does not say."""
-    runs = [r for r in (report or {}).get("runs") or [] if r.get("role") == "holdout"]
+    if report is not None and not isinstance(report, _Link):
+        report = _link(GapReport.of(report), actuator=False)
+    runs = [r for r in (report.runs if report is not None else ()) if r.get("role") == "holdout"]
     try:
         count = sum(float(r["duration_s"]) * 2.0 * float(r["filter"]["cutoff_hz"]) for r in runs)
     except (KeyError, TypeError, ValueError):
@@ -106,22 +132,20 @@ def _fmt(value: float | None, unit: str = "") -> str:
     return "–" if value is None else f"{value:.4g}{unit}"
 
 
-def _label(rung: Mapping[str, Any] | None) -> str:
-    return rung_label((rung or {}).get("effects") or [], whole=True)
+def _label(rung: Rung | None) -> str:
+    return rung_label(rung.effects if rung is not None else (), whole=True)
 
 
-def _torque_rmse(rung: Mapping[str, Any] | None) -> Mapping[str, Any]:
-    if not rung:
-        return {}
-    return rung.get("metrics", {}).get("torque_rmse", {}) or {}
+def _torque_rmse(rung: Rung | None) -> Mapping[str, Any]:
+    return rung.metrics.torque_rmse if rung is not None else {}
 
 
-def _floors(report: GapReport | None) -> Mapping[str, float]:
-    return ((report or {}).get("noise_floor") or {}).get("torque_rmse", {}).get("per_joint", {})
+def _floors(link: _Link | None) -> Mapping[str, float]:
+    return link.floor.get("per_joint", {}) if link is not None else {}
 
 
-def joint_changes(base_rung: Mapping[str, Any] | None, head_rung: Mapping[str, Any], base: GapReport | None,
-                  head: GapReport) -> dict[str, tuple[float | None, float | None, Change]]:
+def joint_changes(base_rung: Rung | None, head_rung: Rung, base: _Link | None,
+                  head: _Link) -> dict[str, tuple[float | None, float | None, Change]]:
     """Each joint of ``head_rung``: (base, head, change), the change resolved against the larger floor and the
     shorter holdout of the two sides."""
     base_joints, head_joints = _torque_rmse(base_rung).get("per_joint", {}), _torque_rmse(head_rung).get("per_joint", {})
@@ -176,8 +200,8 @@ def verdict_lines(base: Mapping[str, Any] | None, head: Mapping[str, Any] | None
 
 def _bodies(report: GapReport | None, key: str) -> dict[str, list[str]]:
     """Bodies of the last rung's link inertias with a ``key`` ("binding": held at a bound, "implausible") set."""
-    ladder = (report or {}).get("ladder") or []
-    link = ((ladder[-1].get("params") or {}).get("link_inertia") or {}) if ladder else {}
+    ladder = (report.ladder or ()) if report is not None else ()
+    link = (ladder[-1].values.get("link_inertia") or {}) if ladder else {}
     return {name: list(b.get(key) or []) for name, b in (link.get("bodies") or {}).items() if b.get(key)}
 
 
@@ -199,14 +223,10 @@ def bodies_lines(base: GapReport | None, head: GapReport) -> list[str]:
 
 # --- the comment ------------------------------------------------------------------------------------------------------
 
-def _rung_rows(head: GapReport, base: GapReport | None,
-               side: str | None = None) -> tuple[list[str], list[str]]:
+def _rung_rows(head_link: _Link, base_link: _Link | None) -> tuple[list[str], list[str]]:
     """One row per rung of this branch against the base's rung with the same effects, removed rungs last; and the
     rungs worse beyond the noise (a joint of theirs worse beyond its resolution)."""
-    # A link is judged on its report's runs: the actuator link's part takes them from the report around it.
-    head_link = {"runs": head.get("runs"), **head[side]} if side else head
-    base_link = {"runs": (base or {}).get("runs"), **(((base or {}).get(side) if side else base) or {})}
-    head_ladder, base_ladder = head_link.get("ladder") or [], base_link.get("ladder") or []
+    head_ladder, base_ladder = head_link.ladder, base_link.ladder if base_link is not None else ()
     base_by_label = {_label(r): r for r in base_ladder}
     lines = ["| rung | holdout torque RMSE (base) | (this branch) | change |", "|---|---|---|---|"]
     worse = []
@@ -227,9 +247,9 @@ def _rung_rows(head: GapReport, base: GapReport | None,
     return lines, worse
 
 
-def _joint_table(base: GapReport | None, head: GapReport) -> tuple[list[str], bool]:
+def _joint_table(base: _Link | None, head: _Link) -> tuple[list[str], bool]:
     """Per joint, the last rung of each branch; whether any joint changed beyond the noise."""
-    last, base_last = head["ladder"][-1], ((base or {}).get("ladder") or [None])[-1]
+    last, base_last = head.ladder[-1], ([None, *(base.ladder if base is not None else ())])[-1]
     models = (f"base {_label(base_last)}, this branch {_label(last)}" if base_last is not None
               and _label(base_last) != _label(last) else _label(last))
     floor = _floors(head)
@@ -253,37 +273,38 @@ class LinkDiff:
     changed: bool
 
 
-def link_diff(base: GapReport | None, head: GapReport, side: str | None) -> LinkDiff:
-    """The body link (``side`` None) or the ``actuator`` link: its verdict, its rungs worse beyond the noise, its
-    ladder and (the body link) its joints."""
-    link = " (actuator link)" if side else ""
-    head_link = head[side] if side else head
-    base_link = (((base or {}).get(side) if side else base) or {}) if base is not None else None
-    head_diagnosis, base_diagnosis = head_link.get("diagnosis"), (base_link or {}).get("diagnosis")
+def link_diff(base: GapReport | None, head: GapReport, actuator: bool) -> LinkDiff:
+    """The body link or the actuator link (``actuator``): its verdict, its rungs worse beyond the noise, its ladder
+    and (the body link) its joints."""
+    link = " (actuator link)" if actuator else ""
+    head_link = _link(head, actuator)
+    base_link = _link(base, actuator) if base is not None else None
+    head_diagnosis, base_diagnosis = head_link.diagnosis, base_link.diagnosis if base_link is not None else None
     verdict, verdict_changed = verdict_lines(base_diagnosis if base_link is not None else None, head_diagnosis, link)
-    rows, worse = _rung_rows(head, base, side)
-    tables = ([f"Ladder{link}:", ""] if side else []) + rows + [""]
+    rows, worse = _rung_rows(head_link, base_link)
+    tables = ([f"Ladder{link}:", ""] if actuator else []) + rows + [""]
     changed = verdict_changed or any(WORSE in r or BETTER in r for r in rows)
     look = [f"- {WORSE} rung `{label}`{link} is worse beyond the noise. Base verdict: {_headline(base_diagnosis)} "
             f"This branch: {_headline(head_diagnosis)}" for label in worse] if base is not None else []
     look += [f"- The verdict{link} changed (above)."] if verdict_changed else []
-    if not side:
-        table, joints_changed = _joint_table(base, head)
+    if not actuator:
+        table, joints_changed = _joint_table(base_link, head_link)
         tables += table + [""]
         changed = changed or joints_changed
     return LinkDiff(verdict + [""], look, tables, changed)
 
 
-def gap_diff_markdown(base: GapReport | None, head: GapReport) -> str:
+def gap_diff_markdown(base: GapReport | Mapping[str, Any] | None, head: GapReport | Mapping[str, Any]) -> str:
     """The pull-request comment of one robot: each side's verdict and what changed, what to look at, the ladder and
     the joints of the model each side ends with."""
-    robot = head.get("robot", "?")
-    lines = [f"### Reality gap: `{robot}`", ""]
+    head = GapReport.of(head)
+    base = GapReport.of(base) if base is not None else None
+    lines = [f"### Reality gap: `{head.robot}`", ""]
     if base is None:
         lines += ["No gap report on the base branch to compare with; showing this branch only.", ""]
-    if not head.get("ladder"):
+    if not head.ladder:
         return "\n".join(lines + ["This gap report has no model ladder.", ""])
-    links = [link_diff(base, head, None)] + ([link_diff(base, head, "actuator")] if head.get("actuator") else [])
+    links = [link_diff(base, head, False)] + ([link_diff(base, head, True)] if head.actuator is not None else [])
     for part in links:
         lines += part.verdict
     if base is not None:

@@ -9,23 +9,25 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from sim2real.identification.diagnosis.result import Candidate, ModelFreeCeiling
-from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR
+from sim2real.identification.ladder_rows import Rung
+from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR, SensorPlacement
 from sim2real.report import details
 from sim2real.report.first_screen import (
-    SideView, first_screen, joints_table, ladder_table, leading_side, model_name, sides,
+    SideView, actuator_view, first_screen, joints_table, ladder_table, leading_side, model_name, sides,
 )
+from sim2real.report.gap_document import GapReport, LinkSection
 from sim2real.report.regimes import REGIME_LABELS
 from sim2real.report.runs_section import runs_lines
 from sim2real.report.verdicts import BOUND_TEXT, bounds_text, floor_sentences, not_judged_text
 
 # Where the runs' tau is measured (run metadata `torque_sensor`), as gap.md says it.
 SENSOR_TEXT = {
-    "motor": "The torque sensor is taken to be motor-side (run metadata `torque_sensor: motor`, the default): "
-    "`tau` is the torque the drive applies, so the rotor inertia and joint friction are the body link's. "
-    "If `tau` is measured after the gearbox (the Panda's tau_J), set `torque_sensor: link`.",
-    "link": "The torque sensor is link-side (run metadata `torque_sensor: link`): `tau` is measured after the "
-    "gearbox, so the rotor inertia and joint friction are expected between the command and `tau`, on the actuator "
-    "link, and the body link to be the rigid body alone.",
+    SensorPlacement.MOTOR_SIDE: "The torque sensor is taken to be motor-side (run metadata `torque_sensor: motor`, "
+    "the default): `tau` is the torque the drive applies, so the rotor inertia and joint friction are the body "
+    "link's. If `tau` is measured after the gearbox (the Panda's tau_J), set `torque_sensor: link`.",
+    SensorPlacement.LINK_SIDE: "The torque sensor is link-side (run metadata `torque_sensor: link`): `tau` is measured "
+    "after the gearbox, so the rotor inertia and joint friction are expected between the command and `tau`, on the "
+    "actuator link, and the body link to be the rigid body alone.",
 }
 
 
@@ -52,10 +54,10 @@ def _inertia_prior_text(prior: Any) -> str | None:
 ILL_CONDITIONED = 1000.0  # a link-inertia condition number above this: the data pin the parameters poorly
 
 
-def _identified_markdown(rung: Mapping[str, Any], robot: str) -> list[str]:
+def _identified_markdown(rung: Rung, robot: str) -> list[str]:
     """What the data identified of the link inertias (last rung): a richer excitation is needed when little;
     which bodies moved beyond plausible (a missing effect soaked up) and the CAD prior's weight."""
-    link = rung.get("params", {}).get("link_inertia")
+    link = rung.values.get("link_inertia")
     if not link:
         return []
     bodies = link.get("bodies", {})
@@ -72,7 +74,7 @@ def _identified_markdown(rung: Mapping[str, Any], robot: str) -> list[str]:
                 "to the fit runs.", ""] if link["condition_number"] > ILL_CONDITIONED else []),
              f"Moved from the URDF: {', '.join(moved) or 'none'}. Stayed at the URDF values (not seen or not "
              f"needed by these data): {', '.join(stayed) or 'none'}.", ""]
-    prior = _inertia_prior_text((rung.get("consistency") or {}).get("inertia_prior"))
+    prior = _inertia_prior_text(rung.inertia_prior)
     if prior:
         lines += [prior, ""]
     lines += ["| body | moved | mass change [kg] | COM shift [mm] | divergence from CAD | plausible | held at |",
@@ -150,52 +152,53 @@ def _where_nominal_text(where: Mapping[str, Any]) -> str:
             f"{', '.join(REGIME_LABELS[r] for r in where['summary']['regimes'])} on {', '.join(where['summary']['joints'])}.")
 
 
-def render_gap_markdown(gap: Mapping[str, Any], figures: Mapping[str, str]) -> str:
+def render_gap_markdown(gap: GapReport | Mapping[str, Any], figures: Mapping[str, str]) -> str:
     """gap.md: the first screen (the verdict, the ladder, the current model joint by joint), then the rest."""
-    model = gap["metrics"].get("model")
+    gap = GapReport.of(gap)
+    model = gap.model
     lines = first_screen(gap).markdown()
-    if "not_judged" in gap:
-        lines += [not_judged_text(gap["not_judged"]), ""]
+    if gap.not_judged is not None:
+        lines += [not_judged_text(gap.not_judged), ""]
     shown = leading_side(gap).name
-    if "diagnosis" in gap:
+    if gap.diagnosis is not None:
         body = None if shown == "body link" else sides(gap)[0]  # its joints, where the first screen shows the other
-        lines += ["## Diagnosis", ""] + _diagnosis_markdown(gap["diagnosis"], body)
+        lines += ["## Diagnosis", ""] + _diagnosis_markdown(gap.diagnosis, body)
     lines += _where_lines(gap, model)
     lines += _torque_domain_lines(gap, model)
     lines += _state_domain_lines(gap, model)
-    if "ladder" in gap:
+    if gap.ladder is not None:
         lines += _ladder_lines(gap, figures["ladder"])
-    if "actuator" in gap:
-        lines += _actuator_lines(gap["actuator"], shown=shown == "actuator link")
-    if "links" in gap:
-        lines += _links_lines(gap["links"])
-    lines += runs_lines(gap["runs"])
+    if gap.actuator is not None:
+        lines += _actuator_lines(gap.actuator, shown=shown == "actuator link")
+    if gap.links is not None:
+        lines += _links_lines(gap.links)
+    lines += runs_lines(gap.runs or ())
     lines += _figures_lines(model, figures)
     return "\n".join(lines)
 
 
-def _torque_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> list[str]:
+def _torque_domain_lines(gap: GapReport, model: Mapping[str, Any] | None) -> list[str]:
     """The torque domain: the current model's error against the noise floor (with the nominal URDF's, for
     reference, once a ladder calibrates it), then joint by joint what the per-joint table (on the first screen, or
     the diagnosis's where the first screen shows the other link) does not say."""
-    m = gap["metrics"]
-    floor = gap["noise_floor"]["torque_rmse"]
-    nominal_rung = gap["ladder"][0]["metrics"]["torque_rmse"] if model and gap.get("ladder") else None
+    m = gap.metrics
+    floor = gap.floor
+    nominal_rung = gap.ladder[0].metrics.torque_rmse if model and gap.ladder else None
     lines = ["", "## Torque domain (inverse dynamics on measured motion)", ""]
     if model:
-        lines += [f"The model of configs/{gap['robot']}/model.yaml ({model_name(model)}), judged on the holdout runs "
+        lines += [f"The model of configs/{gap.robot}/model.yaml ({model_name(model)}), judged on the holdout runs "
                   f"as the ladder judges it: RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
                   f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
                   f"R^2 {m['torque_r2']['overall']:.4g}.", "",
                   f"For reference, the nominal URDF: {nominal_rung['overall']:.3g} N m on the same runs "
-                  f"({gap['nominal']['metrics']['torque_rmse']['overall']:.3g} N m over every run at the log's rate).", ""]
+                  f"({gap.nominal_metrics['torque_rmse']['overall']:.3g} N m over every run at the log's rate).", ""]
         lines += _per_run_lines(model["effects"])
     else:
         lines += [f"Overall RMSE **{m['torque_rmse']['overall']:.3g} N m** against a noise floor of "
                   f"{floor['overall']:.3g} N m; relative RMSE {m['torque_relative_rmse']['overall']:.3g}, "
                   f"R^2 {m['torque_r2']['overall']:.4g}.", ""]
-    lines += [" ".join(floor_sentences(gap["noise_floor"])), ""]
-    return lines + _torque_table(gap["joints"], m)
+    lines += [" ".join(floor_sentences(gap.noise_floor)), ""]
+    return lines + _torque_table(gap.joints, m)
 
 
 def _torque_table(joints: Sequence[str], m: Mapping[str, Any]) -> list[str]:
@@ -208,9 +211,9 @@ def _torque_table(joints: Sequence[str], m: Mapping[str, Any]) -> list[str]:
     return lines
 
 
-def _state_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> list[str]:
+def _state_domain_lines(gap: GapReport, model: Mapping[str, Any] | None) -> list[str]:
     """The replay of the commanded torques: skipped and why, or its errors, score and fidelity, joint by joint."""
-    sd = gap["metrics"]["state_domain"]
+    sd = gap.metrics["state_domain"]
     lines = ["", "## State domain (replay of the commanded torques)", ""]
     if sd["status"] == "skipped":
         lines.append(f"Skipped: {sd['reason']}.")
@@ -219,7 +222,7 @@ def _state_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None)
     if model:
         lines += [f"The commands of the holdout runs replayed on {model_name(model)}, its fitted effects "
                   "written into the MJCF."]
-        nominal_sd = gap["nominal"]["metrics"]["state_domain"]
+        nominal_sd = gap.nominal_metrics["state_domain"]
         if nominal_sd.get("status") == "computed":
             lines[-1] += (f" The nominal MJCF, for reference: position RMSE {nominal_sd['position_rmse']['overall']:.3g}"
                           f" rad, reality-gap score {nominal_sd['reality_gap']['score']:.3f}.")
@@ -232,19 +235,19 @@ def _state_domain_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None)
               f"fidelity **{sd['fidelity']}** (mean joint error {sd['mean_abs_position_error']:.3g} rad). "
               f"Recommendation: {g['recommendation']}.", "",
               "| joint | position RMSE [rad] | velocity RMSE [rad/s] | correlation |", "|---|---|---|---|"]
-    for j in gap["joints"]:
+    for j in gap.joints:
         lines.append(f"| {j} | {sd['position_rmse']['per_joint'][j]:.3g} | "
                      f"{sd['velocity_rmse']['per_joint'][j]:.3g} | {sd['correlation']['per_joint'][j]:.4g} |")
     return lines
 
 
-def _where_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> list[str]:
+def _where_lines(gap: GapReport, model: Mapping[str, Any] | None) -> list[str]:
     """Where the model fails: the regimes and joints its error concentrates in, and the worst time windows."""
-    w = gap["where"]
+    w = gap.where
     lines = ["", "## Where the model fails", ""]
     if model:
         lines += [f"The model of model.yaml ({model_name(model)}) on the holdout runs. "
-                  + _where_nominal_text(gap["nominal"]["where"]), ""]
+                  + _where_nominal_text(gap.nominal_where), ""]
     if w["findings"]:
         lines.append(f"The error concentrates in **{', '.join(REGIME_LABELS[r] for r in w['summary']['regimes'])}** "
                      f"on **{', '.join(w['summary']['joints'])}**:")
@@ -262,37 +265,37 @@ def _where_lines(gap: Mapping[str, Any], model: Mapping[str, Any] | None) -> lis
     return lines
 
 
-def _ladder_lines(gap: Mapping[str, Any], figure: str) -> list[str]:
+def _ladder_lines(gap: GapReport, figure: str) -> list[str]:
     """The body link's ladder beyond its table (on the first screen): the rungs' physical-consistency notes, what the
     data identified of the link inertias, and its figure."""
-    separate = gap.get("links", {}).get("mode") == "separate"
+    separate = (gap.links or {}).get("mode") == "separate"
     lines = ["", "## Model ladder" + (" (body link: measured torque against the motion)" if separate else ""), "",
              "Each rung is the physically consistent fit (every body's pseudo-inertia positive definite, "
              "friction, damping and armature >= 0); the unconstrained column of the ladder is the same rung without "
              "those constraints, for comparison."]
+    ladder = gap.ladder
     if leading_side(gap).name != "body link":
-        lines += ["", *ladder_table(gap["ladder"], gap["noise_floor"]["torque_rmse"]["overall"], True).markdown()]
-    for k, rung in enumerate(gap["ladder"]):
-        for note in rung.get("notes", []):
+        lines += ["", *ladder_table(ladder, gap.floor["overall"], True).markdown()]
+    for k, rung in enumerate(ladder):
+        for note in rung.notes:
             if note.startswith("physical consistency"):
                 lines += ["", f"**Rung {k}:** {note}."]
-    lines += _identified_markdown(gap["ladder"][-1], gap["robot"])
+    lines += _identified_markdown(ladder[-1], gap.robot)
     return lines + ["", f"![Model ladder]({figure})"]
 
 
-def _actuator_lines(link: Mapping[str, Any], shown: bool) -> list[str]:
+def _actuator_lines(link: LinkSection, shown: bool) -> list[str]:
     """The actuator link: what it judges, its floor, its ladder and its diagnosis (``shown``: its ladder and joints
     are on the first screen)."""
-    link_floor = link["noise_floor"]["torque_rmse"]["overall"]
+    link_floor = link.floor["overall"]
     lines = ["", "## Actuator link (measured against commanded torque)", "",
-             f"The {link['judged']}. Noise floor {link_floor:.3g} N m: the sensor's white noise, what no "
+             f"The {link.judged}. Noise floor {link_floor:.3g} N m: the sensor's white noise, what no "
              "filter of the command explains. Replay: the commands replayed in MuJoCo on the body link's "
              "last rung with each actuator rung's effects.", ""]
-    if not shown:
-        lines += ladder_table(link["ladder"], link_floor, unconstrained=False).markdown()
-    side = None if shown else SideView("actuator link", link["diagnosis"], link["ladder"], link["noise_floor"]["torque_rmse"],
-                                       link["ladder"][-1]["metrics"]["torque_rmse"]["per_joint"], None)
-    return lines + ["", "### Diagnosis of the actuator link", ""] + _diagnosis_markdown(link["diagnosis"], side)
+    side = None if shown else actuator_view(link)
+    if side is not None:
+        lines += ladder_table(side.ladder, link_floor, unconstrained=False).markdown()
+    return lines + ["", "### Diagnosis of the actuator link", ""] + _diagnosis_markdown(link.diagnosis, side)
 
 
 def _links_lines(links: Mapping[str, Any]) -> list[str]:

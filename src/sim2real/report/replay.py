@@ -16,6 +16,7 @@ import numpy as np
 from mujoco import rollout
 
 from sim2real.cache import FitCache
+from sim2real.identification.ladder_rows import Rung
 from sim2real.measurements import PreparedRun
 from sim2real.report.metrics import TorqueComparison, fidelity_grade, per_joint_dict, reality_gap, spectral_divergence
 from sim2real.stats import rmse
@@ -203,7 +204,7 @@ def state_domain(mjcf_path: str | Path, runs: Sequence[TorqueComparison], horizo
 
 def ladder_position_rmse(
     mjcf_path: str | Path, comparisons: Sequence[TorqueComparison], horizon_s: float,
-    ladder: Sequence[Mapping[str, Any]], torque_source: str | None, models: ReplayModels | None = None,
+    ladder: Sequence[Rung], torque_source: str | None, models: ReplayModels | None = None,
 ) -> list[dict[str, Any] | None]:
     """Position RMSE of each rung's replay on the holdout runs with commands (None where there is none)."""
     holdout = [c for c in comparisons if c.role == "holdout" and c.run.tau_cmd is not None]
@@ -213,7 +214,7 @@ def ladder_position_rmse(
     models = models if models is not None else ReplayModels(mjcf_path)
     out: list[dict[str, Any] | None] = []
     for rung in ladder:
-        identified = {"effects": rung.get("params") or {}, "torque_source": torque_source}
+        identified = {"effects": rung.values, "torque_source": torque_source}
         errors = []
         for c in holdout:
             q_sim, _, idx = replay(mjcf_path, c.run, horizon_s, identified, models)

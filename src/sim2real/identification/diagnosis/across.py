@@ -29,7 +29,8 @@ AGREEING_LAGS = (0.5, 1.5)  # the body side's lag over the drive side's: the sam
 
 
 def across_sides(body: Diagnosis | None, drive: Diagnosis | None, body_result: FitResult,
-                 drive_result: FitResult | None, sensor: str) -> tuple[Diagnosis | None, Diagnosis | None]:
+                 drive_result: FitResult | None, sensor: SensorPlacement,
+                 ) -> tuple[Diagnosis | None, Diagnosis | None]:
     """Both sides' diagnoses with the notes each takes from the other (``drive``: None on runs that judge one side;
     ``body`` on the ``COMBINED`` side then gets none)."""
     if body is not None and body.side == Side.BODY:
@@ -45,7 +46,7 @@ def across_sides(body: Diagnosis | None, drive: Diagnosis | None, body_result: F
                                                      sensor))
 
 
-def drive_placement(diagnosis: Diagnosis, sensor: str) -> Note | None:
+def drive_placement(diagnosis: Diagnosis, sensor: SensorPlacement) -> Note | None:
     """A drive effect named where the sensor's placement did not expect it: after a link-side sensor (the body side),
     or between the motor and a motor-side sensor (the drive side: the metadata are contradicted)."""
     named = candidate_named(diagnosis)
@@ -108,7 +109,7 @@ def _body_lag_trial(body: Diagnosis | None) -> Candidate | None:
                key=lambda c: (get_effect(c.effect).lowpass, c.evidence.x_floor_after), default=None)
 
 
-def other_side(named: Diagnosis, other: Diagnosis | None, sensor: str) -> Note | None:
+def other_side(named: Diagnosis, other: Diagnosis | None, sensor: SensorPlacement) -> Note | None:
     """A line one side names sits on the other side too (a drive's friction behind a link-side sensor): where the
     other side's own trial of it leaves a joint worse than now, above the floor factor or by more than the harm
     tolerance, the verdict says so; the user weighs the two sides. Only where the other side asks for nothing itself:
@@ -131,7 +132,8 @@ def other_side(named: Diagnosis, other: Diagnosis | None, sensor: str) -> Note |
         "keep_on": str(_opposite(other.side))})
 
 
-def held_on_other_side(diagnosis: Diagnosis, other_effects: Sequence[str], other: Side, sensor: str) -> Note | None:
+def held_on_other_side(diagnosis: Diagnosis, other_effects: Sequence[str], other: Side,
+                       sensor: SensorPlacement) -> Note | None:
     """A line one side names that a line kept on the other side alone holds (coulomb_friction, where
     '- asymmetric_friction: actuator' is kept there): added as it is, it would sit on the other side beside its more
     general shape, which that side's own diagnosis never proposes. The verdict says to keep the new line on the side

@@ -140,8 +140,8 @@ def _evidence(name: str, trial: tuple[fitting.FitResult, np.ndarray], scores: Ma
     signature = EFFECTS[name].evidence(now.residual, context.holdout_signals)
     bounds = bound_changes(result, current)
     return CandidateEvidence(
-        signature=signature["signature"], statistic=signature["statistic"], per_joint=signature["per_joint"],
-        lag_s=signature.get("lag_s"),
+        signature=signature.description, statistic=signature.statistic, per_joint=signature.per_joint,
+        lag_s=signature.lag_s,
         per_joint_explained=per_joint_dict(joints, scores["per_joint"], 3),
         per_joint_explained_beyond_noise=per_joint_dict(joints, scores["per_joint_beyond"], 3),
         rmse_after=round(float(np.sqrt(np.mean(residual**2))), 6),

@@ -20,7 +20,7 @@ from sim2real.identification.effects.actuation_lag import ActuationLag
 from sim2real.identification.effects.actuator_gain import ActuatorGain
 from sim2real.identification.effects.base_mount import BaseMount
 from sim2real.identification.effects.asymmetric_friction import AsymmetricFriction
-from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals
+from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, Signature
 from sim2real.identification.effects.command_bias import CommandBias
 from sim2real.identification.effects.coulomb_friction import CoulombFriction
 from sim2real.identification.effects.hysteretic_friction import HystereticFriction
@@ -65,7 +65,7 @@ EFFECTS: dict[str, Effect] = {
 }
 
 __all__ = [
-    "EFFECTS", "ColumnLabel", "Effect", "ParameterSpec", "Signals",
+    "EFFECTS", "ColumnLabel", "Effect", "ParameterSpec", "Signals", "Signature",
     "apply_to_spec", "calibration_from_params", "get_effect", "spec_edit_from_params",
 ]
 

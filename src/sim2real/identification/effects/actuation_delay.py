@@ -11,13 +11,12 @@ MJCF holds it as actuator ``delay``, on the identified joints' actuators.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from sim2real.identification.records import Side
-from sim2real.identification.effects.base import (ParameterSpec, correlation_per_joint, identified_actuators,
-                                                  per_joint_dict)
+from sim2real.identification.effects.base import (
+    ParameterSpec, Signature, correlation_per_joint, identified_actuators, per_joint_dict,
+)
 from sim2real.identification.effects.timing import MAX_DELAY, TimeShift, best_lag, time_derivative
 
 
@@ -31,16 +30,17 @@ class ActuationDelay(TimeShift):
 
     def evidence(self, residual, signals):
         rate = time_derivative(signals.tau_nominal, signals.time, signals.segments)
-        out: dict[str, Any] = {
-            "signature": self.signature,
-            "statistic": "correlation of residual with d(tau_model)/dt",
-            "per_joint": per_joint_dict(signals.joint_names, correlation_per_joint(residual, rate), 3),
-        }
+        lag = None
         if signals.tau is not None:
             # The command leads: it is the judged torque, or (forward, the drive side) the prediction.
             leading, lagging = (signals.tau_nominal, signals.tau) if signals.forward else (signals.tau, signals.tau_nominal)
-            out["lag_s"] = per_joint_dict(signals.joint_names, best_lag(leading, lagging, signals.time), 4)
-        return out
+            lag = per_joint_dict(signals.joint_names, best_lag(leading, lagging, signals.time), 4)
+        return Signature(
+            description=self.signature,
+            statistic="correlation of residual with d(tau_model)/dt",
+            per_joint=per_joint_dict(signals.joint_names, correlation_per_joint(residual, rate), 3),
+            lag_s=lag,
+        )
 
     def apply_to_spec(self, spec, values, context):
         delay = float(values["delay"])

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.base import (
-    ColumnLabel, Effect, ParameterSpec, Signals, correlation_per_joint, diagonal_columns, per_joint_dict,
+    ColumnLabel, Effect, ParameterSpec, Signals, Signature, correlation_per_joint, diagonal_columns, per_joint_dict,
 )
 
 DEFAULT_SLOPE = 10.0  # s/rad: start value of the refinement, mid-range of Gaz et al.'s Panda joints
@@ -129,11 +129,11 @@ class AsymmetricFriction(Effect):
         # zero at rest: a constant while sliding, and a bell at the shifted transition. Both correlate
         # with a bell 1/cosh^2(qd/w) (a velocity-independent bias does not: correlation removes the mean).
         bell = 1.0 / np.cosh(signals.qd / EVIDENCE_WIDTH) ** 2
-        return {
-            "signature": self.signature,
-            "statistic": f"correlation of residual with 1/cosh^2(qd / {EVIDENCE_WIDTH} rad/s) (either sign)",
-            "per_joint": per_joint_dict(signals.joint_names, correlation_per_joint(residual, bell), 3),
-        }
+        return Signature(
+            description=self.signature,
+            statistic=f"correlation of residual with 1/cosh^2(qd / {EVIDENCE_WIDTH} rad/s) (either sign)",
+            per_joint=per_joint_dict(signals.joint_names, correlation_per_joint(residual, bell), 3),
+        )
 
     def apply_to_spec(self, spec, values, context):
         # Only the symmetric part (phi1 / 2) has a MuJoCo equivalent; it adds to the frictionloss already there.

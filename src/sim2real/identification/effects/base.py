@@ -25,6 +25,7 @@ nominal URDF value plus what the fit added), so they can be written into assets 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -165,6 +166,20 @@ def identified_actuators(context: dict[str, Any]) -> list[tuple[str, str]]:
             if identified is None or joint in identified]
 
 
+
+@dataclass(frozen=True)
+class Signature:
+    """What :meth:`Effect.evidence` finds of an effect in a residual: the effect's :attr:`Effect.signature`
+    (``description``), the statistic computed, its value per joint and, for a lag, the lag that best aligns the
+    torques per joint (``lag_s``; None for another effect). The diagnosis's candidate row
+    (:class:`sim2real.identification.diagnosis.result.CandidateEvidence`) writes it into its document."""
+
+    description: str
+    statistic: str
+    per_joint: Mapping[str, float]
+    lag_s: Mapping[str, float] | None = None
+
+
 class Effect:
     """Base class; one subclass per module in this package."""
 
@@ -266,7 +281,7 @@ class Effect:
         raise NotImplementedError
 
     # --- residual signature -----------------------------------------------------------------
-    def evidence(self, residual: np.ndarray, signals: Signals) -> dict[str, Any]:
+    def evidence(self, residual: np.ndarray, signals: Signals) -> Signature:
         raise NotImplementedError
 
     # --- assets -----------------------------------------------------------------------------
@@ -304,8 +319,8 @@ class DiagonalEffect(Effect):
 
     def evidence(self, residual, signals):
         feature = getattr(signals, self.feature)
-        return {
-            "signature": self.signature,
-            "statistic": f"correlation of residual with {self.feature}",
-            "per_joint": per_joint_dict(signals.joint_names, correlation_per_joint(residual, feature), 3),
-        }
+        return Signature(
+            description=self.signature,
+            statistic=f"correlation of residual with {self.feature}",
+            per_joint=per_joint_dict(signals.joint_names, correlation_per_joint(residual, feature), 3),
+        )

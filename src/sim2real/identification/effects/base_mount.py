@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.base import (
-    ColumnLabel, Effect, ParameterSpec, Replicates, Signals, explained_per_joint, per_joint_dict,
+    ColumnLabel, Effect, ParameterSpec, Replicates, Signals, Signature, explained_per_joint, per_joint_dict,
 )
 
 STANDARD_GRAVITY = 9.81  # m/s^2: the URDF's (Pinocchio's and MuJoCo's default)
@@ -148,11 +148,12 @@ class BaseMount(Effect):
         }
 
     def evidence(self, residual, signals):
-        return {
-            "signature": self.signature,
-            "statistic": "per-joint R^2 of the residual on the gravity torques under unit gravity along x and y",
-            "per_joint": per_joint_dict(signals.joint_names, explained_per_joint(residual, _columns(signals.unit_gravity)), 3),
-        }
+        return Signature(
+            description=self.signature,
+            statistic="per-joint R^2 of the residual on the gravity torques under unit gravity along x and y",
+            per_joint=per_joint_dict(signals.joint_names,
+                                     explained_per_joint(residual, _columns(signals.unit_gravity)), 3),
+        )
 
     def apply_to_spec(self, spec, values, context):
         # Used when calibrating an MJCF directly (the ladder's replay): the world stays level and the base turns, as

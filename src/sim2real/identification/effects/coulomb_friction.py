@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.base import (
-    ColumnLabel, Effect, ParameterSpec, Signals, correlation_per_joint, diagonal_columns, per_joint_dict,
+    ColumnLabel, Effect, ParameterSpec, Signals, Signature, correlation_per_joint, diagonal_columns, per_joint_dict,
 )
 
 DEFAULT_SMOOTHING = 0.02  # rad/s: start value of the refinement
@@ -65,11 +65,11 @@ class CoulombFriction(SmoothedSign, Effect):
         }
 
     def evidence(self, residual, signals):
-        return {
-            "signature": self.signature,
-            "statistic": "correlation of residual with sign(qd)",
-            "per_joint": per_joint_dict(signals.joint_names, correlation_per_joint(residual, np.sign(signals.qd)), 3),
-        }
+        return Signature(
+            description=self.signature,
+            statistic="correlation of residual with sign(qd)",
+            per_joint=per_joint_dict(signals.joint_names, correlation_per_joint(residual, np.sign(signals.qd)), 3),
+        )
 
     def apply_to_spec(self, spec, values, context):
         for joint, value in values["friction"].items():

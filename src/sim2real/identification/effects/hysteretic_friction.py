@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.base import (
-    ColumnLabel, Effect, ParameterSpec, Signals, diagonal_columns, explained_per_joint, per_joint_dict,
+    ColumnLabel, Effect, ParameterSpec, Signals, Signature, diagonal_columns, explained_per_joint, per_joint_dict,
 )
 
 DEFAULT_PRESLIDING_RAD = 0.02  # start value of the refinement
@@ -101,11 +101,11 @@ class HystereticFriction(Effect):
 
     def evidence(self, residual, signals):
         z = dahl_state(signals.q, signals.qd, signals.segments, self.nonlinear_init(signals))
-        return {
-            "signature": self.signature,
-            "statistic": f"per-joint R^2 of residual on the Dahl state (presliding {DEFAULT_PRESLIDING_RAD} rad)",
-            "per_joint": per_joint_dict(signals.joint_names, explained_per_joint(residual, diagonal_columns(z)), 3),
-        }
+        return Signature(
+            description=self.signature,
+            statistic=f"per-joint R^2 of residual on the Dahl state (presliding {DEFAULT_PRESLIDING_RAD} rad)",
+            per_joint=per_joint_dict(signals.joint_names, explained_per_joint(residual, diagonal_columns(z)), 3),
+        )
 
     def apply_to_spec(self, spec, values, context):
         # Only the sliding level has a MuJoCo equivalent (dry friction); it adds to the frictionloss already there.

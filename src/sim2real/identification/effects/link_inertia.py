@@ -19,7 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, explained_per_joint, per_joint_dict
+from sim2real.identification.effects.base import (
+    ColumnLabel, Effect, ParameterSpec, Signals, Signature, explained_per_joint, per_joint_dict,
+)
 from sim2real import blas
 from sim2real.identification.inertial import entropic_divergence, physically_consistent
 from sim2real.identification.inertial.bands import BodyBounds, InertiaBands, binding, body_bounds
@@ -282,11 +284,11 @@ class LinkInertia(Effect):
         }
 
     def evidence(self, residual, signals):
-        return {
-            "signature": self.signature,
-            "statistic": "per-joint R^2 of residual on the rigid-body regressor",
-            "per_joint": per_joint_dict(signals.joint_names, explained_per_joint(residual, signals.regressor), 3),
-        }
+        return Signature(
+            description=self.signature,
+            statistic="per-joint R^2 of residual on the rigid-body regressor",
+            per_joint=per_joint_dict(signals.joint_names, explained_per_joint(residual, signals.regressor), 3),
+        )
 
     def apply_to_spec(self, spec, values, context):
         # Used when calibrating an MJCF directly (the ladder's replay); the calibrated MJCF is built from the

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.base import (
-    ColumnLabel, Effect, ParameterSpec, Signals, diagonal_columns, explained_per_joint, per_joint_dict,
+    ColumnLabel, Effect, ParameterSpec, Signals, Signature, diagonal_columns, explained_per_joint, per_joint_dict,
 )
 from sim2real.identification.effects.coulomb_friction import DEFAULT_SMOOTHING, SmoothedSign
 
@@ -87,12 +87,12 @@ class LoadFriction(SmoothedSign, Effect):
         sliding = np.tanh(signals.qd / self.nonlinear_init(signals))
         both = np.concatenate([diagonal_columns(sliding), diagonal_columns(transmitted_torque(signals) * sliding)], axis=2)
         beyond = explained_per_joint(residual, both) - explained_per_joint(residual, diagonal_columns(sliding))
-        return {
-            "signature": self.signature,
-            "statistic": (f"per-joint R^2 of the residual on |tau_nominal| tanh(qd / {DEFAULT_SMOOTHING} rad/s) beyond "
-                          "the sign alone"),
-            "per_joint": per_joint_dict(signals.joint_names, np.maximum(beyond, 0.0), 3),
-        }
+        return Signature(
+            description=self.signature,
+            statistic=(f"per-joint R^2 of the residual on |tau_nominal| tanh(qd / {DEFAULT_SMOOTHING} rad/s) beyond "
+                       "the sign alone"),
+            per_joint=per_joint_dict(signals.joint_names, np.maximum(beyond, 0.0), 3),
+        )
 
     def apply_to_spec(self, spec, values, context):
         # MuJoCo's frictionloss is constant: the mean level over the fit runs (module docstring).

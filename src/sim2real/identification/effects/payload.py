@@ -12,7 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, explained_per_joint, per_joint_dict
+from sim2real.identification.effects.base import (
+    ColumnLabel, Effect, ParameterSpec, Signals, Signature, explained_per_joint, per_joint_dict,
+)
 
 PAYLOAD_BODY_NAME = "calibrated_payload"
 
@@ -70,13 +72,13 @@ class Payload(Effect):
         }
 
     def evidence(self, residual, signals):
-        return {
-            "signature": self.signature,
-            "statistic": "per-joint R^2 of residual on the last link's (m, m*c) regressor columns",
-            "per_joint": per_joint_dict(
+        return Signature(
+            description=self.signature,
+            statistic="per-joint R^2 of residual on the last link's (m, m*c) regressor columns",
+            per_joint=per_joint_dict(
                 signals.joint_names, explained_per_joint(residual, _last_body_columns(signals)[:, :, :4]), 3
             ),
-        }
+        )
 
     def apply_to_spec(self, spec, values, context):
         mass = float(values["mass"])

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, per_joint_dict
+from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, Signature, per_joint_dict
 
 MIN_PERIOD = 0.01  # rad: shorter ripples need more than any arm's log resolves
 MAX_PERIOD = 2 * np.pi  # rad: one period per turn of the joint
@@ -160,12 +160,12 @@ class PositionRipple(Effect):
         energy = np.sum((residual - residual.mean(axis=0)) ** 2, axis=0)
         with np.errstate(invalid="ignore", divide="ignore"):
             share = np.where(energy > 0, removed / energy, 0.0)
-        return {
-            "signature": self.signature,
-            "statistic": "share of the residual one sinusoid of the joint's own position removes, at the period that "
+        return Signature(
+            description=self.signature,
+            statistic="share of the residual one sinusoid of the joint's own position removes, at the period that "
             "removes most (a least-squares periodogram over the periods the motion resolves)",
-            "per_joint": per_joint_dict(signals.joint_names, np.clip(share, 0.0, 1.0), 3),
-        }
+            per_joint=per_joint_dict(signals.joint_names, np.clip(share, 0.0, 1.0), 3),
+        )
 
     def apply_to_spec(self, spec, values, context):
         """MuJoCo has no torque periodic in a joint's position: nothing is written (the simulation lacks it)."""

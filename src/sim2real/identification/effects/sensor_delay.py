@@ -19,8 +19,9 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.timing import MAX_DELAY, TimeShift, best_lag, time_derivative
-from sim2real.identification.effects.base import (ParameterSpec, correlation_per_joint, identified_actuators,
-                                                  per_joint_dict)
+from sim2real.identification.effects.base import (
+    ParameterSpec, Signature, correlation_per_joint, identified_actuators, per_joint_dict,
+)
 
 
 def actuation_beyond_sensor(actuator_lag: float, sensor_delay: float) -> float:
@@ -66,11 +67,12 @@ class SensorDelay(TimeShift):
 
     def evidence(self, residual, signals):
         rate = -time_derivative(signals.tau_nominal, signals.time, signals.segments)
-        out: dict[str, Any] = {
-            "signature": self.signature,
-            "statistic": "correlation of residual with -d(tau_model)/dt",
-            "per_joint": per_joint_dict(signals.joint_names, correlation_per_joint(residual, rate), 3),
-        }
+        lag = None
         if signals.tau is not None:
-            out["lag_s"] = per_joint_dict(signals.joint_names, best_lag(signals.tau_nominal, signals.tau, signals.time), 4)
-        return out
+            lag = per_joint_dict(signals.joint_names, best_lag(signals.tau_nominal, signals.tau, signals.time), 4)
+        return Signature(
+            description=self.signature,
+            statistic="correlation of residual with -d(tau_model)/dt",
+            per_joint=per_joint_dict(signals.joint_names, correlation_per_joint(residual, rate), 3),
+            lag_s=lag,
+        )

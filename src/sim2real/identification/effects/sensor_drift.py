@@ -26,11 +26,10 @@ replay, in the state domain, never uses it.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
-from sim2real.identification.effects.base import Effect, Signals, per_joint_dict
+from sim2real.identification.effects.base import Effect, Signals, Signature, per_joint_dict
 
 DEGREE = 2  # an offset, a slope and a bend per joint and run
 SETTLING = (1 / 16, 1 / 4)  # the settling exponentials' time constants, as fractions of the run's length
@@ -86,14 +85,14 @@ class SensorDrift(Effect):
         return {"shape": SHAPE,
                 "estimated_on": "every run itself, the holdout runs included"}
 
-    def evidence(self, residual: np.ndarray, signals: Signals) -> dict[str, Any]:
+    def evidence(self, residual: np.ndarray, signals: Signals) -> Signature:
         residual = np.asarray(residual, dtype=float)
         after = remove_runs(residual, run_bases(signals.time, signals.segments))
         energy = np.sum(residual**2, axis=0)
         with np.errstate(invalid="ignore", divide="ignore"):
             share = np.where(energy > 0, 1.0 - np.sum(after**2, axis=0) / energy, 0.0)
-        return {
-            "signature": self.signature,
-            "statistic": f"share of the residual's energy removed by {SHAPE} of each run's own",
-            "per_joint": per_joint_dict(signals.joint_names, share, 3),
-        }
+        return Signature(
+            description=self.signature,
+            statistic=f"share of the residual's energy removed by {SHAPE} of each run's own",
+            per_joint=per_joint_dict(signals.joint_names, share, 3),
+        )

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.base import (
-    ColumnLabel, Effect, ParameterSpec, Signals, correlation_per_joint, diagonal_columns, per_joint_dict,
+    ColumnLabel, Effect, ParameterSpec, Signals, Signature, correlation_per_joint, diagonal_columns, per_joint_dict,
 )
 
 SIGN_SMOOTHING = 0.005  # rad/s: v_tanh, the smoothed sign of the hump
@@ -74,12 +74,12 @@ class StribeckFriction(Effect):
 
     def evidence(self, residual, signals):
         feature = stribeck_hump(signals.qd, np.full(signals.n, DEFAULT_STRIBECK_VELOCITY))
-        return {
-            "signature": self.signature,
-            "statistic": (f"correlation of residual with exp(-(qd/{DEFAULT_STRIBECK_VELOCITY})^2) "
-                          f"tanh(qd/{SIGN_SMOOTHING})"),
-            "per_joint": per_joint_dict(signals.joint_names, correlation_per_joint(residual, feature), 3),
-        }
+        return Signature(
+            description=self.signature,
+            statistic=(f"correlation of residual with exp(-(qd/{DEFAULT_STRIBECK_VELOCITY})^2) "
+                       f"tanh(qd/{SIGN_SMOOTHING})"),
+            per_joint=per_joint_dict(signals.joint_names, correlation_per_joint(residual, feature), 3),
+        )
 
     def apply_to_spec(self, spec, values, context):
         """MuJoCo has no Stribeck friction: nothing is written (the simulation lacks the hump)."""

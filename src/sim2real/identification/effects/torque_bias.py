@@ -9,7 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from sim2real.identification.effects.base import ColumnLabel, Effect, ParameterSpec, Signals, diagonal_columns, per_joint_dict
+from sim2real.identification.effects.base import (
+    ColumnLabel, Effect, ParameterSpec, Signals, Signature, diagonal_columns, per_joint_dict,
+)
 
 
 class TorqueBias(Effect):
@@ -31,8 +33,8 @@ class TorqueBias(Effect):
         std = residual.std(axis=0)
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = np.where(std > 0, residual.mean(axis=0) / np.sqrt(np.mean(residual**2, axis=0)), 0.0)
-        return {
-            "signature": self.signature,
-            "statistic": "mean of residual / RMS of residual",
-            "per_joint": per_joint_dict(signals.joint_names, ratio, 3),
-        }
+        return Signature(
+            description=self.signature,
+            statistic="mean of residual / RMS of residual",
+            per_joint=per_joint_dict(signals.joint_names, ratio, 3),
+        )

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from sim2real.identification.effects.base import (
-    ColumnLabel, Effect, ParameterSpec, Signals, correlation_per_joint, diagonal_columns, per_joint_dict,
+    ColumnLabel, Effect, ParameterSpec, Signals, Signature, correlation_per_joint, diagonal_columns, per_joint_dict,
 )
 
 
@@ -36,13 +36,13 @@ class TorqueGain(Effect):
         return {"gain": per_joint_dict(signals.joint_names, 1.0 + theta, 6)}
 
     def evidence(self, residual, signals):
-        return {
-            "signature": self.signature,
-            "statistic": "correlation of residual with nominal torque",
-            "per_joint": per_joint_dict(
+        return Signature(
+            description=self.signature,
+            statistic="correlation of residual with nominal torque",
+            per_joint=per_joint_dict(
                 signals.joint_names, correlation_per_joint(residual, signals.tau_nominal), 3
             ),
-        }
+        )
 
     def apply_to_spec(self, spec, values, context):
         # Only an actuator gain changes the simulation; a sensor gain does not.

@@ -10,7 +10,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR, TorqueSensor, measured_after_drive, torque_sensor_of
+from sim2real.measurements.runs import (
+    DEFAULT_TORQUE_SENSOR, SensorPlacement, measured_after_drive, torque_sensor_of,
+)
 
 if TYPE_CHECKING:
     from sim2real.measurements.runs import PreparedRun
@@ -43,7 +45,7 @@ class TorqueData:
     torque_source: str  # "tau" (sensor) or "tau_cmd" (command)
     has_commands: bool
     noise_floor: np.ndarray  # per joint, RMS of torque no model can explain
-    torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR  # where tau is measured (sim2real.measurements.runs)
+    torque_sensor: SensorPlacement = DEFAULT_TORQUE_SENSOR  # where tau is measured (sim2real.measurements.runs)
 
     @property
     def n_samples(self) -> int:
@@ -72,7 +74,7 @@ class RunSamples:
     torque_source: str  # "tau" (sensor) or "tau_cmd" (command)
     has_commands: bool
     noise_floor: np.ndarray  # per joint
-    torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR
+    torque_sensor: SensorPlacement = DEFAULT_TORQUE_SENSOR
 
     @classmethod
     def of(cls, prepared: PreparedRun, noise_floor: np.ndarray, tau: np.ndarray | None = None) -> RunSamples:

@@ -70,9 +70,9 @@ def predict(
 
 
 def holdout_metrics(result: FitResult, nominal: NominalModel | None, data: TorqueData, signals: Signals | None = None):
-    """(metrics, residual) on the holdout data: ``{"torque_rmse": rmse shape}``."""
+    """(torque RMSE, residual) on the holdout data (the RMSE in :func:`sim2real.stats.rmse`'s shape)."""
     residual = data.tau - predict(result, nominal, data, signals)
-    return {"torque_rmse": rmse(residual, data.joint_names)}, residual
+    return rmse(residual, data.joint_names), residual
 
 
 LAG_CHUNK_ROWS = 1 << 14  # samples whose design rows a lag's score sums at a time (never the whole design)

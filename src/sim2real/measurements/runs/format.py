@@ -22,11 +22,10 @@ from typing import Any, Generic, Literal, Protocol, TypeVar
 import numpy as np
 
 from sim2real.errors import InputError
-from sim2real.measurements.records import FilterSettings, IncompleteRows, RunMeta, TorqueSensor
+from sim2real.measurements.records import FilterSettings, IncompleteRows, RunMeta, SensorPlacement
 
 SIGNAL_KINDS = ("q", "qd", "tau", "tau_cmd", "q_cmd")
-TORQUE_SENSORS: tuple[TorqueSensor, ...] = ("motor", "link")
-DEFAULT_TORQUE_SENSOR: TorqueSensor = "motor"
+DEFAULT_TORQUE_SENSOR = SensorPlacement.MOTOR_SIDE
 MIN_DURATION_S = 1.0
 MIN_SAMPLES = 100
 # A uniform grid more than this many times denser than the logged samples means a gap, a stamp in other
@@ -96,7 +95,7 @@ class PreparedRun:
     q_cmd: np.ndarray | None
     # what the preparation did (None: a run not prepared here, e.g. the residuals read back at the fit's rate)
     filter: FilterSettings | None
-    torque_sensor: TorqueSensor = DEFAULT_TORQUE_SENSOR  # where tau is measured (metadata `torque_sensor`)
+    torque_sensor: SensorPlacement = DEFAULT_TORQUE_SENSOR  # where tau is measured (metadata `torque_sensor`)
     qd_measured: np.ndarray | None = None  # logged velocity on the grid (unfiltered), if any
     contact: np.ndarray | None = None
     raw_torque_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per-joint white-noise std
@@ -164,10 +163,10 @@ class RunSet(Generic[R]):
 class _HasTorqueSensor(Protocol):
     name: str
     torque_source: str
-    torque_sensor: TorqueSensor
+    torque_sensor: SensorPlacement
 
 
-def torque_sensor_of(runs: Sequence[_HasTorqueSensor]) -> TorqueSensor:
+def torque_sensor_of(runs: Sequence[_HasTorqueSensor]) -> SensorPlacement:
     """Where the ``tau`` of ``runs`` (prepared runs, or the fit's :class:`~sim2real.identification.fitting.RunSamples`)
     is measured: one place for all of them, checked here once. Runs that mix sensor positions are refused: one arm's
     sensor is fitted together."""
@@ -178,10 +177,10 @@ def torque_sensor_of(runs: Sequence[_HasTorqueSensor]) -> TorqueSensor:
         raise InputError(None, "torque_sensor", f"the runs mix torque sensor positions: {listing}",
                          "fit runs of one arm's sensor together: every run's metadata `torque_sensor` the same "
                          "(motor or link)")
-    return places.pop() if places else DEFAULT_TORQUE_SENSOR
+    return SensorPlacement(places.pop()) if places else DEFAULT_TORQUE_SENSOR
 
 
-def measured_after_drive(torque_source: str, torque_sensor: str) -> bool:
+def measured_after_drive(torque_source: str, torque_sensor: SensorPlacement) -> bool:
     """Whether the judged torque is measured after the drive (a link-side sensor's ``tau``): it then does not hold
     the drive's rotor inertia and friction."""
-    return torque_source == "tau" and torque_sensor == "link"
+    return torque_source == "tau" and torque_sensor == SensorPlacement.LINK_SIDE

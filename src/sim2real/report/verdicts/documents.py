@@ -9,6 +9,7 @@ from dataclasses import replace
 from typing import Any
 
 from sim2real.identification.diagnosis import Diagnosis
+from sim2real.identification.ladder_rows import Rung, rungs_of
 from sim2real.identification.records import SensorPlacement
 from sim2real.report.verdicts.ceiling import ceiling_section
 from sim2real.report.verdicts.headline import verdict
@@ -39,16 +40,18 @@ def diagnosis_section(document: Mapping[str, Any], robot: str) -> dict[str, Any]
     return out
 
 
+def _worded_rung(rung: Rung) -> Rung:
+    """A rung with its words: its notes and how its inertial prior's weight was chosen."""
+    prior = rung.inertia_prior
+    consistency = rung.consistency
+    if isinstance(prior, Mapping) and "chosen_by" in prior:
+        consistency = {**rung.consistency, "inertia_prior": {**prior, "chosen_by": chosen_by_text(prior["chosen_by"])}}
+    return replace(rung, notes=tuple(rung_note(note) for note in rung.notes), consistency=consistency)
+
+
 def _ladder_section(ladder: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """A side's rungs with their words: each rung's notes and how its inertial prior's weight was chosen."""
-    rungs = copy.deepcopy(list(ladder))
-    for rung in rungs:
-        if "notes" in rung:
-            rung["notes"] = [rung_note(note) for note in rung["notes"]]
-        prior = (rung.get("consistency") or {}).get("inertia_prior")
-        if isinstance(prior, dict) and "chosen_by" in prior:
-            prior["chosen_by"] = chosen_by_text(prior["chosen_by"])
-    return rungs
+    """A side's rungs with their words (:func:`_worded_rung`)."""
+    return [copy.deepcopy(_worded_rung(rung).as_document()) for rung in rungs_of(ladder)]
 
 
 def worded(ladder: Mapping[str, Any], robot: str) -> dict[str, Any]:

@@ -19,7 +19,7 @@ MODE_TEXT: dict[str, str] = {
 }
 
 
-def _why(why: str, sensor: str) -> str:
+def _why(why: str, sensor: SensorPlacement) -> str:
     """Why a group of effects can or cannot be told apart (:func:`sim2real.identification.sides.separability`)."""
     link_side, motor_side = sensor == SensorPlacement.LINK_SIDE, sensor == SensorPlacement.MOTOR_SIDE
     return {
@@ -63,7 +63,7 @@ def sides_section(links: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def judged_text(sensor: str) -> str:
+def judged_text(sensor: SensorPlacement) -> str:
     """What the actuator link judges, by the sensor's placement."""
     if sensor == SensorPlacement.MOTOR_SIDE:
         return "measured torque (tau) predicted from the commanded torque (tau_cmd); no dynamics"
