@@ -11,6 +11,7 @@ worker is asked for, the work runs in the calling process.
 
 from __future__ import annotations
 
+import gc
 import multiprocessing
 import resource
 import signal
@@ -136,6 +137,11 @@ def _hold_to(limits: Limits) -> None:
 
 
 def _run_limited(send: Any, fn: Callable[..., Any], args: tuple[Any, ...], limits: Limits) -> None:
+    # No cyclic collection in the child: a signal's handler runs between bytecodes, and one full collection over the
+    # millions of objects a runaway expansion makes (a macro that doubles itself) is one C call that can hold the
+    # timer's TimeLimit for seconds on a loaded machine, past the caller's grace. The child is short-lived and its
+    # memory is bounded by the limit.
+    gc.disable()
     try:
         _hold_to(limits)
         answer: tuple[bool, Any] = (True, fn(*args))
