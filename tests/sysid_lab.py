@@ -123,8 +123,8 @@ class Lab:
         what each link's verdict asks (the top candidate where the status is add_effect), until no verdict asks for
         more; every round's document. A line whose verdict says it leaves the other link worse, or that the other link
         holds it already, is written as that note advises, kept on the link that named it
-        (``- asymmetric_friction: actuator``); a line the verdict keeps on some joints is written so
-        (``- coulomb_friction: {joints: [...]}``).
+        (``- asymmetric_friction: actuator``); a line the verdict (or the advice for offsets) keeps on some joints
+        is written so (``- coulomb_friction: {joints: [...]}``).
         Rounds read earlier rungs back from a fit cache, as the sysid rule does; ``report(document, round,
         seconds)`` is called after each round. Without ``report``, a scenario is followed once per lab (the
         documents are the same bytes whoever asks: a copy for each)."""
@@ -146,9 +146,11 @@ class Lab:
             sections = [documents[-1], documents[-1].get("actuator") or {}]
             tops = [s["diagnosis"]["candidates"][0] for s in sections if s and s["diagnosis"]["status"] == "add_effect"]
             wanted = [w for w in dict.fromkeys(top["effect"] for top in tops) if w not in effects]
+            declared = []
             if not wanted:  # nothing named: the verdict's advice for offsets of each run's own, if it gives one
-                declared = [(s["diagnosis"].get("model_free") or {}).get("declare") for s in sections if s]
-                wanted = [d["effect"] for d in declared if d and d["effect"] not in effects][:1]
+                declared = [d for d in ((s["diagnosis"].get("model_free") or {}).get("declare") for s in sections if s)
+                            if d and d["effect"] not in effects][:1]
+                wanted = [d["effect"] for d in declared]
             if not wanted:
                 break
             # the lines a named effect holds go, as its verdict says (diagnosis.trials.replaced_by)
@@ -158,6 +160,7 @@ class Lab:
             on_joints = {e: joints for e, joints in on_joints.items() if e in effects}
             on_joints.update({top["effect"]: list(top["kept_to"]) for top in tops
                               if top.get("kept_to") and top["effect"] in wanted})
+            on_joints.update({d["effect"]: list(d["kept_to"]) for d in declared if d.get("kept_to")})
             named = [(s["diagnosis"]["candidates"][0]["effect"], s["diagnosis"].get("link")) for s in sections
                      if s and s["diagnosis"]["status"] == "add_effect"
                      and (s["diagnosis"].get("other_link_note") or s["diagnosis"].get("held_note"))]

@@ -95,9 +95,8 @@ def test_the_diagnosis_rows_round_trip_with_and_without_their_optional_figures()
     """ladder.json's diagnosis: each typed row (a candidate's evidence, a joint's standing, the model-free ceiling and
     its reading of a joint) writes its document and reads it back, an optional figure present or not."""
     from diagnosis_rows import evidence
-    from sim2real.identification.diagnosis.result import (
-        Candidate, CeilingReading, Diagnosis, EffectAdvice, JointStanding, ModelFreeCeiling,
-    )
+    from sim2real.identification.diagnosis.ceiling_records import CeilingReading, EffectAdvice, ModelFreeCeiling
+    from sim2real.identification.diagnosis.result import Candidate, Diagnosis, JointStanding
     from sim2real.identification.records import Note, NoteKind, Status
 
     plain = evidence(JOINTS, x_floor_after=1.4, fitted={"damping": {"panda_joint1": 0.5}})
@@ -120,6 +119,15 @@ def test_the_diagnosis_rows_round_trip_with_and_without_their_optional_figures()
                                declare=EffectAdvice("sensor_drift", ("panda_joint2",), "- sensor_drift"))
     for row in (plain, full):
         assert type(row).from_document(row.as_document()) == row
+    # a declared drift held to the no-raise rule: kept on the joints it helps, or withheld
+    kept = dataclasses.replace(ceiling, declare=EffectAdvice(
+        "sensor_drift", ("panda_joint2",), "- sensor_drift: {joints: [panda_joint1]}", kept_to=("panda_joint1",),
+        raised={"panda_joint2": (2.1, 5.3)}))
+    withheld = dataclasses.replace(ceiling, declare=None, withheld=EffectAdvice(
+        "sensor_drift", ("panda_joint2",), "- sensor_drift", raised={"panda_joint2": (2.1, 5.3)}))
+    for advised in (kept, withheld):
+        assert ModelFreeCeiling.from_document(advised.as_document()) == advised
+    assert "kept_to" not in ceiling.as_document()["declare"] and "withheld" not in ceiling.as_document()
     for reading in (at_floor, motion, still):
         assert CeilingReading.from_document(reading.as_document()) == reading
     diagnosis = Diagnosis(

@@ -53,7 +53,7 @@ def _evidence(x_floor_after: float) -> dict:
 
 def _reading(kind: str, follows: str | None = None, gains: tuple[str, ...] = ()):
     """A joint's ceiling reading as gap.json holds it (its features in words)."""
-    from sim2real.identification.diagnosis.result import CeilingReading
+    from sim2real.identification.diagnosis.ceiling_records import CeilingReading
 
     return CeilingReading(
         rung_rmse=0.2, ceiling_rmse=0.1 if kind == "motion" else 0.19, rung_x_floor=4.0, ceiling_x_floor=2.0,
@@ -64,7 +64,7 @@ def _reading(kind: str, follows: str | None = None, gains: tuple[str, ...] = ())
 
 
 def _diagnosis(status: str) -> dict:
-    from sim2real.identification.diagnosis.result import ModelFreeCeiling
+    from sim2real.identification.diagnosis.ceiling_records import ModelFreeCeiling
 
     readings = {"j1": _reading("motion", gains=("velocity of j1",)), "j2": _reading("not_motion", "time"),
                 "j3": _reading("motion"), "j4": _reading("at_floor")}

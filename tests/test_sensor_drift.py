@@ -106,6 +106,26 @@ def test_a_model_with_it_fits_and_predicts_the_same_whatever_each_run_drifts(run
     assert not np.allclose(moved.tau - fitting.predict(without, nominal, moved), plain, atol=1e-3)
 
 
+def test_a_line_kept_on_some_joints_estimates_their_drift_alone(runs):
+    """``- sensor_drift: {joints: [...]}`` (the line the ceiling declares where the drift written for every joint
+    would raise a joint): the kept joints' drift is estimated on each run, whatever it is; the other joints' readings
+    are taken as they are, a drift added to them stays in their residual whole."""
+    nominal, fit_data, holdout_data = runs
+    kept = list(holdout_data.joint_names[::2])
+    settings = {**sysid_lab.FAST_FIT, "effect_joints": {"sensor_drift": kept}}
+    result = fitting.fit(["viscous_friction", "sensor_drift"], nominal, fit_data, settings=settings, uncertainty=False)
+    assert result.effect_joints == {"sensor_drift": kept}
+    residual = holdout_data.tau - fitting.predict(result, nominal, holdout_data)
+    drift = drift_of_each_run(holdout_data.time, holdout_data.segments, holdout_data.tau.shape[1], 5)
+    moved = dataclasses.replace(holdout_data, tau=holdout_data.tau + drift)
+    after = moved.tau - fitting.predict(result, nominal, moved)
+    on = [holdout_data.joint_names.index(j) for j in kept]
+    off = [k for k in range(len(holdout_data.joint_names)) if k not in on]
+    np.testing.assert_allclose(after[:, on], residual[:, on], atol=1e-8)
+    np.testing.assert_allclose(after[:, off], residual[:, off] + drift[:, off], atol=1e-8)
+    assert EFFECTS["sensor_drift"].per_joint_line
+
+
 def test_it_is_declared_never_proposed_and_holds_a_torque_bias():
     """No held-out run can judge an effect estimated on every run itself: the diagnosis skips it, saying why; in a
     model, it holds a constant offset (torque_bias is a special case of it) and sits in every link's model."""

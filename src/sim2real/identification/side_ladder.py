@@ -15,7 +15,9 @@ import numpy as np
 
 from sim2real.cache import FitCache
 from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, Diagnosis, diagnose, model_free_ceiling
+from sim2real.identification.diagnosis.current import CurrentResidual
 from sim2real.identification.diagnosis.promise import kept_promise, promised_effect
+from sim2real.identification.diagnosis.raises import add_line, declared_rung_raises
 from sim2real.identification.diagnosis.trials import trial_effects
 from sim2real.identification.documents import round_floats
 from sim2real.identification.fitting import (
@@ -90,8 +92,41 @@ def fit_ladder(effect_names: Sequence[str], context: FitContext, *, side: Side =
     diagnosis = cache.get_or_compute("diagnosis", key, functools.partial(
         _diagnose_side, effect_names, trials, residual, fit_residual, side=side, current=result, limits=limits,
         candidates=candidates))
-    return SideLadder(round_floats(document), result, _promised_by_its_rung(diagnosis, effect_names, context, cache,
-                                                                             inputs, result), residual, fit_residual)
+    diagnosis = _promised_by_its_rung(diagnosis, effect_names, context, cache, inputs, result)
+    diagnosis = _declared_within_the_rule(diagnosis, effect_names, context, cache, inputs, result, residual, limits)
+    return SideLadder(round_floats(document), result, diagnosis, residual, fit_residual)
+
+
+def _declared_within_the_rule(diagnosis: Diagnosis, effect_names: Sequence[str], context: FitContext, cache: FitCache,
+                              inputs: str, result: FitResult, residual: np.ndarray,
+                              limits: Mapping[str, float]) -> Diagnosis:
+    """``diagnosis`` whose model-free ceiling declares a drift only where its rung raises no joint beyond the noise
+    (:mod:`sim2real.identification.diagnosis.raises`), as a recommended candidate's: the line for every joint, else
+    kept on the joints it helps, else withheld. Each rung tried is the one the next round fits (read back from
+    ``cache``)."""
+    ceiling = diagnosis.model_free
+    if ceiling is None or ceiling.declare is None:
+        return diagnosis
+    advice = ceiling.declare
+    joints = list(context.holdout_data.joint_names)
+    now = CurrentResidual.of(residual, context.holdout_data.noise_floor)
+
+    def rung_raises(kept: Sequence[str] | None) -> tuple[dict[str, tuple[float, float]], list[str]]:
+        settings = dict(context.settings)
+        if kept is not None:
+            settings[EFFECT_JOINTS_SETTING] = {**(settings.get(EFFECT_JOINTS_SETTING) or {}), advice.effect: list(kept)}
+        _, after, _, _ = _next_rung(trial_effects(effect_names, advice.effect), context.with_settings(settings),
+                                    cache, inputs, result)
+        return declared_rung_raises(after, now, joints, limits)
+
+    raised, helped = rung_raises(None)
+    if not raised:
+        return diagnosis
+    if helped and not rung_raises(helped)[0]:
+        kept = dataclasses.replace(advice, line=add_line(advice.effect, helped), kept_to=tuple(helped), raised=raised)
+        return dataclasses.replace(diagnosis, model_free=dataclasses.replace(ceiling, declare=kept))
+    withheld = dataclasses.replace(advice, raised=raised)
+    return dataclasses.replace(diagnosis, model_free=dataclasses.replace(ceiling, declare=None, withheld=withheld))
 
 
 def _promised_by_its_rung(diagnosis: Diagnosis, effect_names: Sequence[str], context: FitContext, cache: FitCache,

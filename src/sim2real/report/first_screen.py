@@ -10,7 +10,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from sim2real.identification.diagnosis.result import JointStanding, ModelFreeCeiling
+from sim2real.identification.diagnosis.ceiling_records import ModelFreeCeiling
+from sim2real.identification.diagnosis.result import JointStanding
 from sim2real.identification.ladder_rows import Rung
 from sim2real.report.gap_document import GapReport, LinkSection
 from sim2real.report.verdicts import first_screen_verdict, left_text

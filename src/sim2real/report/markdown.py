@@ -8,7 +8,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from sim2real.identification.diagnosis.result import Candidate, ModelFreeCeiling
+from sim2real.identification.diagnosis.ceiling_records import ModelFreeCeiling
+from sim2real.identification.diagnosis.result import Candidate
 from sim2real.identification.ladder_rows import Rung
 from sim2real.measurements.runs import DEFAULT_TORQUE_SENSOR, SensorPlacement
 from sim2real.report import details

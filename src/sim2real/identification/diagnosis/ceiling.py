@@ -33,7 +33,7 @@ from sim2real.identification.diagnosis.ceiling_features import (
     DYNAMICS_LEARNER, DYNAMICS_TREES, POSE_LEARNERS, LearnerFeatures, _chosen_features, dynamics_features, feature,
     motion_features, period_harmonics, pose_features, position_harmonics, signed_products, since_reversal,
 )
-from sim2real.identification.diagnosis.result import CeilingReading, EffectAdvice, ModelFreeCeiling
+from sim2real.identification.diagnosis.ceiling_records import CeilingReading, EffectAdvice, ModelFreeCeiling
 from sim2real.identification.effects.position_ripple import best_periods
 
 # The learner's holdout RMSE at or above this fraction of the rung's: what is left is not a function of the

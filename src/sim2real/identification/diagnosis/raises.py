@@ -157,6 +157,24 @@ def keep_off_raised(candidates: list[dict[str, Any]], residuals: dict[str, np.nd
         tried = KEPT_TO_TRIALS
 
 
+def declared_rung_raises(rung_residual: np.ndarray, now: CurrentResidual, joints: Sequence[str],
+                         limits: Mapping[str, float]) -> tuple[dict[str, tuple[float, float]], list[str]]:
+    """What the rung of a line the model-free ceiling declares (a drift of each run's own: no held-out run judges
+    it, so it is no candidate) does joint by joint, read as a candidate's trial is: the joints it raises beyond the
+    noise (:func:`raised_joints`, each with (before, after) x its floor) and those it helps (the others where it
+    removes ``joint_min_explained`` of the excess above the floor, read with the share's margin against the joint).
+    ``rung_residual``: that rung's holdout residual (N*m), ``now``: the current rung's."""
+    scaled = rung_residual / now.unit
+    sse_after = np.sum(scaled**2, axis=0)
+    scores = {"scaled": scaled, "x_after": np.sqrt(sse_after / max(now.rows, 1))}
+    raised = raised_joints(scores, now, joints, limits)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        beyond = np.where(now.excess > 0, (now.sse - sse_after) / now.excess, 0.0)
+    helped = [j for j, share in zip(joints, beyond, strict=True)
+              if j not in raised and share >= limits["joint_min_explained"] + SHARE_MARGIN]
+    return raised, helped
+
+
 def raises_note(candidates: Sequence[Mapping[str, Any]]) -> Note | None:
     """The note of a diagnosis some of whose candidates raise a joint beyond the noise: each one's joints raised
     (before, after, x the floor), and whether its line is kept to the joints it helps (``kept_to``) or withheld, and

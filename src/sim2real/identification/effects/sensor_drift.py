@@ -56,15 +56,22 @@ def run_bases(time: np.ndarray, segments: Sequence[slice], degree: int = DEGREE,
     return bases
 
 
-def remove_runs(values: np.ndarray, bases: Sequence[tuple[slice, np.ndarray]]) -> np.ndarray:
+def remove_runs(values: np.ndarray, bases: Sequence[tuple[slice, np.ndarray]],
+                rows: np.ndarray | None = None) -> np.ndarray:
     """``values`` (samples first: (N, n) or (N, n, k)) less their least-squares polynomial in each run's time, for
-    every joint and column apart (:func:`run_bases`)."""
+    every joint and column apart (:func:`run_bases`); ``rows``: only those joints' (a line kept on some joints,
+    ``- sensor_drift: {joints: [...]}``; None: every joint's)."""
     out = np.array(values, dtype=float)
+    if rows is not None and not len(rows):
+        return out
     for segment, basis in bases:
-        block = out[segment]
+        block = out[segment] if rows is None else out[segment][:, rows]
         flat = block.reshape(block.shape[0], -1)
         flat -= basis @ (basis.T @ flat)
-        out[segment] = flat.reshape(block.shape)
+        if rows is None:
+            out[segment] = flat.reshape(block.shape)
+        else:
+            out[segment, rows] = flat.reshape(block.shape)
     return out
 
 
@@ -78,6 +85,12 @@ class SensorDrift(Effect):
     per_run = True
     # Whichever side is judged, its judged torque is the drifting sensor's reading.
     every_side = True
+
+    @property
+    def per_joint_line(self) -> bool:
+        """Each joint's drift is its own sensor's: a line may keep it on some joints (``- sensor_drift: {joints:
+        [...]}``), the others' readings then taken as they are."""
+        return True
 
     def values(self, theta, nonlinear, signals, state):
         # Words, not numbers: each run's coefficients are that run's alone, nothing an asset or another run can use

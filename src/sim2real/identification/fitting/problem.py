@@ -66,6 +66,10 @@ class _Problem:
         # with them profiled out and a prediction on any runs holds their own.
         self.run_bases = (run_bases(signals.time, signals.segments)
                           if any(effect.per_run for effect in effects) and signals.tau is not None else None)
+        # ... on the joints its line is kept on (None: every joint)
+        drifting = [self.effect_joints[e.name] for e in effects if e.per_run and e.name in self.effect_joints]
+        self.drift_rows = (np.array([k for k, j in enumerate(signals.joint_names) if j in set(drifting[0])], dtype=int)
+                           if drifting else None)
         self.static_columns: dict[str, np.ndarray] = {}
         for effect in effects:
             if not effect.time_shift and not effect.nonlinear:
@@ -178,12 +182,14 @@ class _Problem:
         out = out if self.signals.unshifted is None else out + self.signals.unshifted
         if self.run_bases is not None:  # plus each run's drift, estimated on the run: what the rest leaves of it
             assert self.signals.tau is not None
-            out = self.signals.tau - remove_runs(self.signals.tau - out, self.run_bases)
+            out = self.signals.tau - remove_runs(self.signals.tau - out, self.run_bases, self.drift_rows)
         return out
 
     def per_run_removed(self, columns: np.ndarray) -> np.ndarray:
         """``columns`` less what each run's own drift takes of them (:attr:`run_bases`; as they are without one)."""
-        return columns if self.run_bases is None or not columns.size else remove_runs(columns, self.run_bases)
+        if self.run_bases is None or not columns.size:
+            return columns
+        return remove_runs(columns, self.run_bases, self.drift_rows)
 
     def design(self, nonlinear: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int]]:
         """Columns (N, n, p) at the given nonlinear parameters (before the time shift) and sizes."""

@@ -65,7 +65,7 @@ def predict(
         assert nominal is not None
         signals = make_signals(nominal, data)
     effects = [get_effect(name) for name in result.effects]
-    problem = _Problem(effects, signals, result.states)
+    problem = _Problem(effects, signals, result.states, effect_joints=result.effect_joints)
     return problem.predict(result.theta, result.nonlinear)
 
 
@@ -93,7 +93,7 @@ def lag_score(result: FitResult, nominal: NominalModel | None, data: TorqueData,
         assert nominal is not None
         signals = make_signals(nominal, data)
     effects = [get_effect(name) for name in result.effects]
-    problem = _Problem(effects, signals, result.states)
+    problem = _Problem(effects, signals, result.states, effect_joints=result.effect_joints)
     slope = (1.0 if lead else -1.0) * time_derivative(data.tau - residual, signals.time, signals.segments)
     r, g = residual / unit, slope / unit
     blocks, _ = problem._blocks(result.nonlinear)

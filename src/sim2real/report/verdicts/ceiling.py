@@ -9,9 +9,9 @@ from dataclasses import replace
 from typing import Any
 
 from sim2real.identification.diagnosis.ceiling import (
-    CLOSE_TO_RUNG, DRIFT_EFFECT, POSE_LEARNERS, imitated_joints, offset_joints,
+    CLOSE_TO_RUNG, POSE_LEARNERS, imitated_joints, offset_joints,
 )
-from sim2real.identification.diagnosis.result import CeilingReading, EffectAdvice, ModelFreeCeiling
+from sim2real.identification.diagnosis.ceiling_records import CeilingReading, EffectAdvice, ModelFreeCeiling
 from sim2real.identification.effects.sensor_drift import SHAPE as DRIFT_SHAPE
 from sim2real.stats import floor_multiple
 
@@ -30,9 +30,16 @@ OFFSET_ADVICE = ("On {joints} the torque sits at an offset of its own in each ru
                  "for one (a link inertia fitted to one run's offset misses the next run's), so it can hide an effect "
                  "the library has. Log once the arm has warmed up, its torque sensors zeroed at rest, and run the loop "
                  "again")
-DECLARE_ADVICE = ("; or, for these runs, add the line '- {effect}' under 'effects:' in configs/{robot}/model.yaml: "
+DECLARE_ADVICE = ("; or, for these runs, add the line '{line}' under 'effects:' in configs/{robot}/model.yaml: "
                   f"each run's drift ({DRIFT_SHAPE}) is then estimated on that run itself, "
                   "the holdout runs included, and never written into the assets.")
+# A declared drift is held to the loop's rule like a candidate (sim2real.identification.diagnosis.raises): the robot's
+# parameters, fitted again beside it, may trade one joint for the others.
+KEPT_DECLARE = (" Written for every joint, it raises {raised} (x the floor: the robot's parameters, fitted again "
+                "beside it, trade that joint for the others): the line is kept on {kept}.")
+WITHHELD_DECLARE = (". A drift of each run's own is not advised for these runs: declared, it raises {raised} (x the "
+                    "floor: the robot's parameters, fitted again beside it, trade that joint for the others), on the "
+                    "joints it helps as well.")
 
 
 FEATURE_TEXT = {
@@ -138,9 +145,26 @@ def ceiling_text(ceiling: ModelFreeCeiling, robot: str, joints: Sequence[str] = 
         [_still_sentence(per_joint, still)] if still else [])
     offsets = offset_joints(per_joint)
     if offsets:
-        sentences.append(OFFSET_ADVICE.format(joints=", ".join(offsets)) + (
-            "." if ceiling.declare is None else DECLARE_ADVICE.format(effect=DRIFT_EFFECT, robot=robot)))
+        sentences.append(OFFSET_ADVICE.format(joints=", ".join(offsets)) + _declare_words(ceiling, robot))
     return " ".join(sentences)
+
+
+def _raised_words(raised: Mapping[str, Sequence[float]]) -> str:
+    return ", ".join(f"{j} from {floor_multiple(a)} to {floor_multiple(b)}" for j, (a, b) in raised.items())
+
+
+def _declare_words(ceiling: ModelFreeCeiling, robot: str) -> str:
+    """The end of the offsets' advice: the drift's line to declare for these runs (kept on some joints, and why), or
+    why none is advised."""
+    declare, withheld = ceiling.declare, ceiling.withheld
+    if declare is not None:
+        text = DECLARE_ADVICE.format(line=declare.line, robot=robot)
+        if declare.kept_to and declare.raised:
+            text += KEPT_DECLARE.format(raised=_raised_words(declare.raised), kept=", ".join(declare.kept_to))
+        return text
+    if withheld is not None and withheld.raised:
+        return WITHHELD_DECLARE.format(raised=_raised_words(withheld.raised))
+    return "."
 
 
 def ceiling_section(ceiling: ModelFreeCeiling, robot: str, joints: Sequence[str] = ()) -> dict[str, Any]:

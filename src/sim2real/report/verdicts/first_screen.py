@@ -12,7 +12,8 @@ from dataclasses import replace
 from typing import Any
 
 from sim2real.identification.diagnosis.caveats import troubles
-from sim2real.identification.diagnosis.result import Candidate, CeilingReading, ModelFreeCeiling
+from sim2real.identification.diagnosis.ceiling_records import CeilingReading, ModelFreeCeiling
+from sim2real.identification.diagnosis.result import Candidate
 from sim2real.identification.records import Status
 from sim2real.report.verdicts.names import SIDE_TEXT, separating_runs
 from sim2real.stats import floor_multiple
