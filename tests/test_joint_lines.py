@@ -116,3 +116,23 @@ def test_a_candidate_that_raises_a_joint_is_recommended_on_the_joints_it_helps_a
         assert delivered[joint] <= max(now[joint], 1.5) + 0.1, (joint, now[joint], delivered[joint])
         assert delivered[joint] == pytest.approx(promised[joint], abs=2e-3)
     assert set(following["ladder"][-1]["params"]["coulomb_friction"]["friction"]) == set(helped)
+
+
+def test_gap_md_never_offers_the_line_of_a_withheld_candidate():
+    """gap.md's candidate list: a candidate withheld because its trial raises a joint (no per-joint line keeps it off
+    that joint) says so, with the joint and its figures, instead of a line to add; a candidate kept on the joints it
+    helps offers its kept line."""
+    from diagnosis_rows import evidence
+    from sim2real.identification.diagnosis.result import Candidate
+    from sim2real.identification.records import Side
+    from sim2real.report.markdown import _diagnosis_markdown
+
+    joints = ("panda_joint6", "panda_joint7")
+    withheld = Candidate("payload", Side.BODY, (), None, 0.4, 0.6, False,
+                         evidence(joints, raised={"panda_joint7": (2.64, 5.28)}), "- payload")
+    kept = Candidate("coulomb_friction", Side.BODY, ("panda_joint6",), "joints", 0.3, 0.5, True, evidence(joints),
+                     "- coulomb_friction: {joints: [panda_joint6]}", kept_to=("panda_joint6",))
+    lines = _diagnosis_markdown({"candidates": [kept.as_document(), withheld.as_document()], "verdict": "v"})
+    assert lines[0].endswith("add `- coulomb_friction: {joints: [panda_joint6]}`"), lines[0]
+    assert lines[1].endswith("withheld: it raises panda_joint7 from 2.64x to 5.28x its floor"), lines[1]
+    assert "- payload`" not in "\n".join(lines)

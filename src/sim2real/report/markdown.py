@@ -103,6 +103,16 @@ def _identified_markdown(rung: Rung, robot: str) -> list[str]:
     return lines
 
 
+def _line_of(cand: Candidate) -> str:
+    """What the candidate list says of a candidate's line: to add it (and the lines it replaces), or that it is
+    withheld because its trial raises joints beyond the noise (diagnosis.raises), which and by how much."""
+    raised = cand.evidence.raised
+    if raised and not cand.kept_to:
+        return "withheld: it raises " + ", ".join(
+            f"{j} from {before:.2f}x to {after:.2f}x its floor" for j, (before, after) in raised.items())
+    return f"add `{cand.add}`" + "".join(f", remove `- {r}`" for r in cand.replaces)
+
+
 def _diagnosis_markdown(diagnosis: Mapping[str, Any], side: SideView | None = None) -> list[str]:
     """The three best candidates and their evidence, the effects not tried and why, the diagnosis's verdict in full and
     the model-free ceiling's reasoning (collapsed); joint by joint where the first screen does not show ``side``."""
@@ -111,8 +121,7 @@ def _diagnosis_markdown(diagnosis: Mapping[str, Any], side: SideView | None = No
         lines.append(f"- `{cand.effect}` on {', '.join(cand.joints) or 'no joint in particular'}: explains "
                      f"{100 * cand.explained:.0f}% of the residual ({100 * cand.explained_beyond_noise:.0f}% of what "
                      f"lies above the noise floor), holdout RMSE after {_fmt(cand.evidence.rmse_after)} N m "
-                     f"({cand.evidence.x_floor_after:.2f}x the floor); add `{cand.add}`"
-                     + "".join(f", remove `- {r}`" for r in cand.replaces))
+                     f"({cand.evidence.x_floor_after:.2f}x the floor); " + _line_of(cand))
     lines += [""] if lines else []
     skipped = [f"- `{skip['effect']}` not tried: {skip['reason']}" for skip in diagnosis.get("skipped", [])]
     if skipped:
