@@ -7,6 +7,8 @@ where the rung chooses the inertial prior's weight again, the promise is the run
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from diagnosis_rows import evidence
@@ -51,3 +53,21 @@ def test_the_recommended_candidate_promises_its_rungs_figures_and_keeps_its_tria
     assert type(best.evidence).from_document(best.evidence.as_document()) == best.evidence
     assert other == before.candidates[1] and before.candidates[0].evidence.x_floor_after == 1.393  # none changed
     assert promised_effect(diagnosis(Status.AT_NOISE_FLOOR)) is None and promised_effect(None) is None
+
+
+def test_a_rung_whose_weight_chosen_again_raises_a_joint_holds_the_previous_rungs(shared_lab):
+    """The Panda's real_arm_like_smoothed_200hz (its torque low-passed at 20 Hz before a 200 Hz log): the Stribeck
+    rung's cross-validation chooses the prior weight 0.01 where the rung before held 1, and at 0.01 the holdout finds
+    panda_joint3 raised beyond the noise (4.39x -> 5.03x its floor). The rung holds the previous rung's weight, says
+    why, and then leaves panda_joint3 lower than the weight chosen again did: what the diagnosis's trial promised."""
+    scenario = "real_arm_like_smoothed_200hz"
+    effects = ["link_inertia", "asymmetric_friction", "sensor_delay", "stribeck_friction"]
+    ladder = shared_lab.ladder(scenario, effects, diagnose=False)["ladder"]
+    before, held = (rung["consistency"]["inertia_prior"] for rung in ladder[-2:])
+    assert held["weight"] == before["weight"], (before, held)
+    said = held["chosen_by"]
+    assert said.startswith("holding the previous rung's: cross-validation on "), said
+    raised = re.search(r"chose ([0-9.e-]+), which raised panda_joint3 from ([0-9.]+)x to ([0-9.]+)x its floor", said)
+    assert raised is not None and float(raised.group(1)) != held["weight"], said
+    now = ladder[-1]["metrics"]["torque_x_floor"]["per_joint"]["panda_joint3"]
+    assert now < float(raised.group(3)), (now, said)

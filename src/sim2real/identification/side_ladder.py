@@ -17,7 +17,7 @@ from sim2real.cache import FitCache
 from sim2real.identification.diagnosis import DEFAULT_DIAGNOSIS, Diagnosis, diagnose, model_free_ceiling
 from sim2real.identification.diagnosis.current import CurrentResidual
 from sim2real.identification.diagnosis.promise import kept_promise, promised_effect
-from sim2real.identification.diagnosis.raises import add_line, declared_rung_raises
+from sim2real.identification.diagnosis.raises import add_line, rung_raises
 from sim2real.identification.diagnosis.trials import trial_effects
 from sim2real.identification.documents import round_floats
 from sim2real.identification.fitting import (
@@ -73,7 +73,8 @@ def fit_ladder(effect_names: Sequence[str], context: FitContext, *, side: Side =
     # The diagnosis's trials keep their refinements: the rung of the candidate the user adds reads its back.
     if cache.directory is not None:
         context = dataclasses.replace(context, refinements=Refinements(cache, inputs))
-    rungs, result, residual = _rungs(effect_names, context, cache, inputs)
+    limits = {**DEFAULT_DIAGNOSIS, **(limits or {})}
+    rungs, result, residual = _rungs(effect_names, context, cache, inputs, limits)
     document = _ladder_document(rungs, context)
     # the model-free ceiling learns from the fit runs' residual (a side judged against the motion only)
     fit_residual = (context.fit_data.tau - predict(result, context.nominal, context.fit_data, context.fit_signals)
@@ -87,12 +88,11 @@ def fit_ladder(effect_names: Sequence[str], context: FitContext, *, side: Side =
     # what that rung delivers (_promised_by_its_rung).
     trials = context.with_settings({**context.settings, "inertia_regularization": prior["weight"]} if prior
                                    else context.settings)
-    limits = {**DEFAULT_DIAGNOSIS, **(limits or {})}
     key = cache.key(inputs, list(effect_names), residual, result.nonlinear, dict(trials.settings), limits, candidates)
     diagnosis = cache.get_or_compute("diagnosis", key, functools.partial(
         _diagnose_side, effect_names, trials, residual, fit_residual, side=side, current=result, limits=limits,
         candidates=candidates))
-    diagnosis = _promised_by_its_rung(diagnosis, effect_names, context, cache, inputs, result)
+    diagnosis = _promised_by_its_rung(diagnosis, effect_names, context, cache, inputs, result, residual, limits)
     diagnosis = _declared_within_the_rule(diagnosis, effect_names, context, cache, inputs, result, residual, limits)
     return SideLadder(round_floats(document), result, diagnosis, residual, fit_residual)
 
@@ -111,18 +111,18 @@ def _declared_within_the_rule(diagnosis: Diagnosis, effect_names: Sequence[str],
     joints = list(context.holdout_data.joint_names)
     now = CurrentResidual.of(residual, context.holdout_data.noise_floor)
 
-    def rung_raises(kept: Sequence[str] | None) -> tuple[dict[str, tuple[float, float]], list[str]]:
+    def line_raises(kept: Sequence[str] | None) -> tuple[dict[str, tuple[float, float]], list[str]]:
         settings = dict(context.settings)
         if kept is not None:
             settings[EFFECT_JOINTS_SETTING] = {**(settings.get(EFFECT_JOINTS_SETTING) or {}), advice.effect: list(kept)}
         _, after, _, _ = _next_rung(trial_effects(effect_names, advice.effect), context.with_settings(settings),
-                                    cache, inputs, result)
-        return declared_rung_raises(after, now, joints, limits)
+                                    cache, inputs, result, residual, limits)
+        return rung_raises(after, now, joints, limits)
 
-    raised, helped = rung_raises(None)
+    raised, helped = line_raises(None)
     if not raised:
         return diagnosis
-    if helped and not rung_raises(helped)[0]:
+    if helped and not line_raises(helped)[0]:
         kept = dataclasses.replace(advice, line=add_line(advice.effect, helped), kept_to=tuple(helped), raised=raised)
         return dataclasses.replace(diagnosis, model_free=dataclasses.replace(ceiling, declare=kept))
     withheld = dataclasses.replace(advice, raised=raised)
@@ -130,7 +130,8 @@ def _declared_within_the_rule(diagnosis: Diagnosis, effect_names: Sequence[str],
 
 
 def _promised_by_its_rung(diagnosis: Diagnosis, effect_names: Sequence[str], context: FitContext, cache: FitCache,
-                          inputs: str, result: FitResult) -> Diagnosis:
+                          inputs: str, result: FitResult, residual: np.ndarray,
+                          limits: Mapping[str, float]) -> Diagnosis:
     """``diagnosis`` whose recommended candidate promises what its rung delivers (:mod:`sim2real.identification.
     diagnosis.promise`): where the current rung chose the inertial prior's weight on held-out blocks, the rung of
     the added line chooses it again, as :func:`_rungs` fits it (the next round reads it back from ``cache``)."""
@@ -142,23 +143,54 @@ def _promised_by_its_rung(diagnosis: Diagnosis, effect_names: Sequence[str], con
     if kept_to:
         context = context.with_settings({**context.settings, EFFECT_JOINTS_SETTING: {
             **(context.settings.get(EFFECT_JOINTS_SETTING) or {}), effect: list(kept_to)}})
-    rung, residual, _, _ = _next_rung(trial_effects(effect_names, effect), context, cache, inputs, result)
+    rung, after, _, _ = _next_rung(trial_effects(effect_names, effect), context, cache, inputs, result, residual,
+                                   limits)
     prior = (rung.consistency or {}).get("inertia_prior") or {}
-    return kept_promise(diagnosis, residual, context.holdout_data.noise_floor, prior.get("weight"))
+    return kept_promise(diagnosis, after, context.holdout_data.noise_floor, prior.get("weight"))
 
 
 def _next_rung(effects: Sequence[str], context: FitContext, cache: FitCache, inputs: str, result: FitResult | None,
+               before: np.ndarray | None = None, limits: Mapping[str, float] | None = None,
                ) -> tuple[FitResult, np.ndarray, str, Figures | None]:
-    """The rung of ``effects`` fitted on the one before it (``result``; None: the nominal model), read back from
-    ``cache`` when fitted before (:func:`_rung`). The prior's weight is searched from the previous rung's choice
-    (fitting.PRIOR_START_SETTING)."""
+    """The rung of ``effects`` fitted on the one before it (``result``; None: the nominal model; ``before``: its
+    holdout residual), read back from ``cache`` when fitted before (:func:`_rung`). The prior's weight is searched
+    from the previous rung's choice (fitting.PRIOR_START_SETTING); where the weight chosen again raises a joint beyond
+    the noise (:func:`~sim2real.identification.diagnosis.raises.rung_raises`, ``limits`` the diagnosis's),
+    the rung holds the previous rung's weight instead (:func:`_held_prior`)."""
     previous = result.nonlinear if result is not None else None
     chosen = ((result.consistency or {}).get("inertia_prior") or {}) if result is not None else {}
     rung_context = (context.with_settings({**context.settings, PRIOR_START_SETTING: chosen["weight"]})
                     if "grid" in chosen else context)
     rung_context = rung_context.with_settings(narrowed(rung_context.settings, effects))
-    return cache.get_or_compute("rung", cache.key(inputs, list(effects), previous, dict(rung_context.settings)),
+    rung = cache.get_or_compute("rung", cache.key(inputs, list(effects), previous, dict(rung_context.settings)),
                                 functools.partial(_rung, list(effects), rung_context, previous))
+    again = (rung[0].consistency or {}).get("inertia_prior") or {}
+    if before is None or "grid" not in chosen or "grid" not in again or again["weight"] == chosen["weight"]:
+        return rung
+    joints = list(context.holdout_data.joint_names)
+    now = CurrentResidual.of(before, context.holdout_data.noise_floor)
+    raised, _ = rung_raises(rung[1], now, joints, {**DEFAULT_DIAGNOSIS, **(limits or {})})
+    if not raised:
+        return rung
+    held_context = rung_context.with_settings({**rung_context.settings, "inertia_regularization": chosen["weight"]})
+    held = cache.get_or_compute("rung", cache.key(inputs, list(effects), previous, dict(held_context.settings)),
+                                functools.partial(_rung, list(effects), held_context, previous))
+    return _held_prior(held, again, raised)
+
+
+def _held_prior(rung: tuple[FitResult, np.ndarray, str, Figures | None], again: Mapping[str, Any],
+                raised: Mapping[str, tuple[float, float]]) -> tuple[FitResult, np.ndarray, str, Figures | None]:
+    """``rung`` (fitted at the previous rung's prior weight) whose prior record says why: the weight chosen again by
+    cross-validation (``again``, its grid and scores kept) raised ``raised`` on the holdout, which judges a rung's
+    weight as it judges a line (the loop's rule: no rung raises a joint beyond the noise)."""
+    result, residual, carried, free = rung
+    held = (result.consistency or {}).get("inertia_prior") or {}
+    record = {**{k: v for k, v in again.items() if k != "chosen_by"}, "weight": held.get("weight"),
+              "chosen_by": {"method": "held_from_previous_rung", "cross_validated": again["weight"],
+                            "raised": {j: list(v) for j, v in raised.items()},
+                            "cross_validation": again.get("chosen_by")}}
+    consistency = {**(result.consistency or {}), "inertia_prior": record}
+    return dataclasses.replace(result, consistency=consistency), residual, carried, free
 
 
 def narrowed(settings: Mapping[str, Any], effects: Sequence[str]) -> dict[str, Any]:
@@ -170,15 +202,15 @@ def narrowed(settings: Mapping[str, Any], effects: Sequence[str]) -> dict[str, A
     return {**out, EFFECT_JOINTS_SETTING: kept} if kept else out
 
 
-def _rungs(effect_names: Sequence[str], context: FitContext, cache: FitCache,
-           inputs: str) -> tuple[list[dict[str, Any]], FitResult, np.ndarray]:
+def _rungs(effect_names: Sequence[str], context: FitContext, cache: FitCache, inputs: str,
+           limits: Mapping[str, float]) -> tuple[list[dict[str, Any]], FitResult, np.ndarray]:
     """Each rung's ``ladder.json`` entry, and the last rung's fit and holdout residual."""
     rungs: list[dict[str, Any]] = []
     result: FitResult | None = None
     residual: np.ndarray | None = None
     for k in range(len(effect_names) + 1):
         effects = list(effect_names[:k])
-        result, residual, carried, free = _next_rung(effects, context, cache, inputs, result)
+        result, residual, carried, free = _next_rung(effects, context, cache, inputs, result, residual, limits)
         rungs.append(_rung_document(effects, result, residual, carried, free, context.holdout_data))
     assert result is not None and residual is not None
     return rungs, result, residual

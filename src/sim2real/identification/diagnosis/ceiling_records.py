@@ -74,7 +74,7 @@ class CeilingReading:
 class EffectAdvice:
     """An effect the ceiling advises adding (its ``line`` under ``effects:`` in model.yaml) for ``joints``. Where its
     rung, the line written for every joint, raises joints beyond the noise (``raised``: (before, after) x the floor;
-    :func:`sim2real.identification.diagnosis.raises.declared_rung_raises`), the line is kept on the joints it helps
+    :func:`sim2real.identification.diagnosis.raises.rung_raises`), the line is kept on the joints it helps
     (``kept_to``), or the advice is withheld."""
 
     effect: str

@@ -157,13 +157,14 @@ def keep_off_raised(candidates: list[dict[str, Any]], residuals: dict[str, np.nd
         tried = KEPT_TO_TRIALS
 
 
-def declared_rung_raises(rung_residual: np.ndarray, now: CurrentResidual, joints: Sequence[str],
+def rung_raises(rung_residual: np.ndarray, now: CurrentResidual, joints: Sequence[str],
                          limits: Mapping[str, float]) -> tuple[dict[str, tuple[float, float]], list[str]]:
-    """What the rung of a line the model-free ceiling declares (a drift of each run's own: no held-out run judges
-    it, so it is no candidate) does joint by joint, read as a candidate's trial is: the joints it raises beyond the
-    noise (:func:`raised_joints`, each with (before, after) x its floor) and those it helps (the others where it
-    removes ``joint_min_explained`` of the excess above the floor, read with the share's margin against the joint).
-    ``rung_residual``: that rung's holdout residual (N*m), ``now``: the current rung's."""
+    """What a rung does joint by joint against the current one, read as a candidate's trial is: the joints it raises
+    beyond the noise (:func:`raised_joints`, each with (before, after) x its floor) and those it helps (the others
+    where it removes ``joint_min_explained`` of the excess above the floor, read with the share's margin against the
+    joint). For the rungs no trial stands for: a line the model-free ceiling declares (a drift of each run's own, which
+    no held-out run judges), and a rung whose inertial prior's weight is chosen again. ``rung_residual``: that rung's
+    holdout residual (N*m), ``now``: the current rung's."""
     scaled = rung_residual / now.unit
     sse_after = np.sum(scaled**2, axis=0)
     scores = {"scaled": scaled, "x_after": np.sqrt(sse_after / max(now.rows, 1))}

@@ -28,6 +28,11 @@ def chosen_by_text(chosen_by: Mapping[str, Any] | str) -> str:
         return chosen_by
     if chosen_by["method"] == "setting":
         return "the model.yaml setting fit.inertia_regularization (a fraction of the noise floor's variance)"
+    if chosen_by["method"] == "held_from_previous_rung":
+        raised = ", ".join(f"{j} from {a:.2f}x to {b:.2f}x its floor" for j, (a, b) in chosen_by["raised"].items())
+        return (f"holding the previous rung's: {chosen_by_text(chosen_by['cross_validation'])} chose "
+                f"{chosen_by['cross_validated']:.3g}, which raised {raised} on the holdout runs, and no rung raises a "
+                "joint beyond the noise")
     grid = chosen_by["first_grid"]
     first_grid = ", ".join(f"{g:g}" for g in grid) if isinstance(grid, list) else PRIOR_GRID_TEXT
     return (f"cross-validation on {chosen_by['blocks']} held-out blocks of the fit runs (the strongest pull towards "
