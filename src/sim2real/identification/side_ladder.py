@@ -155,8 +155,8 @@ def _next_rung(effects: Sequence[str], context: FitContext, cache: FitCache, inp
     """The rung of ``effects`` fitted on the one before it (``result``; None: the nominal model; ``before``: its
     holdout residual), read back from ``cache`` when fitted before (:func:`_rung`). The prior's weight is searched
     from the previous rung's choice (fitting.PRIOR_START_SETTING); where the weight chosen again raises a joint beyond
-    the noise (:func:`~sim2real.identification.diagnosis.raises.rung_raises`, ``limits`` the diagnosis's),
-    the rung holds the previous rung's weight instead (:func:`_held_prior`)."""
+    the noise (:func:`~sim2real.identification.diagnosis.raises.rung_raises`, ``limits`` the diagnosis's) and the
+    previous rung's weight raises none, the rung holds that weight instead (:func:`_held_prior`)."""
     previous = result.nonlinear if result is not None else None
     chosen = ((result.consistency or {}).get("inertia_prior") or {}) if result is not None else {}
     rung_context = (context.with_settings({**context.settings, PRIOR_START_SETTING: chosen["weight"]})
@@ -175,6 +175,8 @@ def _next_rung(effects: Sequence[str], context: FitContext, cache: FitCache, inp
     held_context = rung_context.with_settings({**rung_context.settings, "inertia_regularization": chosen["weight"]})
     held = cache.get_or_compute("rung", cache.key(inputs, list(effects), previous, dict(held_context.settings)),
                                 functools.partial(_rung, list(effects), held_context, previous))
+    if rung_raises(held[1], now, joints, {**DEFAULT_DIAGNOSIS, **(limits or {})})[0]:
+        return rung  # the line raises a joint at either weight: the weight is not what raises it
     return _held_prior(held, again, raised)
 
 
