@@ -169,13 +169,14 @@ def _next_rung(effects: Sequence[str], context: FitContext, cache: FitCache, inp
         return rung
     joints = list(context.holdout_data.joint_names)
     now = CurrentResidual.of(before, context.holdout_data.noise_floor)
-    raised, _ = rung_raises(rung[1], now, joints, {**DEFAULT_DIAGNOSIS, **(limits or {})})
+    limits = {**DEFAULT_DIAGNOSIS, **(limits or {})}
+    raised, _ = rung_raises(rung[1], now, joints, limits)
     if not raised:
         return rung
     held_context = rung_context.with_settings({**rung_context.settings, "inertia_regularization": chosen["weight"]})
     held = cache.get_or_compute("rung", cache.key(inputs, list(effects), previous, dict(held_context.settings)),
                                 functools.partial(_rung, list(effects), held_context, previous))
-    if rung_raises(held[1], now, joints, {**DEFAULT_DIAGNOSIS, **(limits or {})})[0]:
+    if rung_raises(held[1], now, joints, limits)[0]:
         return rung  # the line raises a joint at either weight: the weight is not what raises it
     return _held_prior(held, again, raised)
 
