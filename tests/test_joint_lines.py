@@ -136,3 +136,29 @@ def test_gap_md_never_offers_the_line_of_a_withheld_candidate():
     assert lines[0].endswith("add `- coulomb_friction: {joints: [panda_joint6]}`"), lines[0]
     assert lines[1].endswith("withheld: it raises panda_joint7 from 2.64x to 5.28x its floor"), lines[1]
     assert "- payload`" not in "\n".join(lines)
+
+
+def test_the_declared_drift_kept_or_withheld_is_said_with_the_joint_it_would_raise():
+    """The offsets' advice under the rule (side_ladder's declared line): kept on the joints it helps, the text gives
+    that line and the joint the line for every joint raises; withheld, no line is given, and the text says why."""
+    import dataclasses
+
+    from sim2real.identification.diagnosis.ceiling_records import CeilingReading, EffectAdvice, ModelFreeCeiling
+    from sim2real.report.verdicts import ceiling_text
+
+    offset = CeilingReading(0.3, 0.29, 6.0, 5.8, 0.97, 0.02, "not_motion", True, learner="trees on the motion",
+                            beyond_motion={"time": 0.1, "run": 0.6, "history": 0.0}, follows="run")
+    joints = ("iiwa_joint_5", "iiwa_joint_6")
+    raised = {"iiwa_joint_6": (2.097, 5.335)}
+    kept = ModelFreeCeiling("trees", 0.2, dict.fromkeys(joints, 0.29), 0.85, dict.fromkeys(joints, offset),
+                            declare=EffectAdvice("sensor_drift", joints, "- sensor_drift: {joints: [iiwa_joint_5]}",
+                                                 kept_to=("iiwa_joint_5",), raised=raised))
+    text = ceiling_text(kept, "iiwa14")
+    assert "add the line '- sensor_drift: {joints: [iiwa_joint_5]}' under 'effects:' in configs/iiwa14/model.yaml" in text
+    assert "Written for every joint, it raises iiwa_joint_6 from 2.10x to 5.33x its floor (" in text, text
+    assert text.endswith("the line is kept on iiwa_joint_5.")
+    withheld = dataclasses.replace(kept, declare=None, withheld=EffectAdvice("sensor_drift", joints, "- sensor_drift",
+                                                                             raised=raised))
+    text = ceiling_text(withheld, "iiwa14")
+    assert "add the line" not in text and "A drift of each run's own is not advised for these runs" in text, text
+    assert "iiwa_joint_6 from 2.10x" in text

@@ -35,11 +35,11 @@ DECLARE_ADVICE = ("; or, for these runs, add the line '{line}' under 'effects:' 
                   "the holdout runs included, and never written into the assets.")
 # A declared drift is held to the loop's rule like a candidate (sim2real.identification.diagnosis.raises): the robot's
 # parameters, fitted again beside it, may trade one joint for the others.
-KEPT_DECLARE = (" Written for every joint, it raises {raised} (x the floor: the robot's parameters, fitted again "
-                "beside it, trade that joint for the others): the line is kept on {kept}.")
-WITHHELD_DECLARE = (". A drift of each run's own is not advised for these runs: declared, it raises {raised} (x the "
-                    "floor: the robot's parameters, fitted again beside it, trade that joint for the others), on the "
-                    "joints it helps as well.")
+KEPT_DECLARE = (" Written for every joint, it raises {raised} (the robot's parameters, fitted again beside it, trade "
+                "that joint for the others): the line is kept on {kept}.")
+WITHHELD_DECLARE = (". A drift of each run's own is not advised for these runs: declared, it raises {raised} (the "
+                    "robot's parameters, fitted again beside it, trade that joint for the others), and kept on the "
+                    "joints it helps it still raises one.")
 
 
 FEATURE_TEXT = {
@@ -150,7 +150,7 @@ def ceiling_text(ceiling: ModelFreeCeiling, robot: str, joints: Sequence[str] = 
 
 
 def _raised_words(raised: Mapping[str, Sequence[float]]) -> str:
-    return ", ".join(f"{j} from {floor_multiple(a)} to {floor_multiple(b)}" for j, (a, b) in raised.items())
+    return ", ".join(f"{j} from {floor_multiple(a)} to {floor_multiple(b)} its floor" for j, (a, b) in raised.items())
 
 
 def _declare_words(ceiling: ModelFreeCeiling, robot: str) -> str:
